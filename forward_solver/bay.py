@@ -1,0 +1,261 @@
+"""The bay: the skin between two rigid ribs, as a structured grid.
+
+Grid convention (DESIGN section 2): index ``i`` runs along the span (alpha1,
+``n_span`` nodes, ``i = 0`` and ``i = n_span - 1`` on the ribs), index ``j``
+along the contour (alpha2). A closed contour (an airfoil) is periodic in
+``j`` and runs in Selig order: trailing edge, upper surface, leading edge,
+lower surface. An open contour (a flat panel) has both ends clamped.
+
+With the span direction ``+y`` and this contour order, ``e1 x e2`` points out
+of the section, so a positive pressure pushes the skin outward.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from .forces import Geometry, nominal_nodes
+
+__all__ = ["Bay"]
+
+_MIN_SPAN = 3
+_MIN_CONTOUR_CLOSED = 12
+_MIN_CONTOUR_OPEN = 3
+
+
+def _check_length(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive length in metres, got {value!r}")
+
+
+def _contour_nodes(airfoil, n_contour: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Resample an airfoil to the grid's contour nodes.
+
+    Returns chord-normalised ``(n_contour, 2)`` points, the camber line ``z``
+    at each node's ``x``, and whether the trailing edge is closed.
+    """
+    resampled = airfoil.resample(n_contour + 1)
+    points = np.stack([resampled.x, resampled.z], axis=-1)
+    closed = bool(np.allclose(points[0], points[-1], rtol=0.0, atol=1e-12))
+    if closed:
+        points = points[:-1]  # the periodic grid closes the loop itself
+    else:
+        # A blunt trailing edge: keep both trailing-edge points, so the seam
+        # edge between the last and the first node spans the base.
+        points = np.concatenate([points[:-2], points[-1:]], axis=0)
+    camber = np.asarray(airfoil.camber(np.clip(points[:, 0], 0.0, 1.0)), dtype=np.float64)
+    return points.astype(np.float64), camber, closed
+
+
+@dataclass(frozen=True, eq=False)
+class Bay:
+    """Geometry of one bay of skin and its grid.
+
+    Build one with :meth:`from_airfoil` or :meth:`flat_panel`.
+
+    Attributes:
+        contour_root: ``(n_contour, 2)`` chord-normalised (x, z) rib contour at
+            ``y = 0``, at the grid's contour nodes.
+        contour_tip: the same at ``y = rib_spacing``.
+        camber_root: ``(n_contour,)`` camber-line z under each root node (the
+            rib thickness scale is applied about it).
+        camber_tip: the same at the tip rib.
+        chord_root: root rib chord, m.
+        chord_tip: tip rib chord, m.
+        rib_spacing: distance between the ribs, m.
+        periodic: True for a closed contour.
+        fixed: ``(n_span, n_contour)`` bool, nodes held by ribs and seams.
+        name: a label for reports.
+    """
+
+    contour_root: np.ndarray
+    contour_tip: np.ndarray
+    camber_root: np.ndarray
+    camber_tip: np.ndarray
+    chord_root: float
+    chord_tip: float
+    rib_spacing: float
+    periodic: bool
+    fixed: np.ndarray
+    name: str = "bay"
+
+    @property
+    def n_span(self) -> int:
+        return int(self.fixed.shape[0])
+
+    @property
+    def n_contour(self) -> int:
+        return int(self.fixed.shape[1])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.n_span, self.n_contour)
+
+    @property
+    def symmetric(self) -> bool:
+        """True when both ribs are identical, so the bay is symmetric about mid-span."""
+        return (
+            self.chord_root == self.chord_tip
+            and np.array_equal(self.contour_root, self.contour_tip)
+            and np.array_equal(self.camber_root, self.camber_tip)
+        )
+
+    @property
+    def chord(self) -> float:
+        """Mean chord of the two ribs, m (the length that errors are reported against)."""
+        return 0.5 * (self.chord_root + self.chord_tip)
+
+    # ------------------------------------------------------------------ builders
+    @classmethod
+    def from_airfoil(
+        cls,
+        airfoil,
+        chord: float = 1.0,
+        rib_spacing: float = 0.25,
+        n_span: int = 17,
+        n_contour: int = 128,
+        fix_trailing_edge: bool = True,
+        tip_airfoil=None,
+        tip_chord: float | None = None,
+    ) -> "Bay":
+        """A closed bay between two airfoil-shaped ribs.
+
+        Args:
+            airfoil: root rib section (a ``targets.Airfoil``).
+            chord: root rib chord, m.
+            rib_spacing: distance between the ribs, m.
+            n_span: nodes along the span, ribs included (>= 3).
+            n_contour: nodes around the contour (>= 12); they follow the
+                airfoil's cosine spacing, so they cluster at both edges.
+            fix_trailing_edge: hold the trailing-edge line (a seam). Free it
+                for a smooth closed contour such as a circle.
+            tip_airfoil: tip rib section for a tapered bay (default: the root's).
+            tip_chord: tip rib chord, m (default: the root's).
+
+        Raises:
+            ValueError: for a non-positive length or a grid too coarse.
+        """
+        _check_length("chord", chord)
+        _check_length("rib_spacing", rib_spacing)
+        tip_chord = chord if tip_chord is None else tip_chord
+        _check_length("tip_chord", tip_chord)
+        _check_grid(n_span, n_contour, _MIN_CONTOUR_CLOSED, "closed contour")
+        root, camber_root, closed = _contour_nodes(airfoil, n_contour)
+        if tip_airfoil is None:
+            tip, camber_tip = root, camber_root
+        else:
+            tip, camber_tip, tip_closed = _contour_nodes(tip_airfoil, n_contour)
+            if tip_closed != closed:
+                raise ValueError(
+                    "root and tip airfoils must both have a closed or both an open trailing edge"
+                )
+        fixed = np.zeros((n_span, n_contour), dtype=bool)
+        fixed[0, :] = fixed[-1, :] = True
+        if fix_trailing_edge:
+            fixed[:, 0] = True
+            if not closed:
+                fixed[:, -1] = True
+        name = getattr(airfoil, "name", "airfoil")
+        return cls(
+            contour_root=root,
+            contour_tip=tip,
+            camber_root=camber_root,
+            camber_tip=camber_tip,
+            chord_root=float(chord),
+            chord_tip=float(tip_chord),
+            rib_spacing=float(rib_spacing),
+            periodic=True,
+            fixed=fixed,
+            name=str(name),
+        )
+
+    @classmethod
+    def flat_panel(
+        cls, width: float = 0.25, length: float = 1.0, n_span: int = 17, n_contour: int = 65
+    ) -> "Bay":
+        """A flat rectangular panel clamped on its four edges.
+
+        The panel lies in ``z = 0``; ``width`` runs along the span (y, between
+        the "ribs") and ``length`` along x. The contour runs from ``x = length``
+        to ``x = 0`` (like an upper surface), so positive pressure bulges it
+        towards ``+z``. Nodes are uniformly spaced.
+
+        Args:
+            width: panel size along the span, m.
+            length: panel size along the contour, m.
+            n_span: nodes along the width (>= 3).
+            n_contour: nodes along the length (>= 3).
+        """
+        _check_length("width", width)
+        _check_length("length", length)
+        _check_grid(n_span, n_contour, _MIN_CONTOUR_OPEN, "flat panel")
+        x = np.linspace(1.0, 0.0, n_contour)
+        contour = np.stack([x, np.zeros_like(x)], axis=-1)
+        fixed = np.zeros((n_span, n_contour), dtype=bool)
+        fixed[0, :] = fixed[-1, :] = True
+        fixed[:, 0] = fixed[:, -1] = True
+        zeros = np.zeros(n_contour)
+        return cls(
+            contour_root=contour,
+            contour_tip=contour,
+            camber_root=zeros,
+            camber_tip=zeros,
+            chord_root=float(length),
+            chord_tip=float(length),
+            rib_spacing=float(width),
+            periodic=False,
+            fixed=fixed,
+            name="flat panel",
+        )
+
+    # --------------------------------------------------------------- geometry
+    def geometry(self) -> Geometry:
+        """The bay as traced arrays for the force kernel."""
+        return Geometry(
+            contour_root=jnp.asarray(self.contour_root),
+            contour_tip=jnp.asarray(self.contour_tip),
+            camber_root=jnp.asarray(self.camber_root),
+            camber_tip=jnp.asarray(self.camber_tip),
+            chord_root=jnp.asarray(self.chord_root),
+            chord_tip=jnp.asarray(self.chord_tip),
+            rib_spacing=jnp.asarray(self.rib_spacing),
+            free=jnp.asarray(~self.fixed, dtype=jnp.asarray(self.contour_root).dtype),
+        )
+
+    def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0) -> jnp.ndarray:
+        """Mounted (nominal) shape of the skin, ``(n_span, n_contour, 3)`` in m.
+
+        The skin is the ruled surface between the two rib contours. The rib
+        thickness scale multiplies the distance from the camber line; the rib
+        chord scale multiplies x. Both may be traced JAX values.
+        """
+        return nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale)
+
+    def skin_area(self) -> float:
+        """Nominal area of the skin, m^2 (sum of the grid's quadrilaterals)."""
+        nodes = np.asarray(self.nominal_nodes())
+        a, b = nodes[:-1], nodes[1:]
+        if self.periodic:
+            c, d = np.roll(b, -1, axis=1), np.roll(a, -1, axis=1)
+        else:
+            a, b = a[:, :-1], b[:, :-1]
+            c, d = nodes[1:, 1:], nodes[:-1, 1:]
+        area = 0.5 * np.linalg.norm(np.cross(c - a, d - b), axis=-1)
+        return float(area.sum())
+
+
+def _check_grid(n_span: int, n_contour: int, min_contour: int, what: str) -> None:
+    if not isinstance(n_span, (int, np.integer)) or n_span < _MIN_SPAN:
+        raise ValueError(
+            f"n_span must be an integer >= {_MIN_SPAN} (the two ribs and at least one free row), "
+            f"got {n_span!r}; use a finer grid"
+        )
+    if not isinstance(n_contour, (int, np.integer)) or n_contour < min_contour:
+        raise ValueError(
+            f"n_contour must be an integer >= {min_contour} for a {what}, got {n_contour!r}; "
+            "use a finer grid"
+        )

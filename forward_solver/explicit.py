@@ -1,0 +1,266 @@
+"""The paper's scheme as written: physical mass, central differences, CFL step.
+
+Paper eq. (14) advances the velocities with the force of eq. (10)-(15) over
+the physical mass ``rho0 * area`` of each node, eq. (17) the positions; the
+time step obeys the Courant-Friedrichs-Lewy condition (16)
+``dt = alpha_k * min(h) / c`` with ``c = sqrt(E_max / ((1 - nu^2) rho0))``.
+Pressure follows a ramp and, optionally, the aerodynamic damping of eq. (11);
+the fabric's viscosity damps through eq. (10). The run stops at rest, on a
+failure, or at the step cap, and records its history.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import forces as fk
+from .scene import Scene, check_pressure, check_prestrain, float64_scope, PRECISIONS
+from .solution import ConvergenceError, Solution
+
+__all__ = ["PressureRamp", "simulate", "stable_time_step", "DEFAULT_COURANT"]
+
+#: Courant coefficient alpha_k of eq. (16) used unless the caller picks one.
+#: Measured limit of this grid scheme: about 0.7 on square cells (see the
+#: stability tests); 0.5 keeps a margin on distorted cells.
+DEFAULT_COURANT = 0.5
+
+
+@dataclass(frozen=True)
+class PressureRamp:
+    """Pressurisation history ``p_tilde(t)`` of eq. (11): a linear ramp to ``pressure``.
+
+    Args:
+        pressure: final overpressure, Pa.
+        ramp_time: time to reach it, s (0 applies it at once).
+    """
+
+    pressure: float
+    ramp_time: float = 0.0
+
+    def __post_init__(self):
+        check_pressure(self.pressure)
+        if not (math.isfinite(self.ramp_time) and self.ramp_time >= 0):
+            raise ValueError(f"ramp_time must be zero or positive in s, got {self.ramp_time!r}")
+
+
+class _State(NamedTuple):
+    x: jnp.ndarray
+    v: jnp.ndarray
+    t: jnp.ndarray
+
+
+def kinetic_rest_threshold(rtol, load, stiffness):
+    """Largest kinetic energy (J) that still counts as "at rest".
+
+    A mode of stiffness ``k`` oscillating with kinetic energy ``K`` reaches a
+    force amplitude ``sqrt(2 k K)``; requiring it below ``rtol * load`` with
+    ``k`` the fabric's plane-strain stiffness (N/m) gives this bound.
+    """
+    return 0.5 * (rtol * load) ** 2 / stiffness
+
+
+def stable_time_step(courant, h_min, wave_speed, params, physics):
+    """Time step: eq. (16), shortened for the damping terms.
+
+    Eq. (16) ``dt = alpha_k min(h) / c`` bounds the undamped scheme. The
+    explicit (lagged) viscous term of eq. (10) adds a damper of ratio
+    ``zeta = eta / (rho0 h c)`` to the highest grid mode, whose stable step
+    is ``(sqrt(1 + zeta^2) - zeta)`` times the undamped one. The aerodynamic
+    term of eq. (11) is a damper of rate ``2 p nu_n / rho0`` per node, stable
+    below ``2 rho0 / (2 p nu_n)``; the Courant coefficient scales both.
+    """
+    dt = courant * h_min / wave_speed  # eq. (16)
+    if physics.viscous:
+        zeta = params.viscosity / (params.areal_density * h_min * wave_speed)
+        dt = dt * (jnp.sqrt(1.0 + zeta * zeta) - zeta)
+    if physics.aerodynamic:
+        rate = 2.0 * params.pressure * params.aerodynamic_damping / params.areal_density
+        dt = jnp.minimum(dt, courant * 2.0 / rate)
+    return dt
+
+
+@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks"))
+def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence_bound,
+                  physics, chunk, max_chunks):
+    ref = fk.prepare(geometry, params, physics)
+    nu = params.poisson
+    e_max = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
+    wave_speed = jnp.sqrt(e_max / params.areal_density)
+    h_min = jnp.minimum(jnp.min(ref.span_length), jnp.min(ref.contour_length))
+    dt = stable_time_step(courant, h_min, wave_speed, params, physics)
+    mass = (params.areal_density * ref.node_area)[..., None]
+    static_physics = fk.static_physics(physics)
+    load = params.pressure * ref.skin_area
+    ke_rest = kinetic_rest_threshold(rtol, load, e_max)
+
+    def ramp(t):
+        frac = jnp.where(ramp_time > 0, jnp.clip(t / jnp.where(ramp_time > 0, ramp_time, 1.0), 0.0, 1.0), 1.0)
+        return params.pressure * frac
+
+    def step(s: _State) -> _State:
+        f = fk.forces(s.x, ref, params, physics, pressure=ramp(s.t), v=s.v).total
+        v = s.v + dt * f / mass  # eq. (14)
+        x = s.x + dt * v  # eq. (17)
+        return _State(x, v, s.t + dt)
+
+    def relative_residual(x):
+        return fk.relative_residual(x, ref, params, physics)
+
+    def kinetic(s):
+        return 0.5 * jnp.sum(mass * s.v * s.v)
+
+    def at_rest(s, _res):
+        return (s.t >= ramp_time) & (kinetic(s) <= ke_rest)
+
+    def effective_pressure(s):
+        p_now = ramp(s.t)
+        if not physics.aerodynamic:
+            return p_now
+        area = fk.node_area_vectors(s.x, physics.periodic)
+        norm = fk.safe_norm(area)
+        normal = area / jnp.where(norm > 0, norm, 1.0)[..., None]
+        factor = 1.0 - params.aerodynamic_damping * jnp.sum(s.v * normal, axis=-1)
+        w = ref.free[..., 0] * norm
+        return p_now * jnp.sum(w * factor * jnp.abs(factor)) / jnp.sum(w)
+
+    def record(s):
+        return {
+            "time": s.t,
+            "kinetic_energy": kinetic(s),
+            "peak_displacement": jnp.max(fk.safe_norm(s.x - ref.nodes) * ref.free[..., 0]),
+            "pressure": effective_pressure(s),
+        }
+
+    from .loop import run_chunks
+
+    state = _State(x_init, jnp.zeros_like(x_init), jnp.zeros((), x_init.dtype))
+    out = run_chunks(state, step, relative_residual, at_rest, ref.nodes, rtol, divergence_bound,
+                     chunk, max_chunks, record=record, n_record=max_chunks)
+    f = fk.forces(out.state.x, ref, params, static_physics)
+    return out, f, dt
+
+
+def simulate(
+    scene: Scene,
+    pressure_history,
+    prestrain=(0.0, 0.0),
+    *,
+    courant: float = DEFAULT_COURANT,
+    rtol: float = 1e-6,
+    max_steps: int = 200_000,
+    record_every: int = 200,
+    initial=None,
+    stiffness=None,
+    rib_thickness_scale: float = 1.0,
+    rib_chord_scale: float = 1.0,
+    divergence_bound: float | None = None,
+    precision: str = "float64",
+    throw: bool = True,
+) -> Solution:
+    """Pressurise the bay with the paper's explicit scheme until it comes to rest.
+
+    Args:
+        scene: the bay, fabric and physics switches (viscosity from the fabric,
+            aerodynamic damping from the scene).
+        pressure_history: a `PressureRamp`, or a final pressure in Pa applied
+            at once.
+        prestrain: ``(span, chord)`` prestrain or one number for both.
+        courant: Courant coefficient ``alpha_k`` of eq. (16).
+        rtol: stop when ``||R_free|| / (p A) <= rtol``, the ramp is over and
+            the kinetic energy is below `kinetic_rest_threshold`.
+        max_steps: step cap (rounded up to whole chunks of ``record_every``).
+        record_every: steps between stop tests and history records.
+        initial: starting shape, a `Solution` or ``(n_span, n_contour, 3)``
+            array (default: the mounted shape).
+        stiffness: ``(span, chord)`` N/m overriding the fabric's.
+        rib_thickness_scale: rib thickness multiplier.
+        rib_chord_scale: rib chord multiplier.
+        divergence_bound: displacement (m) past which the run is ``diverged``
+            (default: chord + rib spacing).
+        precision: "float64" (default) or "float32".
+        throw: raise `ConvergenceError` unless the run converged.
+
+    Returns:
+        A `Solution` whose ``history`` holds time (s), kinetic_energy (J),
+        peak_displacement (m) and pressure (Pa, the effective pressure of
+        eq. 11 averaged over the skin) after each chunk.
+    """
+    ramp = pressure_history if isinstance(pressure_history, PressureRamp) else PressureRamp(pressure_history)
+    check_prestrain(prestrain)
+    if not (math.isfinite(courant) and courant > 0):
+        raise ValueError(f"courant must be a positive number (eq. 16), got {courant!r}")
+    if not (isinstance(record_every, int) and record_every >= 1):
+        raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    bay = scene.bay
+    bound = bay.chord + bay.rib_spacing if divergence_bound is None else divergence_bound
+    max_chunks = -(-max_steps // record_every)
+    with float64_scope():
+        dtype = PRECISIONS[precision]
+        params = scene.params(ramp.pressure, prestrain, stiffness, rib_thickness_scale,
+                              rib_chord_scale, dtype=dtype)
+        geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        x_init = _initial_nodes(initial, geometry, params)
+        start = time.perf_counter()
+        out, f, dt = _simulate_jit(
+            x_init, geometry, params, jnp.asarray(ramp.ramp_time, dtype), jnp.asarray(courant, dtype),
+            jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), scene.physics(dynamic=True),
+            record_every, max_chunks,
+        )
+        jax.block_until_ready(out)
+        wall = time.perf_counter() - start
+        n = int(out.chunks)
+        history = {k: np.asarray(v)[:n] for k, v in out.history.items()}
+        sol = _make_solution(out, f, int(out.chunks) * record_every, wall, "explicit", ramp.pressure,
+                             prestrain, bay, history=history, extra={"dt": float(dt)})
+    if throw:
+        sol.raise_if_failed()
+    return sol
+
+
+def _initial_nodes(initial, geometry, params):
+    if initial is None:
+        return fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    nodes = initial.nodes if isinstance(initial, Solution) else initial
+    nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
+    expected = geometry.free.shape + (3,)
+    if nodes.shape != expected:
+        raise ValueError(
+            f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
+            "interpolate it to the grid or start from the mounted shape (initial=None)"
+        )
+    return nodes
+
+
+def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None):
+    from .scene import _pair
+    from .solution import Result
+
+    ps, pc = _pair(prestrain)
+    return Solution(
+        nodes=np.asarray(out.state.x),
+        tension_span=np.asarray(f.tension_span),
+        tension_chord=np.asarray(f.tension_chord),
+        wrinkled=np.asarray(f.wrinkled),
+        result=Result(int(out.result)),
+        steps=int(steps),
+        residual=float(out.residual),
+        wall_time=wall,
+        method=method,
+        pressure=float(pressure),
+        prestrain=(float(ps), float(pc)),
+        rib_spacing=bay.rib_spacing,
+        history=history,
+        extra=extra or {},
+    )

@@ -1,0 +1,393 @@
+"""The one force kernel: fabric tensions and follower pressure on the grid.
+
+Discretisation of paper eq. (10)-(15) on the structured grid of a `Bay`:
+
+* Span edges ``(i+1/2, j)`` and contour edges ``(i, j+1/2)`` carry stretches
+  ``lambda = |x_b - x_a| / h`` (eq. 12) against their cut (reference) lengths
+  ``h = nominal length / (1 + prestrain)``, and unit vectors (direction
+  cosines, eq. 13).
+* Each cell ``(i+1/2, j+1/2)`` averages the stretches of its two span edges
+  and of its two contour edges (eq. 12) and takes the tensions of eq. (10)
+  with elongations ``e = lambda - 1``; with ``tension_only`` a negative
+  tension is clamped to zero (the fabric wrinkles instead).
+* The force that the span fibres carry across a cell is ``T11 lambda2 h2``
+  (the ``{T11 lambda2}`` terms of eq. 14); half of it acts along each of the
+  cell's two span edges, on the edge's current direction (eq. 13). Contour
+  fibres likewise with ``T22 lambda1 h1``.
+* Pressure is a follower load: a node receives ``p`` times the area vector of
+  the eight triangles between it, its edge midpoints and its cell centres
+  (eq. 15), which is the quarter-quadrilateral ``(B - O) x (C - A) / 2`` of
+  each adjacent cell.
+
+The law is not conservative in general (eq. 10 with ``nu12 E22 != nu21 E11``
+and a follower load), so solvers work on the force residual, not an energy.
+Everything here is a pure function of arrays: geometry and parameters are
+traced, only the grid shape and the `Physics` switches are static.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+__all__ = [
+    "Geometry",
+    "Params",
+    "Physics",
+    "Reference",
+    "Forces",
+    "nominal_nodes",
+    "prepare",
+    "forces",
+    "residual",
+    "relative_residual",
+    "static_physics",
+    "node_area_vectors",
+    "node_stiffness",
+    "fibres",
+    "Fibres",
+    "safe_norm",
+]
+
+
+class Geometry(NamedTuple):
+    """Bay geometry as traced arrays (see `Bay` for meanings, SI units)."""
+
+    contour_root: jnp.ndarray  # (nc, 2) chord-normalised
+    contour_tip: jnp.ndarray  # (nc, 2)
+    camber_root: jnp.ndarray  # (nc,)
+    camber_tip: jnp.ndarray  # (nc,)
+    chord_root: jnp.ndarray  # m
+    chord_tip: jnp.ndarray  # m
+    rib_spacing: jnp.ndarray  # m
+    free: jnp.ndarray  # (ns, nc) 1.0 where the node may move, 0.0 where held
+
+
+class Params(NamedTuple):
+    """Traced physical parameters: new values never recompile."""
+
+    pressure: jnp.ndarray  # Pa, internal overpressure
+    prestrain_span: jnp.ndarray  # dimensionless
+    prestrain_chord: jnp.ndarray  # dimensionless
+    stiffness_span: jnp.ndarray  # E11, N/m
+    stiffness_chord: jnp.ndarray  # E22, N/m
+    poisson: jnp.ndarray  # nu12 = nu21
+    areal_density: jnp.ndarray  # rho0, kg/m^2
+    viscosity: jnp.ndarray  # eta, N*s/m
+    aerodynamic_damping: jnp.ndarray  # nu_n of eq. (11), s/m
+    gravity: jnp.ndarray  # m/s^2 along -z
+    rib_thickness_scale: jnp.ndarray  # dimensionless
+    rib_chord_scale: jnp.ndarray  # dimensionless
+
+
+@dataclass(frozen=True)
+class Physics:
+    """Static switches: a term that is off is absent from the compiled program."""
+
+    periodic: bool
+    tension_only: bool = True
+    viscous: bool = False
+    aerodynamic: bool = False
+    gravity: bool = False
+
+
+class Reference(NamedTuple):
+    """Quantities fixed for one solve (they depend on parameters, not on the state)."""
+
+    nodes: jnp.ndarray  # (ns, nc, 3) nominal (mounted) shape, m
+    span_length: jnp.ndarray  # (ns-1, nc) cut length h1 of each span edge, m
+    contour_length: jnp.ndarray  # (ns, ne) cut length h2 of each contour edge, m
+    node_area: jnp.ndarray  # (ns, nc) undeformed area lumped to each node, m^2
+    free: jnp.ndarray  # (ns, nc, 1) 1.0 on free nodes
+    skin_area: jnp.ndarray  # nominal skin area A, m^2 (the residual's scale is p A)
+
+
+class Forces(NamedTuple):
+    """Nodal force and the cell tensions it came from."""
+
+    total: jnp.ndarray  # (ns, nc, 3) N, zero on held nodes
+    tension_span: jnp.ndarray  # (ns-1, ncell) T11, N/m
+    tension_chord: jnp.ndarray  # (ns-1, ncell) T22, N/m
+    wrinkled: jnp.ndarray  # (ns-1, ncell) bool: a fibre tension would be compressive
+
+
+def safe_norm(v: jnp.ndarray, axis: int = -1) -> jnp.ndarray:
+    """Euclidean norm whose gradient stays finite at zero (double-``where``)."""
+    sq = jnp.sum(v * v, axis=axis)
+    nonzero = sq > 0.0
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+
+
+# --------------------------------------------------------------- grid stencils
+def _next_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """``a[:, j+1]`` for every contour edge (wrapping on a closed contour)."""
+    return jnp.roll(a, -1, axis=1) if periodic else a[:, 1:]
+
+
+def _this_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """``a[:, j]`` for every contour edge (all of them on a closed contour)."""
+    return a if periodic else a[:, :-1]
+
+
+def _contour_edge_sum(c: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """Sum the cell values on both sides of each span edge (along j)."""
+    if periodic:
+        return c + jnp.roll(c, 1, axis=1)
+    return jnp.pad(c, ((0, 0), (1, 0))) + jnp.pad(c, ((0, 0), (0, 1)))
+
+
+def _span_edge_sum(c: jnp.ndarray) -> jnp.ndarray:
+    """Sum the cell values on both sides of each contour edge (along i)."""
+    pad = [(1, 0), (0, 0)] + [(0, 0)] * (c.ndim - 2)
+    pad_hi = [(0, 1), (0, 0)] + [(0, 0)] * (c.ndim - 2)
+    return jnp.pad(c, pad) + jnp.pad(c, pad_hi)
+
+
+def _scatter_span_edges(f: jnp.ndarray) -> jnp.ndarray:
+    """Nodal sum of edge vectors ``f`` acting ``+f`` on node i and ``-f`` on i+1."""
+    return jnp.pad(f, ((0, 1), (0, 0), (0, 0))) - jnp.pad(f, ((1, 0), (0, 0), (0, 0)))
+
+
+def _scatter_contour_edges(f: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """Nodal sum of edge vectors acting ``+f`` on node j and ``-f`` on j+1."""
+    if periodic:
+        return f - jnp.roll(f, 1, axis=1)
+    return jnp.pad(f, ((0, 0), (0, 1), (0, 0))) - jnp.pad(f, ((0, 0), (1, 0), (0, 0)))
+
+
+def _scatter_cell_corners(c00, c10, c11, c01, periodic: bool) -> jnp.ndarray:
+    """Nodal sum of per-cell values given at the cell's four corners.
+
+    ``c00`` belongs to node (i, j), ``c10`` to (i+1, j), ``c11`` to
+    (i+1, j+1), ``c01`` to (i, j+1); cells are (ns-1, ncell, ...).
+    """
+    def pad_i(a, lo):
+        return jnp.pad(a, [(lo, 1 - lo)] + [(0, 0)] * (a.ndim - 1))
+
+    at_j = pad_i(c00, 0) + pad_i(c10, 1)  # contributions to the cell's j column
+    at_j1 = pad_i(c01, 0) + pad_i(c11, 1)  # contributions to its j+1 column
+    if periodic:
+        return at_j + jnp.roll(at_j1, 1, axis=1)
+    pad_lo = [(0, 0), (0, 1)] + [(0, 0)] * (at_j.ndim - 2)
+    pad_hi = [(0, 0), (1, 0)] + [(0, 0)] * (at_j.ndim - 2)
+    return jnp.pad(at_j, pad_lo) + jnp.pad(at_j1, pad_hi)
+
+
+def _cell_corners(x: jnp.ndarray, periodic: bool):
+    """The four corner arrays (n00, n10, n11, n01) of every cell."""
+    lo, hi = x[:-1], x[1:]
+    return _this_j(lo, periodic), _this_j(hi, periodic), _next_j(hi, periodic), _next_j(lo, periodic)
+
+
+# ------------------------------------------------------------------ reference
+def nominal_nodes(geometry: Geometry, rib_thickness_scale=1.0, rib_chord_scale=1.0) -> jnp.ndarray:
+    """Mounted shape ``(ns, nc, 3)``: the ruled surface between the rib contours.
+
+    The rib thickness scale multiplies the distance from the camber line and
+    the chord scale multiplies x (both about the rib's leading edge).
+    """
+    ns = geometry.free.shape[0]
+    t = jnp.linspace(0.0, 1.0, ns, dtype=geometry.contour_root.dtype)[:, None]
+
+    def rib(contour, camber, chord):
+        x = contour[:, 0] * chord * rib_chord_scale
+        z = (camber + rib_thickness_scale * (contour[:, 1] - camber)) * chord
+        return x, z
+
+    xr, zr = rib(geometry.contour_root, geometry.camber_root, geometry.chord_root)
+    xt, zt = rib(geometry.contour_tip, geometry.camber_tip, geometry.chord_tip)
+    x = (1.0 - t) * xr[None, :] + t * xt[None, :]
+    z = (1.0 - t) * zr[None, :] + t * zt[None, :]
+    y = jnp.broadcast_to(t * geometry.rib_spacing, x.shape)
+    return jnp.stack([x, y, z], axis=-1)
+
+
+def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
+    """Cut lengths and lumped areas for one solve.
+
+    The fabric is cut shorter than the mounted geometry: reference length =
+    nominal length / (1 + prestrain) per fibre direction (DESIGN section 2).
+    """
+    x0 = nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + params.prestrain_span)
+    contour_length = safe_norm(_next_j(x0, physics.periodic) - _this_j(x0, physics.periodic))
+    contour_length = contour_length / (1.0 + params.prestrain_chord)
+    h1_cell = 0.5 * (_this_j(span_length, physics.periodic) + _next_j(span_length, physics.periodic))
+    h2_cell = 0.5 * (contour_length[:-1] + contour_length[1:])
+    quarter = 0.25 * h1_cell * h2_cell
+    node_area = _scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
+    n00, n10, n11, n01 = _cell_corners(x0, physics.periodic)
+    skin_area = 0.5 * jnp.sum(safe_norm(jnp.cross(n11 - n00, n01 - n10)))
+    return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None], skin_area)
+
+
+# --------------------------------------------------------------------- forces
+def node_area_vectors(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """Area vector of each node's share of the surface (eq. 15), ``(ns, nc, 3)`` m^2.
+
+    Its components are the projections of the eight triangles around the
+    node on the coordinate planes; it points along ``e1 x e2`` (outward).
+    """
+    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    centre = 0.25 * (n00 + n10 + n11 + n01)
+    c00 = 0.25 * jnp.cross(centre - n00, n01 - n10)
+    c10 = 0.25 * jnp.cross(centre - n10, n00 - n11)
+    c11 = 0.25 * jnp.cross(centre - n11, n10 - n01)
+    c01 = 0.25 * jnp.cross(centre - n01, n11 - n00)
+    return _scatter_cell_corners(c00, c10, c11, c01, periodic)
+
+
+class Fibres(NamedTuple):
+    """Edge and cell kinematics and tensions of the current shape (eq. 10, 12, 13)."""
+
+    unit1: jnp.ndarray  # (ns-1, nc, 3) span-edge directions
+    unit2: jnp.ndarray  # (ns, ne, 3) contour-edge directions
+    length1: jnp.ndarray  # (ns-1, nc) span-edge lengths, m
+    length2: jnp.ndarray  # (ns, ne) contour-edge lengths, m
+    edge_force1: jnp.ndarray  # (ns-1, nc) force along each span edge, N
+    edge_force2: jnp.ndarray  # (ns, ne) force along each contour edge, N
+    width1: jnp.ndarray  # (ns-1, nc) current fabric width carried by each span edge, m
+    width2: jnp.ndarray  # (ns, ne) same for each contour edge, m
+    tension_span: jnp.ndarray  # (ns-1, ncell) T11, N/m
+    tension_chord: jnp.ndarray  # (ns-1, ncell) T22, N/m
+    wrinkled: jnp.ndarray  # (ns-1, ncell) bool
+
+
+def fibres(x, ref: Reference, params: Params, physics: Physics, v=None) -> Fibres:
+    """Stretches (eq. 12), directions (13), tensions (10) and edge forces (14)."""
+    periodic = physics.periodic
+    d1 = x[1:] - x[:-1]  # span edges (ns-1, nc, 3)
+    d2 = _next_j(x, periodic) - _this_j(x, periodic)  # contour edges (ns, ne, 3)
+    len1 = safe_norm(d1)
+    len2 = safe_norm(d2)
+    stretch1 = len1 / ref.span_length  # eq. (12)
+    stretch2 = len2 / ref.contour_length
+    unit1 = d1 / jnp.where(len1 > 0, len1, 1.0)[..., None]  # eq. (13)
+    unit2 = d2 / jnp.where(len2 > 0, len2, 1.0)[..., None]
+
+    cell_stretch1 = 0.5 * (_this_j(stretch1, periodic) + _next_j(stretch1, periodic))
+    cell_stretch2 = 0.5 * (stretch2[:-1] + stretch2[1:])
+    e1 = cell_stretch1 - 1.0
+    e2 = cell_stretch2 - 1.0
+    nu = params.poisson
+    scale = 1.0 / (1.0 - nu * nu)
+    t11 = (params.stiffness_span * e1 + nu * params.stiffness_chord * e2) * scale  # eq. (10)
+    t22 = (params.stiffness_chord * e2 + nu * params.stiffness_span * e1) * scale
+    wrinkled = (t11 < 0.0) | (t22 < 0.0)
+    if physics.viscous:
+        dv1 = v[1:] - v[:-1]
+        dv2 = _next_j(v, periodic) - _this_j(v, periodic)
+        rate1 = jnp.sum(unit1 * dv1, axis=-1) / ref.span_length
+        rate2 = jnp.sum(unit2 * dv2, axis=-1) / ref.contour_length
+        t11 = t11 + params.viscosity * 0.5 * (_this_j(rate1, periodic) + _next_j(rate1, periodic))
+        t22 = t22 + params.viscosity * 0.5 * (rate2[:-1] + rate2[1:])
+    if physics.tension_only:
+        t11 = jnp.maximum(t11, 0.0)
+        t22 = jnp.maximum(t22, 0.0)
+
+    h1_cell = 0.5 * (_this_j(ref.span_length, periodic) + _next_j(ref.span_length, periodic))
+    h2_cell = 0.5 * (ref.contour_length[:-1] + ref.contour_length[1:])
+    # Current cell widths lambda2 h2 and lambda1 h1; the span-fibre force
+    # {T11 lambda2} h2 across a cell goes half to each of its span edges (eq. 14).
+    half_width2 = 0.5 * cell_stretch2 * h2_cell
+    half_width1 = 0.5 * cell_stretch1 * h1_cell
+    return Fibres(
+        unit1=unit1,
+        unit2=unit2,
+        length1=len1,
+        length2=len2,
+        edge_force1=_contour_edge_sum(t11 * half_width2, periodic),
+        edge_force2=_span_edge_sum(t22 * half_width1),
+        width1=_contour_edge_sum(half_width2, periodic),
+        width2=_span_edge_sum(half_width1),
+        tension_span=t11,
+        tension_chord=t22,
+        wrinkled=wrinkled,
+    )
+
+
+def forces(
+    x: jnp.ndarray,
+    ref: Reference,
+    params: Params,
+    physics: Physics,
+    pressure: jnp.ndarray | None = None,
+    v: jnp.ndarray | None = None,
+) -> Forces:
+    """Net nodal force of fabric tension, pressure and gravity (eq. 10-15).
+
+    Args:
+        x: ``(ns, nc, 3)`` current node positions, m.
+        ref: cut lengths and lumped areas from `prepare`.
+        params: traced parameters.
+        physics: static switches; viscosity and aerodynamic damping need ``v``.
+        pressure: the pressure to apply now, Pa (default ``params.pressure``;
+            the dynamic scheme passes its ramp value).
+        v: ``(ns, nc, 3)`` node velocities, m/s (dynamic terms only).
+
+    Returns:
+        `Forces`, with the total force zero on held nodes.
+    """
+    periodic = physics.periodic
+    p = params.pressure if pressure is None else pressure
+    fib = fibres(x, ref, params, physics, v)
+    total = _scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
+    total = total + _scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
+
+    area = node_area_vectors(x, periodic)
+    if physics.aerodynamic:
+        # eq. (11): p (1 - nu_n V_n)^2 sgn(1 - nu_n V_n), V_n the normal velocity.
+        norm = safe_norm(area)
+        normal = area / jnp.where(norm > 0, norm, 1.0)[..., None]
+        factor = 1.0 - params.aerodynamic_damping * jnp.sum(v * normal, axis=-1)
+        total = total + (p * factor * jnp.abs(factor))[..., None] * area
+    else:
+        total = total + p * area
+    if physics.gravity:
+        weight = params.areal_density * params.gravity * ref.node_area
+        total = total.at[..., 2].add(-weight)
+    return Forces(total * ref.free, fib.tension_span, fib.tension_chord, fib.wrinkled)
+
+
+def node_stiffness(x, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+    """Upper estimate of each node's stiffness, ``(ns, nc)`` N/m.
+
+    The sum over the node's edges of the axial stiffness (plane-strain
+    modulus with the Poisson coupling, times the carried width over the cut
+    length) and the geometric stiffness (edge force over edge length), plus
+    the follower pressure's ``p * h``. Dynamic relaxation scales its
+    fictitious masses to it (Gershgorin bound, so every node runs at the same
+    stable step).
+    """
+    periodic = physics.periodic
+    fib = fibres(x, ref, params, static_physics(physics))
+    nu = params.poisson
+    modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) * (1.0 + nu) / (1.0 - nu * nu)
+    k1 = modulus * fib.width1 / ref.span_length + fib.edge_force1 / jnp.where(fib.length1 > 0, fib.length1, 1.0)
+    k2 = modulus * fib.width2 / ref.contour_length + fib.edge_force2 / jnp.where(fib.length2 > 0, fib.length2, 1.0)
+    k1 = k1 + jnp.abs(params.pressure) * fib.length1
+    k2 = k2 + jnp.abs(params.pressure) * fib.length2
+    node = jnp.pad(k1, ((0, 1), (0, 0))) + jnp.pad(k1, ((1, 0), (0, 0)))
+    if periodic:
+        node = node + k2 + jnp.roll(k2, 1, axis=1)
+    else:
+        node = node + jnp.pad(k2, ((0, 0), (0, 1))) + jnp.pad(k2, ((0, 0), (1, 0)))
+    return node
+
+
+def static_physics(physics: Physics) -> Physics:
+    """The same switches without the velocity terms (equilibrium does not see them)."""
+    return Physics(physics.periodic, physics.tension_only, False, False, physics.gravity)
+
+
+def residual(x: jnp.ndarray, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+    """Static force residual ``R(x)`` at rest (no velocity terms), ``(ns, nc, 3)`` N."""
+    return forces(x, ref, params, static_physics(physics)).total
+
+
+def relative_residual(x: jnp.ndarray, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+    """``||R_free||_2 / (p A)``: the residual over the total pressure load (dimensionless)."""
+    r = residual(x, ref, params, physics)
+    return safe_norm(r.reshape(-1)) / (params.pressure * ref.skin_area)

@@ -1,0 +1,122 @@
+"""Results of a solve: the `Solution`, its result codes, and the error a failed solve raises."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES"]
+
+
+class Result(enum.IntEnum):
+    """Why a solve stopped (carried out of the compiled loop as an integer)."""
+
+    converged = 0
+    max_steps_reached = 1
+    nonfinite = 2
+    diverged = 3
+
+
+RESULT_MESSAGES = {
+    Result.converged: "converged: the relative residual is below the tolerance",
+    Result.max_steps_reached: (
+        "max_steps_reached: the step cap was hit before the residual fell below the "
+        "tolerance; raise max_steps, loosen rtol, or warm-start from a nearby solution"
+    ),
+    Result.nonfinite: (
+        "nonfinite: the state became NaN or infinite; the time step is over the stability "
+        "limit (lower the Courant coefficient) or the input is non-physical"
+    ),
+    Result.diverged: (
+        "diverged: the skin moved further than the divergence bound from its mounted shape; "
+        "the time step is over the stability limit (lower the Courant coefficient) or the "
+        "pressure is beyond what the fabric can hold"
+    ),
+}
+
+
+class ConvergenceError(RuntimeError):
+    """A solve did not converge; ``.solution`` holds what it reached."""
+
+    def __init__(self, solution: "Solution"):
+        super().__init__(f"{solution.method} solve failed after {solution.steps} steps: "
+                         f"{solution.message} (relative residual {solution.residual:.3e})")
+        self.solution = solution
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The rest state (or where a solve stopped).
+
+    Attributes:
+        nodes: ``(n_span, n_contour, 3)`` node positions, m.
+        tension_span: ``(n_span - 1, n_cells)`` cell tension T11, N/m.
+        tension_chord: ``(n_span - 1, n_cells)`` cell tension T22, N/m.
+        wrinkled: ``(n_span - 1, n_cells)`` bool, cells where a fibre tension
+            would be compressive (a wrinkled skin cures wrinkled).
+        result: the `Result` code.
+        steps: explicit steps (or Newton iterations) taken.
+        residual: ``||R_free||_2 / (p * A)``: the 2-norm of the static force
+            residual on the free nodes over the pressure times the nominal
+            skin area (the total pressure load), dimensionless.
+        wall_time: seconds spent in the solve (compilation included on a
+            first call).
+        method: the solver that produced it.
+        pressure: Pa.
+        prestrain: ``(span, chord)``.
+        rib_spacing: m, for `section`.
+        history: for `simulate`, a dict of arrays (time, kinetic_energy,
+            peak_displacement, pressure); None otherwise.
+        extra: solver-specific diagnostics.
+    """
+
+    nodes: np.ndarray
+    tension_span: np.ndarray
+    tension_chord: np.ndarray
+    wrinkled: np.ndarray
+    result: Result
+    steps: int
+    residual: float
+    wall_time: float
+    method: str
+    pressure: float
+    prestrain: tuple[float, float]
+    rib_spacing: float
+    history: dict | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        return self.result == Result.converged
+
+    @property
+    def message(self) -> str:
+        return RESULT_MESSAGES[Result(self.result)]
+
+    @property
+    def wrinkled_fraction(self) -> float:
+        """Fraction of the cells that are wrinkled."""
+        return float(np.mean(self.wrinkled))
+
+    def section(self, eta: float = 0.5) -> np.ndarray:
+        """The x-z profile at ``y = eta * rib_spacing``, ``(n_contour, 2)`` in m.
+
+        Rows are interpolated linearly in the span index (rows are evenly
+        spaced at the ribs); ``eta = 0.5`` on an odd ``n_span`` is a grid row.
+        """
+        if not 0.0 <= eta <= 1.0:
+            raise ValueError(f"eta must lie in [0, 1] (a fraction of the rib spacing), got {eta!r}")
+        n_span = self.nodes.shape[0]
+        s = eta * (n_span - 1)
+        i0 = min(int(np.floor(s)), n_span - 2)
+        w = s - i0
+        row = (1.0 - w) * self.nodes[i0] + w * self.nodes[i0 + 1]
+        return np.stack([row[:, 0], row[:, 2]], axis=-1)
+
+    def raise_if_failed(self) -> "Solution":
+        """Return self if converged, else raise `ConvergenceError`."""
+        if not self.converged:
+            raise ConvergenceError(self)
+        return self

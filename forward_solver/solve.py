@@ -1,0 +1,173 @@
+"""`solve_equilibrium`: the rest state of a pressurised bay."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import forces as fk
+from .explicit import _initial_nodes, _make_solution, simulate
+from .relax import MASS_SAFETY, relax_jit
+from .scene import PRECISIONS, Scene, check_pressure, check_prestrain, float64_scope
+from .solution import Result, Solution
+
+__all__ = ["solve_equilibrium", "METHODS"]
+
+METHODS = ("relax", "explicit")
+
+#: Steps per chunk of the relaxation loop (stop test and mass update between chunks).
+RELAX_CHUNK = 100
+#: Coarsest grid that grid sequencing descends to.
+_COARSEST_SPAN = 5
+_COARSEST_CONTOUR = 24
+#: Relative residual the coarse levels are solved to: their discretisation
+#: error is far above it, so a tighter solve there buys nothing.
+_COARSE_RTOL = 1e-5
+
+
+def solve_equilibrium(
+    scene: Scene,
+    pressure,
+    prestrain=(0.0, 0.0),
+    *,
+    rtol: float = 1e-8,
+    max_steps: int = 200_000,
+    method: str = "relax",
+    initial=None,
+    throw: bool = True,
+    stiffness=None,
+    rib_thickness_scale=1.0,
+    rib_chord_scale=1.0,
+    sequencing: bool = True,
+    precision: str = "float64",
+) -> Solution:
+    """Rest shape of the pressurised bay.
+
+    Equilibrium is where the static force residual ``R(x)`` of eq. (10)-(15)
+    vanishes on the free nodes; it does not depend on the fabric's mass,
+    viscosity or the aerodynamic damping.
+
+    Args:
+        scene: the bay, fabric and physics switches.
+        pressure: internal overpressure, Pa (> 0).
+        prestrain: ``(span, chord)`` prestrain (0.005 is 0.5%), or one number.
+        rtol: stop when ``||R_free||_2 / (p A) <= rtol`` (A the nominal skin
+            area): the residual force as a fraction of the total pressure load.
+        max_steps: cap on explicit steps (per grid level).
+        method: "relax" (dynamic relaxation, default) or "explicit" (the
+            paper's physical-mass scheme via `simulate`; it needs the scene's
+            viscosity or aerodynamic damping to come to rest).
+        initial: warm start, a `Solution` (or nodes array) on the same grid.
+        throw: raise `ConvergenceError` if the solve fails; else return the
+            `Solution` with its failure code.
+        stiffness: ``(span, chord)`` N/m overriding the fabric's.
+        rib_thickness_scale: rib thickness multiplier (about the camber line).
+        rib_chord_scale: rib chord multiplier.
+        sequencing: solve coarser grids first (relax, cold starts only).
+        precision: "float64" or "float32".
+
+    Returns:
+        The `Solution`.
+
+    Raises:
+        ValueError: for non-physical input.
+        ConvergenceError: if ``throw`` and the solve failed.
+    """
+    check_pressure(pressure)
+    check_prestrain(prestrain)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not (isinstance(rtol, float | int) and 0 < rtol < 1):
+        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    if method == "explicit":
+        return simulate(scene, pressure, prestrain, rtol=rtol, max_steps=max_steps, initial=initial,
+                        stiffness=stiffness, rib_thickness_scale=rib_thickness_scale,
+                        rib_chord_scale=rib_chord_scale, precision=precision, throw=throw)
+
+    bay = scene.bay
+    bound = bay.chord + bay.rib_spacing
+    physics = scene.physics(dynamic=False)
+    max_chunks = -(-max_steps // RELAX_CHUNK)
+    with float64_scope():
+        dtype = PRECISIONS[precision]
+        params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale,
+                              dtype=dtype)
+        geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        start = time.perf_counter()
+        steps = 0
+        levels = []
+        if initial is None:
+            x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
+                                                     sequencing)
+        else:
+            x_init = _initial_nodes(initial, geometry, params)
+        out, f = relax_jit(x_init, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype),
+                           MASS_SAFETY, physics, RELAX_CHUNK, max_chunks)
+        jax.block_until_ready(out)
+        wall = time.perf_counter() - start
+        steps += int(out.chunks) * RELAX_CHUNK
+        sol = _make_solution(out, f, steps, wall, "relax", pressure, prestrain, bay,
+                             extra={"levels": levels})
+    if throw:
+        sol.raise_if_failed()
+    return sol
+
+
+def _coarsenable(shape, periodic: bool) -> bool:
+    ns, nc = shape
+    contour_ok = (nc % 2 == 0) if periodic else (nc % 2 == 1)
+    return ns % 2 == 1 and contour_ok and (ns + 1) // 2 >= _COARSEST_SPAN and nc // 2 >= _COARSEST_CONTOUR
+
+
+def _coarsen(geometry: fk.Geometry) -> fk.Geometry:
+    """Every other node along both directions (nested grids, see `Bay`)."""
+    return geometry._replace(
+        contour_root=geometry.contour_root[::2],
+        contour_tip=geometry.contour_tip[::2],
+        camber_root=geometry.camber_root[::2],
+        camber_tip=geometry.camber_tip[::2],
+        free=geometry.free[::2, ::2],
+    )
+
+
+def _prolong(u: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """Linear interpolation of a coarse nodal field to the nested fine grid."""
+    ns, nc = u.shape[:2]
+    if periodic:
+        mid = 0.5 * (u + jnp.roll(u, -1, axis=1))
+        rows = jnp.stack([u, mid], axis=2).reshape(ns, 2 * nc, 3)
+    else:
+        mid = 0.5 * (u[:, :-1] + u[:, 1:])
+        rows = jnp.concatenate(
+            [jnp.stack([u[:, :-1], mid], axis=2).reshape(ns, 2 * (nc - 1), 3), u[:, -1:]], axis=1
+        )
+    mid_rows = 0.5 * (rows[:-1] + rows[1:])
+    out = jnp.stack([rows[:-1], mid_rows], axis=1).reshape(2 * (ns - 1), rows.shape[1], 3)
+    return jnp.concatenate([out, rows[-1:]], axis=0)
+
+
+def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing):
+    """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
+    x0 = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    if not (sequencing and _coarsenable(geometry.free.shape, physics.periodic)):
+        return x0, 0, []
+    coarse = _coarsen(geometry)
+    xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing)
+    dtype = x0.dtype
+    out, _ = relax_jit(xc, coarse, params, jnp.asarray(_COARSE_RTOL, dtype), jnp.asarray(bound, dtype),
+                       MASS_SAFETY, physics, RELAX_CHUNK, max_chunks)
+    if int(out.result) != Result.converged:
+        return x0, steps, levels  # a failed coarse level is no better than the mounted shape
+    xc0 = fk.nominal_nodes(coarse, params.rib_thickness_scale, params.rib_chord_scale)
+    u = _prolong(out.state.x - xc0, physics.periodic)
+    chunks = int(out.chunks)
+    levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]
+    return x0 + u * geometry.free[..., None], steps + chunks * RELAX_CHUNK, levels
