@@ -15,9 +15,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._precision import float64_scope
 from .forces import Geometry, nominal_nodes
 
 __all__ = ["Bay"]
@@ -233,11 +235,15 @@ class Bay:
         thickness scale multiplies the distance from the camber line; the rib
         chord scale multiplies x. Both may be traced JAX values.
         """
-        return nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale)
+        with float64_scope(rib_thickness_scale, rib_chord_scale):
+            nodes = nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale)
+            if isinstance(nodes, jax.core.Tracer):
+                return nodes
+            return np.asarray(nodes)
 
     def skin_area(self) -> float:
         """Nominal area of the skin, m^2 (sum of the grid's quadrilaterals)."""
-        nodes = np.asarray(self.nominal_nodes())
+        nodes = self.nominal_nodes()
         a, b = nodes[:-1], nodes[1:]
         if self.periodic:
             c, d = np.roll(b, -1, axis=1), np.roll(a, -1, axis=1)

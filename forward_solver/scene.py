@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import jax
@@ -12,6 +11,7 @@ import numpy as np
 
 from .bay import Bay
 from .fabric import Fabric
+from ._precision import float64_scope
 from .forces import Params, Physics
 
 __all__ = ["Scene", "float64_scope", "check_pressure", "check_prestrain"]
@@ -146,34 +146,3 @@ def check_prestrain(prestrain) -> None:
             raise ValueError(
                 f"prestrain_{name} must lie in (-0.5, 1.0) (a fraction, 0.005 is 0.5%), got {value!r}"
             )
-
-
-def _any_tracer(*values) -> bool:
-    leaves = jax.tree_util.tree_leaves(values)
-    return any(isinstance(v, jax.core.Tracer) for v in leaves)
-
-
-@contextmanager
-def float64_scope(*traced_inputs):
-    """Run the enclosed JAX work with float64 available, without touching global config.
-
-    The package never flips ``jax_enable_x64`` globally (importing it changes
-    nothing for other JAX code). A concrete call enters the thread-local
-    ``jax.enable_x64(True)`` context for its own duration. Under a caller's
-    JAX transformation (``jax.grad``, ``jax.jit``) the caller's setting wins,
-    and float64 must already be on.
-
-    Raises:
-        RuntimeError: when traced by a caller whose JAX runs in float32 mode.
-    """
-    if _any_tracer(*traced_inputs):
-        if not jax.config.jax_enable_x64:
-            raise RuntimeError(
-                "forward_solver computes in float64 but is being transformed by JAX in float32 "
-                "mode: call jax.config.update('jax_enable_x64', True) first, or wrap the "
-                "transformation in `with jax.enable_x64(True):`"
-            )
-        yield
-        return
-    with jax.enable_x64(True):
-        yield
