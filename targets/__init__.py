@@ -1,0 +1,25 @@
+"""Airfoil geometry targets: NACA sections, airfoil files and curve distance.
+
+Public names:
+
+* :class:`Airfoil`: a chord-normalised section in Selig order with a smooth
+  representation (thickness, camber, leading-edge radius, resampling, signed
+  distance).
+* :func:`naca`: NACA 4- and 5-digit sections (Report 824 formulas).
+* :func:`load_airfoil`: Selig or Lednicer ``.dat`` files.
+* :func:`parse_naca`, :class:`NacaSection`: the analytic section behind
+  :func:`naca` (mean line, thickness, surface).
+* :class:`Projection`: closest points returned by :meth:`Airfoil.project`.
+
+The submodule ``targets.naca`` is shadowed by the function of the same name;
+import its other names with ``from targets.naca import ...``.
+"""
+
+from .airfoil import Airfoil as Airfoil
+from .airfoil import Projection as Projection
+from .dat import load_airfoil as load_airfoil
+from .naca import NacaSection as NacaSection
+from .naca import naca as naca
+from .naca import parse_naca as parse_naca
+
+__all__ = ["Airfoil", "NacaSection", "Projection", "load_airfoil", "naca", "parse_naca"]
