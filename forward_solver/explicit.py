@@ -243,13 +243,14 @@ def _initial_nodes(initial, geometry, params):
     return nodes
 
 
-def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None):
+def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None,
+                   nodes=None):
     from .scene import _pair
     from .solution import Result
 
     ps, pc = _pair(prestrain)
     return Solution(
-        nodes=np.asarray(out.state.x),
+        nodes=np.asarray(out.state.x if nodes is None else nodes),
         tension_span=np.asarray(f.tension_span),
         tension_chord=np.asarray(f.tension_chord),
         wrinkled=np.asarray(f.wrinkled),

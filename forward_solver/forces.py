@@ -114,10 +114,13 @@ class Forces(NamedTuple):
 
 
 def safe_norm(v: jnp.ndarray, axis: int = -1) -> jnp.ndarray:
-    """Euclidean norm whose gradient stays finite at zero (double-``where``)."""
+    """Euclidean norm whose gradient stays finite at zero (double-``where``).
+
+    NaN stays NaN (so a stop test on a norm can never pass on a NaN state).
+    """
     sq = jnp.sum(v * v, axis=axis)
     nonzero = sq > 0.0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), sq)
 
 
 # --------------------------------------------------------------- grid stencils

@@ -43,6 +43,7 @@ def solve_equilibrium(
     rib_thickness_scale=1.0,
     rib_chord_scale=1.0,
     sequencing: bool = True,
+    symmetry: bool = True,
     precision: str = "float64",
 ) -> Solution:
     """Rest shape of the pressurised bay.
@@ -68,6 +69,8 @@ def solve_equilibrium(
         rib_thickness_scale: rib thickness multiplier (about the camber line).
         rib_chord_scale: rib chord multiplier.
         sequencing: solve coarser grids first (relax, cold starts only).
+        symmetry: solve half the bay when both ribs are identical and
+            ``n_span`` is odd (relax; the answer is the same, see tests).
         precision: "float64" or "float32".
 
     Returns:
@@ -95,6 +98,7 @@ def solve_equilibrium(
     bay = scene.bay
     bound = bay.chord + bay.rib_spacing
     physics = scene.physics(dynamic=False)
+    symmetric = symmetry and bay.symmetric
     max_chunks = -(-max_steps // RELAX_CHUNK)
     with float64_scope():
         dtype = PRECISIONS[precision]
@@ -106,16 +110,18 @@ def solve_equilibrium(
         levels = []
         if initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
-                                                     sequencing)
+                                                     sequencing, symmetric)
         else:
             x_init = _initial_nodes(initial, geometry, params)
-        out, f = relax_jit(x_init, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype),
-                           MASS_SAFETY, physics, RELAX_CHUNK, max_chunks)
+        half = _use_half(geometry, symmetric)
+        out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(rtol, dtype),
+                                  jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
+                                  max_chunks, half=half)
         jax.block_until_ready(out)
         wall = time.perf_counter() - start
         steps += int(out.chunks) * RELAX_CHUNK
         sol = _make_solution(out, f, steps, wall, "relax", pressure, prestrain, bay,
-                             extra={"levels": levels})
+                             extra={"levels": levels, "half_bay": half}, nodes=nodes)
     if throw:
         sol.raise_if_failed()
     return sol
@@ -154,20 +160,26 @@ def _prolong(u: jnp.ndarray, periodic: bool) -> jnp.ndarray:
     return jnp.concatenate([out, rows[-1:]], axis=0)
 
 
-def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing):
+def _use_half(geometry, symmetric: bool) -> bool:
+    return symmetric and geometry.free.shape[0] % 2 == 1 and geometry.free.shape[0] >= 5
+
+
+def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
     x0 = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
     if not (sequencing and _coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
-    xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing)
+    xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing,
+                                         symmetric)
     dtype = x0.dtype
-    out, _ = relax_jit(xc, coarse, params, jnp.asarray(_COARSE_RTOL, dtype), jnp.asarray(bound, dtype),
-                       MASS_SAFETY, physics, RELAX_CHUNK, max_chunks)
+    out, _, xc_full = relax_jit(xc, coarse, params, jnp.asarray(_COARSE_RTOL, dtype),
+                                jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
+                                max_chunks, half=_use_half(coarse, symmetric))
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
     xc0 = fk.nominal_nodes(coarse, params.rib_thickness_scale, params.rib_chord_scale)
-    u = _prolong(out.state.x - xc0, physics.periodic)
+    u = _prolong(xc_full - xc0, physics.periodic)
     chunks = int(out.chunks)
     levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]
     return x0 + u * geometry.free[..., None], steps + chunks * RELAX_CHUNK, levels

@@ -96,3 +96,12 @@ def test_slack_fabric_wrinkles_and_carries_no_compression(x64):
     assert float(jnp.max(f.tension_span)) == 0.0
     expected = (2e5 * 0.004 + 0.25 * 2e5 * -0.01) / (1 - 0.0625)
     np.testing.assert_allclose(np.asarray(f.tension_chord), expected, rtol=1e-12)
+
+
+def test_nan_state_never_passes_the_residual_test(x64):
+    bay = Bay.flat_panel(width=0.3, length=0.7, n_span=6, n_contour=9)
+    _, physics, params, ref = _setup(bay)
+    x = ref.nodes.at[2, 3, 2].set(jnp.nan)
+    assert bool(jnp.isnan(fk.relative_residual(x, ref, params, physics)))
+    assert float(fk.safe_norm(jnp.zeros(3))) == 0.0
+    assert np.isfinite(np.asarray(jax.grad(lambda v: fk.safe_norm(v))(jnp.zeros(3)))).all()
