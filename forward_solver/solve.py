@@ -11,13 +11,19 @@ import numpy as np
 
 from . import forces as fk
 from .explicit import _initial_nodes, _make_solution, simulate
+from .newton import chord_newton, newton
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, check_pressure, check_prestrain, float64_scope
 from .solution import Result, Solution
 
 __all__ = ["solve_equilibrium", "METHODS"]
 
-METHODS = ("relax", "explicit")
+METHODS = ("relax", "newton", "relax+newton", "explicit")
+
+#: Where "relax+newton" hands over from relaxation to Newton: loose enough that
+#: relaxation's slow tail is skipped, tight enough that Newton starts in its
+#: quadratic basin (no line search or continuation needed on the default bay).
+NEWTON_SWITCH_RTOL = 1e-5
 
 #: Steps per chunk of the relaxation loop (stop test and mass update between chunks).
 RELAX_CHUNK = 100
@@ -59,9 +65,14 @@ def solve_equilibrium(
         rtol: stop when ``||R_free||_2 / (p A) <= rtol`` (A the nominal skin
             area): the residual force as a fraction of the total pressure load.
         max_steps: cap on explicit steps (per grid level).
-        method: "relax" (dynamic relaxation, default) or "explicit" (the
-            paper's physical-mass scheme via `simulate`; it needs the scene's
-            viscosity or aerodynamic damping to come to rest).
+        method: "relax" (dynamic relaxation, default); "newton" (sparse
+            Newton from the start shape, with load continuation);
+            "relax+newton" (relaxation to `NEWTON_SWITCH_RTOL`, then Newton;
+            its factorised Jacobian is kept in ``extra["newton"]`` for
+            adjoint solves; warm-started from such a solution it first tries
+            chord Newton with that factor, see `newton.chord_newton`); or "explicit" (the paper's physical-mass scheme
+            via `simulate`; it needs the scene's viscosity or aerodynamic
+            damping to come to rest).
         initial: warm start, a `Solution` (or nodes array) on the same grid.
         throw: raise `ConvergenceError` if the solve fails; else return the
             `Solution` with its failure code.
@@ -108,23 +119,60 @@ def solve_equilibrium(
         start = time.perf_counter()
         steps = 0
         levels = []
-        if initial is None:
+        if initial is None and method == "newton":
+            x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+        elif initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
                                                      sequencing, symmetric)
         else:
             x_init = _initial_nodes(initial, geometry, params)
         half = _use_half(geometry, symmetric)
-        out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(rtol, dtype),
-                                  jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                  max_chunks, half=half)
-        jax.block_until_ready(out)
-        wall = time.perf_counter() - start
-        steps += int(out.chunks) * RELAX_CHUNK
-        sol = _make_solution(out, f, steps, wall, "relax", pressure, prestrain, bay,
-                             extra={"levels": levels, "half_bay": half}, nodes=nodes)
+        extra = {"levels": levels, "half_bay": half}
+        previous = initial.extra.get("newton") if isinstance(initial, Solution) else None
+        chord = None
+        if method == "relax+newton" and previous is not None:
+            chord = chord_newton(x_init, geometry, params, physics, previous, rtol)
+        if chord is not None:
+            extra["warm_start"] = "chord Newton with the initial solution's factor"
+            sol = _newton_solution(chord, steps, start, pressure, prestrain, bay, params, geometry,
+                                   physics, dict(extra, relax_steps=0))
+        elif method == "newton":
+            result = newton(x_init, geometry, params, physics, rtol, divergence_bound=bound)
+            sol = _newton_solution(result, steps, start, pressure, prestrain, bay, params, geometry,
+                                   physics, extra)
+        else:
+            relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
+            out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(relax_rtol, dtype),
+                                      jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
+                                      max_chunks, half=half)
+            jax.block_until_ready(out)
+            steps += int(out.chunks) * RELAX_CHUNK
+            relaxed = int(out.result) == Result.converged
+            if method == "relax+newton" and relaxed:
+                extra["relax_steps"] = steps
+                result = newton(nodes, geometry, params, physics, rtol, divergence_bound=bound)
+                sol = _newton_solution(result, steps, start, pressure, prestrain, bay, params,
+                                       geometry, physics, extra)
+            else:
+                sol = _make_solution(out, f, steps, time.perf_counter() - start, method, pressure,
+                                     prestrain, bay, extra=extra, nodes=nodes)
     if throw:
         sol.raise_if_failed()
     return sol
+
+
+def _newton_solution(result, steps, start, pressure, prestrain, bay, params, geometry, physics, extra):
+    """A `Solution` from a `newton.NewtonResult` (steps count relaxation steps plus iterations)."""
+    from .loop import LoopOutput
+
+    x = jnp.asarray(result.x, dtype=geometry.contour_root.dtype)
+    ref = fk.prepare(geometry, params, physics)
+    f = fk.forces(x, ref, params, fk.static_physics(physics))
+    out = LoopOutput(None, int(result.result), 0, result.residual, None)
+    extra = dict(extra, newton=result, newton_iterations=result.iterations)
+    return _make_solution(out, f, steps + result.iterations, time.perf_counter() - start, "newton"
+                          if "relax_steps" not in extra else "relax+newton", pressure, prestrain,
+                          bay, extra=extra, nodes=x)
 
 
 def _coarsenable(shape, periodic: bool) -> bool:
