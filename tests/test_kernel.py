@@ -105,3 +105,22 @@ def test_nan_state_never_passes_the_residual_test(x64):
     assert bool(jnp.isnan(fk.relative_residual(x, ref, params, physics)))
     assert float(fk.safe_norm(jnp.zeros(3))) == 0.0
     assert np.isfinite(np.asarray(jax.grad(lambda v: fk.safe_norm(v))(jnp.zeros(3)))).all()
+
+
+def test_gravity_adds_the_skin_weight(x64):
+    # Mass force q of eq. (1): each free node carries rho0 g times its lumped undeformed area;
+    # all nodes together carry the weight of the cut fabric, rho0 g L W / ((1+ps)(1+pc)).
+    bay = Bay.flat_panel(width=0.3, length=0.7, n_span=6, n_contour=9)
+    fabric = Fabric(areal_density=0.4)
+    scene = Scene(bay, fabric, gravity=True, gravity_acceleration=9.81)
+    params = scene.params(2e4, (0.01, 0.02))
+    on = scene.physics(dynamic=False)
+    off = fk.Physics(on.periodic, on.tension_only, gravity=False)
+    ref = fk.prepare(bay.geometry(), params, on)
+    x = _perturbed(bay, ref, seed=2, amplitude=0.005)
+    weight = fk.forces(x, ref, params, on).total - fk.forces(x, ref, params, off).total
+    np.testing.assert_allclose(np.asarray(weight[..., :2]), 0.0, atol=1e-12)
+    expected = -0.4 * 9.81 * np.asarray(ref.node_area) * (~bay.fixed)
+    np.testing.assert_allclose(np.asarray(weight[..., 2]), expected, rtol=1e-12, atol=1e-15)
+    total = float(jnp.sum(ref.node_area))
+    np.testing.assert_allclose(total, 0.3 * 0.7 / (1.01 * 1.02), rtol=1e-12)
