@@ -63,8 +63,9 @@ def run_chunks(
         max_chunks: chunk cap (static).
         record: ``state -> pytree of scalars`` recorded after every chunk.
         n_record: number of records kept (static, ``max_chunks`` or 0).
-        begin_chunk: ``state -> state`` run before each chunk (e.g. to rescale
-            fictitious masses), or None.
+        begin_chunk: ``(state, residual) -> state`` run before each chunk with
+            the relative residual after the previous one (inf before the
+            first), e.g. to rescale fictitious masses, or None.
     """
     dtype = x0.dtype
     history0 = None
@@ -82,9 +83,9 @@ def run_chunks(
         return (code < 0) & (k < max_chunks)
 
     def body(carry):
-        s, _, k, _, hist = carry
+        s, _, k, last, hist = carry
         if begin_chunk is not None:
-            s = begin_chunk(s)
+            s = begin_chunk(s, last)
         s, _ = jax.lax.scan(scan_body, s, None, length=chunk)
         res = relative_residual(s.x)
         finite = jnp.all(jnp.isfinite(s.x)) & jnp.all(jnp.isfinite(s.v)) & jnp.isfinite(res)
