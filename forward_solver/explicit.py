@@ -230,8 +230,14 @@ def simulate(
 
 
 def _initial_nodes(initial, geometry, params):
+    """Starting shape: the mounted one, or a warm start whose held nodes are re-mounted.
+
+    Held nodes (ribs, seams) always start at this solve's mounted position, so
+    a warm start from a solution with other rib scales moves the ribs too.
+    """
+    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
     if initial is None:
-        return fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+        return mounted
     nodes = initial.nodes if isinstance(initial, Solution) else initial
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
     expected = geometry.free.shape + (3,)
@@ -240,7 +246,7 @@ def _initial_nodes(initial, geometry, params):
             f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
             "interpolate it to the grid or start from the mounted shape (initial=None)"
         )
-    return nodes
+    return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 
 def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -161,13 +162,18 @@ def solve_equilibrium(
     return sol
 
 
+@partial(jax.jit, static_argnames=("physics",))
+def _static_forces(x, geometry, params, physics):
+    physics = fk.static_physics(physics)
+    return fk.forces(x, fk.prepare(geometry, params, physics), params, physics)
+
+
 def _newton_solution(result, steps, start, pressure, prestrain, bay, params, geometry, physics, extra):
     """A `Solution` from a `newton.NewtonResult` (steps count relaxation steps plus iterations)."""
     from .loop import LoopOutput
 
     x = jnp.asarray(result.x, dtype=geometry.contour_root.dtype)
-    ref = fk.prepare(geometry, params, physics)
-    f = fk.forces(x, ref, params, fk.static_physics(physics))
+    f = _static_forces(x, geometry, params, physics)
     out = LoopOutput(None, int(result.result), 0, result.residual, None)
     extra = dict(extra, newton=result, newton_iterations=result.iterations)
     return _make_solution(out, f, steps + result.iterations, time.perf_counter() - start, "newton"

@@ -1,14 +1,31 @@
-"""Inverse design: choose pressure and prestrain so the inflated skin matches a target.
+"""Inverse design: choose pressure, prestrain and rib geometry so the inflated skin matches a target.
 
 Public names::
 
-    section_errors
+    optimise_pressure, DesignResult, Constraints, section_errors,
+    objective_residuals, design_errors, OBJECTIVES, VARIABLES
 
-The optimiser (``optimise_pressure``, ``DesignResult``) and the full
-``optimise-pressure`` command arrive with the gradient work; until then the
-command evaluates the default case (see ``inverse_design.cli``).
+``optimise_pressure`` wraps scipy's ``brentq`` and ``least_squares`` and optax
+around the differentiable equilibrium of
+``forward_solver.adjoint.Equilibrium`` (DESIGN sections 5-7).
 """
 
+from .constraints import Constraints as Constraints
+from .objectives import OBJECTIVES as OBJECTIVES
+from .objectives import design_errors as design_errors
+from .objectives import objective_residuals as objective_residuals
 from .objectives import section_errors as section_errors
+from .optimise import DesignResult as DesignResult
+from .optimise import optimise_pressure as optimise_pressure
+from .variables import VARIABLES as VARIABLES
 
-__all__ = ["section_errors"]
+__all__ = [
+    "Constraints",
+    "DesignResult",
+    "OBJECTIVES",
+    "VARIABLES",
+    "design_errors",
+    "objective_residuals",
+    "optimise_pressure",
+    "section_errors",
+]

@@ -1,12 +1,52 @@
-"""Distances between the inflated skin and the target profile."""
+"""Distances between the inflated skin and the target profile (DESIGN section 6).
+
+Every error is the signed normal distance of a skin section's nodes from the
+target contour (`targets.Airfoil.distance`, positive outside the target), in
+fractions of chord. The sections are the skin's rows at span stations
+``y = eta * rib_spacing``:
+
+* ``"mid_bay"``: the section half-way between the ribs (``eta = 0.5``),
+  where the bulge is largest;
+* ``"average"``: every grid row from rib to rib, each weighted equally (the
+  mean square over the bay);
+* ``"worst"``: the row whose RMS distance is largest (a minimax objective;
+  non-smooth where two rows tie).
+
+RMS and maximum are taken over the section's nodes (each node weighted
+equally, as `section_errors`).
+
+The JAX side (`target_distance`, `objective_residuals`) is differentiable:
+the distance's derivative in the query point is the target's outward unit
+normal at the foot of the perpendicular (`Airfoil.project`), so gradients
+flow from the objective to the skin nodes and, through
+`forward_solver.adjoint.Equilibrium`, to the design variables. Like the
+equilibrium, the distance is computed on the host: call it eagerly (under
+``jax.grad`` / ``jax.jvp`` but not ``jax.jit``).
+"""
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["SectionErrors", "section_errors"]
+__all__ = [
+    "OBJECTIVES",
+    "SectionErrors",
+    "section_errors",
+    "station_etas",
+    "section_points",
+    "target_distance",
+    "section_distances",
+    "objective_residuals",
+    "design_errors",
+]
+
+#: Objective names accepted by `objective_residuals` and `optimise_pressure`.
+OBJECTIVES = ("mid_bay", "average", "worst")
 
 
 class SectionErrors(NamedTuple):
@@ -32,3 +72,99 @@ def section_errors(solution, target, chord: float, eta: float = 0.5) -> SectionE
     points = solution.section(eta) / chord
     distance = np.asarray(target.distance(points), dtype=np.float64)
     return SectionErrors(distance, float(np.sqrt(np.mean(distance**2))), float(np.max(np.abs(distance))))
+
+
+def check_objective(objective: str) -> None:
+    """Raise a clear ValueError for an unknown objective name."""
+    if objective not in OBJECTIVES:
+        raise ValueError(f"objective must be one of {OBJECTIVES}, got {objective!r}")
+
+
+def station_etas(objective: str, n_span: int) -> np.ndarray:
+    """Span stations (fractions of the rib spacing) that an objective looks at."""
+    check_objective(objective)
+    if objective == "mid_bay":
+        return np.array([0.5])
+    return np.linspace(0.0, 1.0, n_span)
+
+
+def section_points(nodes, eta: float, chord: float):
+    """Chord-normalised ``(n_contour, 2)`` x-z section at ``y = eta * rib_spacing`` (as `Solution.section`)."""
+    n_span = nodes.shape[0]
+    s = eta * (n_span - 1)
+    i0 = min(int(np.floor(s)), n_span - 2)
+    w = s - i0
+    row = nodes[i0] if w == 0.0 else (1.0 - w) * nodes[i0] + w * nodes[i0 + 1]
+    return jnp.stack([row[:, 0], row[:, 2]], axis=-1) / chord
+
+
+def target_distance(target, points):
+    """Signed normal distance of ``points`` from ``target`` (chord units), differentiable.
+
+    Args:
+        target: anything with ``project(points)`` returning ``distance`` and
+            ``normal`` (a `targets.Airfoil`).
+        points: ``(..., 2)`` chord-normalised x-z points (concrete, or a JAX
+            value under an eager ``jax.grad`` / ``jax.jvp``).
+
+    Returns:
+        ``(...)`` distances; the derivative in a point is the unit normal of
+        the target at its foot.
+    """
+
+    @jax.custom_jvp
+    def distance(p):
+        return jnp.asarray(target.distance(np.asarray(p)), jnp.float64)
+
+    @distance.defjvp
+    def distance_jvp(primals, tangents):
+        (p,), (dp,) = primals, tangents
+        projection = target.project(np.asarray(p))
+        normal = jnp.asarray(projection.normal, jnp.float64)
+        return jnp.asarray(projection.distance, jnp.float64), jnp.sum(normal * dp, axis=-1)
+
+    return distance(points)
+
+
+@partial(jax.jit, static_argnames=("etas", "chord"))
+def _stations(nodes, etas, chord):
+    return jnp.stack([section_points(nodes, eta, chord) for eta in etas])
+
+
+def section_distances(nodes, target, chord: float, etas) -> jnp.ndarray:
+    """``(n_stations, n_contour)`` signed distances of the sections at ``etas`` (chord units)."""
+    points = _stations(nodes, tuple(float(e) for e in etas), float(chord))
+    return target_distance(target, points)
+
+
+def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay") -> jnp.ndarray:
+    """Residual vector whose sum of squares is the objective (mean square distance, chord^2).
+
+    Args:
+        nodes: ``(n_span, n_contour, 3)`` equilibrium nodes, m.
+        target: the target `targets.Airfoil`.
+        chord: m.
+        objective: one of `OBJECTIVES`.
+
+    Returns:
+        ``(n,)`` residuals: the distances scaled by ``1/sqrt(count)``, so that
+        ``sum(r**2)`` is the RMS error squared.
+    """
+    etas = station_etas(objective, nodes.shape[0])
+    d = section_distances(nodes, target, chord, etas)
+    if objective == "worst":
+        worst = jnp.argmax(jnp.mean(jax.lax.stop_gradient(d) ** 2, axis=1))
+        d = d[worst]
+    return d.reshape(-1) / np.sqrt(d.size)
+
+
+def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:
+    """``(rms, max)`` normal distance in fractions of chord, over the objective's sections.
+
+    For ``"worst"`` both refer to the worst row (largest RMS).
+    """
+    nodes = np.asarray(nodes)
+    d = np.asarray(section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0])))
+    if objective == "worst":
+        d = d[np.argmax(np.mean(d**2, axis=1))]
+    return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
