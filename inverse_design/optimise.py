@@ -115,7 +115,9 @@ class _Problem:
         self.constraints = constraints
         self.chord = scene.bay.chord
         fixed = {k: v for k, v in variables.values.items() if k not in variables.names}
-        self.equilibrium = Equilibrium(scene, fixed, rtol=rtol)
+        # Small design grids: one relaxation loop to compile beats grid sequencing.
+        self.equilibrium = Equilibrium(scene, fixed, rtol=rtol,
+                                       sequencing=scene.bay.n_contour > 128)
         self.history: list[dict] = []
         self.tension_scale = tension_scale(variables.values, self.chord)
 
@@ -165,7 +167,7 @@ def optimise_pressure(
     method: str = "least_squares",
     root_condition: str = "thickness",
     max_iterations: int = 50,
-    tolerance: float = 1e-10,
+    tolerance: float = 1e-8,
     optimiser=None,
     rtol: float = GRADIENT_RTOL,
 ) -> DesignResult:
@@ -188,8 +190,9 @@ def optimise_pressure(
         max_iterations: cap on iterations (least-squares Jacobian
             evaluations; optax steps; brentq iterations).
         tolerance: convergence tolerance: ``ftol``/``xtol``/``gtol`` of
-            least_squares, the relative pressure tolerance of brentq, the
-            scaled gradient norm of optax.
+            least_squares (scipy's own default, 1e-8: tighter only walks
+            along the flat valley of a constrained optimum), the relative
+            pressure tolerance of brentq, the scaled gradient norm of optax.
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
             default ``optax.adam(0.02)`` on the scaled variables).
         rtol: relative residual of the forward solves.
