@@ -526,7 +526,7 @@ def plot(rows, path, title_extra):
         ax.set_title(f"{p:g} kPa")
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].set_ylabel("solve time after warm-up (s)")
-    handles, labels = {}, []
+    handles = {}
     for ax in axes[0]:
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)

@@ -64,7 +64,7 @@ import scipy.sparse.linalg as spla
 
 from . import forces as fk
 from .newton import PERMC_SPEC, assemble_jacobian, free_dofs
-from .relax import MASS_SAFETY
+from .relax import MASS_SAFETY, kinetic_damping_step
 from .scene import Scene, float64_scope
 from .solution import Solution
 from .solve import solve_equilibrium
@@ -431,11 +431,8 @@ def _unrolled(geometry, params, physics, n_chunks, chunk):
 
     def step(state, _):
         x, v, kinetic, mass = state
-        v = v + fk.residual(x, ref, params, physics) / mass
-        k_new = 0.5 * jnp.sum(mass * v * v)
-        peaked = k_new < kinetic  # kinetic damping, as in relax.py
-        v = jnp.where(peaked, 0.0, v)
-        return (x + v, v, jnp.where(peaked, 0.0, k_new), mass), None
+        force = fk.residual(x, ref, params, physics)
+        return (*kinetic_damping_step(x, v, kinetic, mass, force), mass), None
 
     @jax.checkpoint
     def run_chunk(state, _):

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import forces as fk
 from .scene import Scene, check_pressure, check_prestrain, float64_scope, PRECISIONS
-from .solution import ConvergenceError, Solution
+from .solution import Solution
 
 __all__ = ["PressureRamp", "simulate", "stable_time_step", "DEFAULT_COURANT"]
 

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from . import forces as fk
 from .loop import run_chunks
 
-__all__ = ["relax_jit", "MASS_SAFETY", "mirror_rows", "half_rows"]
+__all__ = ["relax_jit", "MASS_SAFETY", "kinetic_damping_step", "mirror_rows", "half_rows"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
 #: leaves room for the couplings the bound leaves out (cell averaging).
@@ -59,6 +59,23 @@ STALL_CHUNKS = 10
 STALL_GAIN = 0.9
 SAFETY_GROWTH = 1.5
 MAX_SAFETY = 20.0
+
+
+def kinetic_damping_step(x, v, kinetic, mass, force):
+    """One explicit step of unit length with kinetic damping.
+
+    Eq. (14)/(17) with fictitious masses: ``v += F / m``, ``x += v``; when the
+    kinetic energy falls below its previous value the motion has passed an
+    energy peak, so the velocities are zeroed (and the position held).
+
+    Returns:
+        ``(x, v, kinetic)`` after the step.
+    """
+    v = v + force / mass
+    new_kinetic = 0.5 * jnp.sum(mass * v * v)
+    peaked = new_kinetic < kinetic
+    v = jnp.where(peaked, 0.0, v)
+    return x + v, v, jnp.where(peaked, 0.0, new_kinetic)
 
 
 def half_rows(n_span: int) -> int:
@@ -149,11 +166,8 @@ def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, phy
                       jnp.minimum(s.best, residual), jnp.where(grow, 0, stalled))
 
     def step(s: _State) -> _State:
-        v = s.v + grid.residual(s.x) / s.mass
-        kinetic = 0.5 * jnp.sum(s.mass * v * v)
-        peaked = kinetic < s.kinetic  # kinetic damping: restart at the energy peak
-        v = jnp.where(peaked, 0.0, v)
-        return s._replace(x=s.x + v, v=v, kinetic=jnp.where(peaked, 0.0, kinetic))
+        x, v, kinetic = kinetic_damping_step(s.x, s.v, s.kinetic, s.mass, grid.residual(s.x))
+        return s._replace(x=x, v=v, kinetic=kinetic)
 
     dtype = x_init.dtype
     safety0 = jnp.asarray(mass_safety, dtype)

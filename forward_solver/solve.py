@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import math
 import time
 from functools import partial
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from . import forces as fk
 from .explicit import _initial_nodes, _make_solution, simulate
