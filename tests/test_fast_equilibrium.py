@@ -72,3 +72,17 @@ def test_warm_start_after_one_percent_pressure_change(wing_bay):
     relaxed = solve_equilibrium(scene, 1.01 * PRESSURE, PRESTRAIN, rtol=1e-9, initial=base)
     assert relaxed.steps < cold_relax.steps
     assert np.abs(relaxed.nodes - cold.nodes).max() < 1e-7
+
+
+def test_equilibrium_does_not_depend_on_the_starting_shape(wing_bay, wing_reference):
+    # Issue 7: a taut skin (no wrinkles here) has one equilibrium. Start from the mounted shape
+    # pushed in and out by smooth bumps of up to 1 cm on every free node; tolerance: both solves
+    # stop at rtol 1e-11, so shapes agree to ~1e-9 chord.
+    assert not wing_reference.wrinkled.any()
+    mounted = np.asarray(wing_bay.nominal_nodes())
+    i = np.linspace(0, np.pi, wing_bay.n_span)[:, None]
+    j = np.linspace(0, 2 * np.pi, wing_bay.n_contour, endpoint=False)[None, :]
+    bump = 0.01 * np.sin(i)[..., None] * np.stack([np.sin(3 * j), 0 * j, np.cos(2 * j)], axis=-1)
+    start = mounted + bump * (~wing_bay.fixed)[..., None]
+    sol = solve_equilibrium(Scene(wing_bay, Fabric()), PRESSURE, PRESTRAIN, rtol=1e-11, initial=start)
+    assert np.abs(sol.nodes - wing_reference.nodes).max() < 1e-8
