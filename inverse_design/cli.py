@@ -53,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="optimiser (default least_squares)")
     parser.add_argument("--evaluate", action="store_true",
                         help="only solve the equilibrium at the given values and report the errors")
+    parser.add_argument("--max-steps", type=int, default=200_000,
+                        help="step cap of the equilibrium solve with --evaluate (default 200000)")
     parser.add_argument("--stiffness-span", type=float, default=2e5, help="E11, N/m (default 2e5)")
     parser.add_argument("--stiffness-chord", type=float, default=2e5, help="E22, N/m (default 2e5)")
     parser.add_argument("--poisson", type=float, default=0.25, help="Poisson coupling (default 0.25)")
@@ -96,14 +98,16 @@ def run(args: argparse.Namespace) -> dict:
     }
     if args.evaluate:
         sol = solve_equilibrium(scene, args.pressure, (args.prestrain_span, args.prestrain_chord),
-                                rib_thickness_scale=args.rib_thickness_scale, throw=False)
+                                rib_thickness_scale=args.rib_thickness_scale,
+                                max_steps=args.max_steps, throw=False)
         errors = section_errors(sol, target, args.chord)
         summary.update(mode="evaluate", pressure_pa=args.pressure,
                        prestrain=[args.prestrain_span, args.prestrain_chord],
                        rib_thickness_scale=args.rib_thickness_scale, result=sol.result.name,
                        steps=sol.steps, relative_residual=sol.residual,
                        mid_bay_rms_error_chord=errors.rms, mid_bay_max_error_chord=errors.max,
-                       wrinkled_fraction=sol.wrinkled_fraction, success=sol.converged)
+                       wrinkled_fraction=sol.wrinkled_fraction, success=sol.converged,
+                       message=sol.message)
     else:
         variables = tuple(v.strip() for v in args.variables.split(",") if v.strip())
         initial = {"pressure": args.pressure, "prestrain_span": args.prestrain_span,
@@ -136,11 +140,16 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``optimise-pressure`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from forward_solver import ConvergenceError
+
     try:
         summary = run(args)
     except (ValueError, OSError) as exc:  # bad input: one line, no traceback
         print(f"optimise-pressure: error: {exc}", file=sys.stderr)
         return 2
+    except ConvergenceError as exc:  # a forward solve failed: the reason, exit 1
+        print(f"optimise-pressure: failed: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(summary, indent=2))
     elif not args.quiet:
@@ -148,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{summary['target']}: {summary['result']} in {summary['steps']} steps, "
                   f"mid-bay error rms {summary['mid_bay_rms_error_chord']:.3e} chord, "
                   f"max {summary['mid_bay_max_error_chord']:.3e} chord")
+            if not summary["success"]:
+                print(f"equilibrium not reached: {summary['message']}", file=sys.stderr)
         else:
             print(f"{summary['target']}: pressure {summary['pressure_pa']:.1f} Pa, rib thickness "
                   f"scale {summary['rib_thickness_scale']:.4f}, prestrain "

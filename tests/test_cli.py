@@ -45,3 +45,12 @@ def test_evaluate_writes_the_summary(tmp_path):
     written = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert written["result"] == "converged" and written["grid"] == [5, 32]
     assert summary["mid_bay_max_error_chord"] >= summary["mid_bay_rms_error_chord"] > 0
+
+
+def test_a_failed_solve_exits_1_with_the_reason(tmp_path):
+    # 60 steps cannot reach equilibrium: the command reports the failure code, no traceback.
+    done = _run("--evaluate", "--n-span", "5", "--n-contour", "32", "--max-steps", "60",
+                "--out", str(tmp_path / "out"), cwd=tmp_path)
+    assert done.returncode == 1
+    assert "max_steps_reached" in done.stderr + done.stdout
+    assert "Traceback" not in done.stderr
