@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._precision import float64_scope
-from .forces import Geometry, nominal_nodes
+from .forces import Geometry, nominal_nodes, surface_area
 
 __all__ = ["Bay"]
 
@@ -243,15 +243,8 @@ class Bay:
 
     def skin_area(self) -> float:
         """Nominal area of the skin, m^2 (sum of the grid's quadrilaterals)."""
-        nodes = self.nominal_nodes()
-        a, b = nodes[:-1], nodes[1:]
-        if self.periodic:
-            c, d = np.roll(b, -1, axis=1), np.roll(a, -1, axis=1)
-        else:
-            a, b = a[:, :-1], b[:, :-1]
-            c, d = nodes[1:, 1:], nodes[:-1, 1:]
-        area = 0.5 * np.linalg.norm(np.cross(c - a, d - b), axis=-1)
-        return float(area.sum())
+        with float64_scope():
+            return float(surface_area(jnp.asarray(self.nominal_nodes()), self.periodic))
 
 
 def _check_grid(n_span: int, n_contour: int, min_contour: int, what: str) -> None:

@@ -45,6 +45,7 @@ __all__ = [
     "relative_residual",
     "static_physics",
     "node_area_vectors",
+    "surface_area",
     "node_stiffness",
     "fibres",
     "Fibres",
@@ -221,9 +222,14 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
     h2_cell = 0.5 * (contour_length[:-1] + contour_length[1:])
     quarter = 0.25 * h1_cell * h2_cell
     node_area = _scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
-    n00, n10, n11, n01 = _cell_corners(x0, physics.periodic)
-    skin_area = 0.5 * jnp.sum(safe_norm(jnp.cross(n11 - n00, n01 - n10)))
-    return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None], skin_area)
+    return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None],
+                     surface_area(x0, physics.periodic))
+
+
+def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
+    """Area of the grid's surface, m^2: the sum of its quadrilaterals (half the diagonals' cross product)."""
+    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    return 0.5 * jnp.sum(safe_norm(jnp.cross(n11 - n00, n01 - n10)))
 
 
 # --------------------------------------------------------------------- forces
