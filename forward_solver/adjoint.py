@@ -166,6 +166,20 @@ def _assemble_tangent(dx_free, dheld, free, shape):
 _prepare = jax.jit(fk.prepare, static_argnames=("physics",))
 
 
+def _float64_on_this_thread() -> None:
+    """Let a host callback return float64 when XLA runs it on one of its own threads.
+
+    `float64_scope` turns float64 on for the calling thread only. XLA may run a
+    ``jax.pure_callback`` on a worker thread of its own, where JAX then
+    canonicalises the callback's float64 result to float32 and rejects it
+    ("Incorrect output dtype"). On such a thread (float64 off) this turns
+    float64 on for that thread, for good: it runs nothing but callbacks. The
+    caller's thread is inside its float64 scope already and is left alone.
+    """
+    if not jax.config.jax_enable_x64:
+        jax.enable_x64(True).__enter__()
+
+
 class _Linearisation:
     """What the tangent rule needs at one equilibrium: state, parameters and the LU of J."""
 
@@ -191,6 +205,7 @@ class _Linearisation:
 
     # Host solves with the LU; ``b`` may carry leading batch axes (jax.vmap, jacfwd).
     def _host_solve(self, b, trans):
+        _float64_on_this_thread()
         b = np.asarray(b, dtype=np.float64)
         flat = b.reshape(-1, b.shape[-1]).T
         out = self.factor.solve(np.ascontiguousarray(flat), trans=trans)

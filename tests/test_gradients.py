@@ -124,3 +124,26 @@ def test_float32_caller_gets_a_clear_error(scene):
         pytest.skip("the session runs with float64 on globally")
     with pytest.raises(RuntimeError, match="float64"):
         jax.grad(lambda p: jnp.sum(eq({"pressure": p})))(2e4)
+
+
+def test_host_solve_returns_float64_on_a_thread_without_float64(equilibrium, implicit_gradient):
+    """XLA may run the LU callback on a worker thread outside the caller's float64 scope; JAX
+    then canonicalises the returned array, which must stay float64 (else "Incorrect output
+    dtype" aborts the gradient). Replays that on a fresh thread."""
+    import threading
+
+    lin = equilibrium._linearisation
+    assert lin is not None  # the gradient fixture linearised at THETA
+    out = {}
+
+    def worker():
+        out["x64_before"] = bool(jax.config.jax_enable_x64)
+        solved = lin._host_solve(np.ones(lin.factor.shape[0]), trans="N")
+        out["dtype"] = jnp.asarray(solved).dtype  # canonicalised as the callback result is
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join()
+    assert out["x64_before"] is False  # the premise: a new thread starts without float64
+    assert out["dtype"] == np.float64
+    assert not jax.config.jax_enable_x64  # this (the caller's) thread is untouched
