@@ -1,176 +1,446 @@
 """``optimise-pressure``: the command line, a thin layer over the public API.
 
-By default it runs `inverse_design.optimise_pressure` on the case described by
-the options (with no options, the built-in default: NACA 2412 target and
-ribs, chord 1 m, ribs 0.25 m apart, 2% prestrain, a 9 x 64 grid, choosing the
-pressure and the rib thickness scale so the bay-average section matches the
-target). ``--evaluate`` only solves the equilibrium at the given pressure and
-reports its errors. It writes ``summary.json`` into ``--out``.
+It parses the options (and a TOML case file, ``--config``), builds the
+`forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
+``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
+to `inverse_design.report.write_report`, which writes the output folder. No
+physics lives here.
+
+Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
+nothing written; or the optimiser stopped without converging: the folder is
+written and says so); 2 bad input (one line on stderr); 130 interrupted.
+
+Like the library, the command changes no JAX setting: the solvers run in
+their own thread-local float64 scope.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
 
-__all__ = ["main", "build_parser"]
+__all__ = ["InputError", "build_parser", "main", "parse_arguments", "read_config", "run"]
+
+PROG = "optimise-pressure"
+#: ``--variables`` of the default case.
+DEFAULT_VARIABLES = "pressure,rib_thickness_scale"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="optimise-pressure",
-        description="Inflatable wing bay: choose the internal pressure (and prestrain or rib "
-        "thickness) so the pressurised skin matches a target profile. With no arguments it runs "
-        "the built-in default case (NACA 2412, chord 1 m, ribs 0.25 m apart, 2%% prestrain, "
-        "pressure and rib thickness optimised on a 9x64 grid).",
-    )
-    parser.add_argument("--target", default="naca2412",
-                        help="target profile: nacaXXXX / nacaXXXXX or a Selig/Lednicer .dat file "
-                        "(default naca2412); the ribs take this shape")
-    parser.add_argument("--chord", type=float, default=1.0, help="chord, m (default 1.0)")
-    parser.add_argument("--rib-spacing", type=float, default=0.25, help="rib spacing, m (default 0.25)")
-    parser.add_argument("--pressure", type=float, default=1e4,
-                        help="internal overpressure, Pa: the start of the optimisation, or the "
-                        "value evaluated with --evaluate (default 1e4)")
-    parser.add_argument("--pressure-bounds", type=float, nargs=2, default=(1e3, 1e5),
-                        metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")
-    parser.add_argument("--prestrain-span", type=float, default=0.02,
-                        help="span prestrain, fraction (default 0.02)")
-    parser.add_argument("--prestrain-chord", type=float, default=0.02,
-                        help="chord prestrain, fraction (default 0.02)")
-    parser.add_argument("--rib-thickness-scale", type=float, default=1.0,
-                        help="rib thickness over the target's (start or fixed value, default 1)")
-    parser.add_argument("--variables", default="pressure,rib_thickness_scale",
-                        help="comma-separated design variables among pressure, prestrain_span, "
-                        "prestrain_chord, rib_thickness_scale, rib_chord_scale "
-                        "(default pressure,rib_thickness_scale)")
-    parser.add_argument("--objective", default="average", choices=("mid_bay", "average", "worst"),
-                        help="which sections must match the target (default average)")
-    parser.add_argument("--method", default="least_squares", choices=("least_squares", "root", "optax"),
-                        help="optimiser (default least_squares)")
-    parser.add_argument("--evaluate", action="store_true",
-                        help="only solve the equilibrium at the given values and report the errors")
-    parser.add_argument("--max-steps", type=int, default=200_000,
-                        help="step cap of the equilibrium solve with --evaluate (default 200000)")
-    parser.add_argument("--stiffness-span", type=float, default=2e5, help="E11, N/m (default 2e5)")
-    parser.add_argument("--stiffness-chord", type=float, default=2e5, help="E22, N/m (default 2e5)")
-    parser.add_argument("--poisson", type=float, default=0.25, help="Poisson coupling (default 0.25)")
-    parser.add_argument("--n-span", type=int, default=9, help="nodes along the span (default 9)")
-    parser.add_argument("--n-contour", type=int, default=64, help="nodes around the contour (default 64)")
-    parser.add_argument("--out", default="optimise-pressure-out", help="output folder")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
-    parser.add_argument("--quiet", action="store_true", help="print nothing but errors")
+class InputError(ValueError):
+    """Bad command-line or case-file input (exit code 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage block: the caller prints it and exits 2
+        raise InputError(f"{message} (see {PROG} --help)")
+
+
+# ------------------------------------------------------------------ option types
+def _number(unit: str = "", positive: bool = False):
+    """A type function for a finite (optionally positive) float; ``unit`` goes into the message."""
+    where = f" ({unit})" if unit else ""
+
+    def number(text):
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected a number{where}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number{where}, got {text!r}")
+        if positive and not value > 0:
+            raise argparse.ArgumentTypeError(f"must be a positive number{where}, got {text!r}")
+        return value
+
+    return number
+
+
+def _whole(text):
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+# One entry per option: (group, flag, argparse keyword arguments). The TOML
+# reader converts a case file's values with the same types and choices.
+_GROUPS = {
+    "target": "target and ribs",
+    "bay": "bay and grid",
+    "fabric": "fabric",
+    "design": "design variables and bounds",
+    "constraints": "tension constraints",
+    "optimiser": "optimiser",
+    "output": "input and output",
+}
+OPTIONS = (
+    ("target", "--target", dict(default="naca2412", metavar="SPEC",
+                                help="target profile: a NACA 4- or 5-digit code (naca2412, naca23012) or a "
+                                "Selig/Lednicer .dat file (default naca2412)")),
+    ("target", "--rib", dict(default=None, metavar="SPEC",
+                             help="rib profile, same forms as --target (default: the target)")),
+    ("target", "--rib-thickness-scale", dict(type=_number(positive=True), default=1.0, metavar="X",
+                                             help="rib thickness over the rib profile's, about its camber "
+                                             "line: the start if optimised, else fixed (default 1.0)")),
+    ("target", "--rib-chord-scale", dict(type=_number(positive=True), default=1.0, metavar="X",
+                                         help="rib chord over --chord: the start if optimised, else fixed "
+                                         "(default 1.0)")),
+    ("bay", "--chord", dict(type=_number("m", positive=True), default=1.0, metavar="M",
+                            help="chord of the ribs, m (default 1.0)")),
+    ("bay", "--rib-spacing", dict(type=_number("m", positive=True), default=0.25, metavar="M",
+                                  help="distance between the two ribs, m (default 0.25)")),
+    ("bay", "--n-span", dict(type=_whole, default=9, metavar="N",
+                             help="grid nodes along the span, ribs included (default 9)")),
+    ("bay", "--n-contour", dict(type=_whole, default=64, metavar="N",
+                                help="grid nodes around the contour (default 64)")),
+    ("fabric", "--stiffness-span", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
+                                        help="tensile stiffness E11 of the span fibres per unit width, N/m "
+                                        "(default 2e5)")),
+    ("fabric", "--stiffness-chord", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
+                                         help="tensile stiffness E22 of the contour fibres, N/m (default 2e5)")),
+    ("fabric", "--poisson", dict(type=_number(), default=0.25, metavar="NU",
+                                 help="Poisson coupling nu12 = nu21, in [0, 1) (default 0.25)")),
+    ("fabric", "--prestrain-span", dict(type=_number("fraction"), default=0.02, metavar="E",
+                                        help="span prestrain, fraction: the fabric is cut 1 + E times "
+                                        "shorter (start if optimised, default 0.02)")),
+    ("fabric", "--prestrain-chord", dict(type=_number("fraction"), default=0.02, metavar="E",
+                                         help="contour prestrain, fraction (start if optimised, default 0.02)")),
+    ("design", "--pressure", dict(type=_number("Pa", positive=True), default=1e4, metavar="PA",
+                                  help="internal overpressure, Pa: the start of the optimisation, or the "
+                                  "value evaluated with --evaluate (default 1e4)")),
+    ("design", "--variables", dict(default=DEFAULT_VARIABLES, metavar="NAMES",
+                                   help="comma-separated design variables among pressure, prestrain_span, "
+                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale "
+                                   f"(default {DEFAULT_VARIABLES})")),
+    ("design", "--pressure-bounds", dict(type=_number("Pa", positive=True), nargs=2, default=(1e3, 1e5),
+                                         metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")),
+    ("design", "--prestrain-bounds", dict(type=_number("fraction"), nargs=2, default=(0.0, 0.05),
+                                          metavar=("LOW", "HIGH"),
+                                          help="bounds of both prestrains, fraction (default 0 0.05)")),
+    ("design", "--rib-thickness-bounds", dict(type=_number(positive=True), nargs=2, default=(0.7, 1.0),
+                                              metavar=("LOW", "HIGH"),
+                                              help="bounds of the rib thickness scale (default 0.7 1.0)")),
+    ("design", "--rib-chord-bounds", dict(type=_number(positive=True), nargs=2, default=(0.5, 1.5),
+                                          metavar=("LOW", "HIGH"),
+                                          help="bounds of the rib chord scale (default 0.5 1.5)")),
+    ("constraints", "--min-tension", dict(type=_number("N/m"), default=0.0, metavar="N/M",
+                                          help="floor of every fibre tension, N/m: 0 keeps the skin free "
+                                          "of wrinkles (default 0)")),
+    ("constraints", "--max-tension", dict(type=_number("N/m", positive=True), default=None, metavar="N/M",
+                                          help="ceiling of every fibre tension (the fabric's allowable), "
+                                          "N/m (default none)")),
+    ("constraints", "--no-tension-constraints", dict(action="store_true",
+                                                     help="drop both tension constraints (keep the bounds)")),
+    ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
+                                      help="sections that must match the target: the mid-bay one, every "
+                                      "row from rib to rib, or the worst row (default average)")),
+    ("optimiser", "--method", dict(default="least_squares", choices=("least_squares", "root", "optax"),
+                                   help="optimiser; root (brentq) takes --variables pressure "
+                                   "(default least_squares)")),
+    ("optimiser", "--root-condition", dict(default="thickness", choices=("thickness", "mean_offset"),
+                                           help="scalar condition of --method root at mid-bay "
+                                           "(default thickness)")),
+    ("optimiser", "--max-iterations", dict(type=_whole, default=50, metavar="N",
+                                           help="cap on the optimiser's iterations (default 50)")),
+    ("optimiser", "--tolerance", dict(type=_number(positive=True), default=1e-8, metavar="TOL",
+                                      help="convergence tolerance of the optimiser (default 1e-8)")),
+    ("optimiser", "--evaluate", dict(action="store_true",
+                                     help="only solve the equilibrium at the given values and report it "
+                                     "(no optimisation, no history plot)")),
+    ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
+                                      help="step cap of the equilibrium solve with --evaluate (default 200000)")),
+    ("output", "--config", dict(default=None, metavar="CASE.TOML",
+                                help="read options from a TOML file (keys: the long option names); "
+                                "command-line options override it")),
+    ("output", "--out", dict(default="optimise-pressure-out", metavar="DIR",
+                             help="output folder, replaced as a whole when the new one is complete "
+                             "(default optimise-pressure-out)")),
+    ("output", "--magnification", dict(type=_number(positive=True), default=None, metavar="X",
+                                       help="deviation factor of the section plot (default: automatic, "
+                                       "1, 2, 5, 10, ...)")),
+    ("output", "--json", dict(action="store_true", help="print the summary as JSON on stdout, nothing else")),
+    ("output", "--quiet", dict(action="store_true", help="print nothing but errors")),
+)
+_SPECS = {flag[2:].replace("-", "_"): kwargs for _, flag, kwargs in OPTIONS}
+
+_DESCRIPTION = """\
+Inflatable wing bay: choose the internal pressure (and prestrain or rib geometry)
+so that the pressurised skin matches a target profile, and write a report folder.
+
+With no arguments it runs the built-in default case: NACA 2412 target and ribs,
+chord 1 m, ribs 0.25 m apart, fabric 2e5 N/m both ways, 2% prestrain, 9x64 grid;
+the pressure (1-100 kPa) and the rib thickness scale (0.7-1) are chosen so that
+every section from rib to rib matches the target, with a wrinkle-free skin.
+"""
+
+_EPILOG = """\
+output folder (--out DIR, written to a temporary folder next to DIR and renamed
+into place when complete; an earlier DIR is replaced only then):
+  summary.json          inputs, results, errors before/after, active constraints,
+                        timings, package version, the files written
+  equilibrium.npz       nodes (n_span, n_contour, 3) m, tensions N/m, wrinkled
+                        cells, deviation from the target, parameters
+  skin.obj, skin.stl    the equilibrium skin as a mesh, metres
+  mid_bay_section.png   mid-bay section against the rib and the target (magnified)
+  deviation.png         deviation from the target over the whole bay
+  tensions.png          fibre tensions with the wrinkled cells marked
+  history.png           the optimiser's iterates (not with --evaluate)
+
+case file (--config case.toml; keys are the long option names, with - or _; paths in it
+are relative to the current folder; options on the command line override it):
+  target = "naca4415"
+  chord = 0.8                      # m
+  variables = ["pressure", "prestrain_span", "prestrain_chord"]
+  pressure-bounds = [2e3, 5e4]     # Pa
+  n-span = 17
+  n-contour = 128
+
+exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input; 130 interrupted.
+"""
+
+
+def build_parser(suppress_defaults: bool = False) -> argparse.ArgumentParser:
+    """The argument parser; with ``suppress_defaults`` only the options given appear in the namespace."""
+    parser = _Parser(prog=PROG, description=_DESCRIPTION, epilog=_EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    groups = {key: parser.add_argument_group(title) for key, title in _GROUPS.items()}
+    for group, flag, kwargs in OPTIONS:
+        kwargs = dict(kwargs)
+        if suppress_defaults:
+            kwargs["default"] = argparse.SUPPRESS
+        groups[group].add_argument(flag, **kwargs)
     return parser
 
 
-def _target(spec: str):
+# ------------------------------------------------------------------ case files
+def _toml_value(path: str, key: str, value):
+    """A case-file value converted and validated as the command line would."""
+    dest = key.replace("-", "_")
+    spec = _SPECS.get(dest)
+    if spec is None or dest == "config":
+        raise InputError(f"{path}: unknown key {key!r}; keys are the long option names of "
+                         f"{PROG} --help (e.g. n-span, pressure-bounds)")
+    if spec.get("action") == "store_true":
+        if not isinstance(value, bool):
+            raise InputError(f"{path}: {key} must be true or false, got {value!r}")
+        return value
+    convert = spec.get("type", str)
+
+    def one(item):
+        if isinstance(item, (bool, dict, list)) or not isinstance(item, (int, float, str)):
+            raise InputError(f"{path}: {key} must be a single value, got {item!r}")
+        try:
+            converted = convert(str(item))
+        except argparse.ArgumentTypeError as exc:
+            raise InputError(f"{path}: {key}: {exc}") from None
+        if spec.get("choices") and converted not in spec["choices"]:
+            raise InputError(f"{path}: {key} must be one of {', '.join(spec['choices'])}, got {item!r}")
+        return converted
+
+    if spec.get("nargs") == 2:
+        if not (isinstance(value, list) and len(value) == 2):
+            raise InputError(f"{path}: {key} must be a pair [low, high], got {value!r}")
+        return tuple(one(v) for v in value)
+    if dest == "variables" and isinstance(value, list):
+        if not all(isinstance(v, str) for v in value):
+            raise InputError(f"{path}: variables must be a list of names, got {value!r}")
+        value = ",".join(value)
+    return one(value)
+
+
+def read_config(path) -> dict:
+    """Options of a TOML case file, converted and checked like the command line.
+
+    Raises:
+        InputError: for an unreadable file, invalid TOML, an unknown key or a
+            bad value (the message names the file and the key).
+    """
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - exercised on Python 3.10 only
+        import tomli as tomllib
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise InputError(f"cannot read the case file {path}: {reason}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path} is not valid TOML: {exc}") from None
+    values = {}
+    for key, value in data.items():
+        dest = key.replace("-", "_")
+        if dest in values:
+            raise InputError(f"{path}: {key!r} is given twice (with - and _)")
+        values[dest] = _toml_value(str(path), key, value)
+    return values
+
+
+def parse_arguments(argv: list[str] | None = None) -> tuple[argparse.Namespace, dict]:
+    """Resolve the options: defaults, then the case file, then the command line.
+
+    Returns:
+        ``(args, sources)``: the namespace and, for every option not at its
+        default, where it came from ("config" or "command line").
+
+    Raises:
+        InputError: for a bad option or case file.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    build_parser().parse_args(argv)  # --help, and every check with the full messages
+    given = vars(build_parser(suppress_defaults=True).parse_args(argv))
+    defaults = vars(build_parser().parse_args([]))
+    config = read_config(given["config"]) if given.get("config") else {}
+    merged = {**defaults, **config, **given}
+    sources = {**{k: "config" for k in config}, **{k: "command line" for k in given}}
+    return argparse.Namespace(**merged), sources
+
+
+# ------------------------------------------------------------------ the run
+def _airfoil(spec: str, option: str):
     from targets import load_airfoil, naca
 
-    if Path(spec).suffix.lower() == ".dat" or Path(spec).exists():
-        return load_airfoil(spec)
-    return naca(spec)
+    path = Path(spec)
+    if path.suffix.lower() == ".dat" or path.exists():
+        if not path.is_file():
+            raise InputError(f"{option}: no such file {spec!r}; give a NACA code such as naca2412 or the "
+                             "path of a Selig/Lednicer .dat file")
+        try:
+            return load_airfoil(path)
+        except OSError as exc:
+            raise InputError(f"{option}: cannot read {spec}: {exc.strerror or exc}") from None
+    try:
+        return naca(spec)
+    except ValueError as exc:
+        raise InputError(f"{option} {spec!r} is neither a NACA code nor a .dat file: {exc}") from None
 
 
-def run(args: argparse.Namespace) -> dict:
-    """Run the case described by ``args`` and write the output folder; return the summary."""
-    from forward_solver import Bay, Fabric, Scene, solve_equilibrium
+def _variables(text: str) -> tuple[str, ...]:
+    return tuple(v.strip() for v in text.split(",") if v.strip())
 
-    from .objectives import section_errors
+
+def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = False,
+        started: float | None = None) -> dict:
+    """Run the case described by ``args``, write the output folder and return its summary.
+
+    ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
+    start of `main`, so that it includes importing JAX.
+
+    Raises:
+        ValueError: bad input (`InputError` among them).
+        forward_solver.ConvergenceError: a forward solve failed (nothing written).
+    """
+    start = time.perf_counter() if started is None else started
+    target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
+    rib = target if args.rib is None else _airfoil(args.rib, "--rib")
+    from forward_solver import Bay, ConvergenceError, Fabric, Scene, solve_equilibrium
+
+    from .constraints import Constraints
     from .optimise import optimise_pressure
+    from .report import check_output_folder, write_report
 
-    target = _target(args.target)
-    bay = Bay.from_airfoil(target, chord=args.chord, rib_spacing=args.rib_spacing,
-                           n_span=args.n_span, n_contour=args.n_contour)
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
-                    poisson=args.poisson)
-    scene = Scene(bay, fabric)
-    start = time.perf_counter()
-    summary = {
-        "target": target.name,
-        "chord_m": args.chord,
-        "rib_spacing_m": args.rib_spacing,
-        "grid": [args.n_span, args.n_contour],
-        "fabric": {"stiffness_span_n_per_m": args.stiffness_span,
-                   "stiffness_chord_n_per_m": args.stiffness_chord, "poisson": args.poisson},
-    }
+    out = check_output_folder(args.out)  # before the long work, not after it
+    bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
+                           n_contour=args.n_contour)
+    scene = Scene(bay, Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
+                              poisson=args.poisson))
+    values = {"pressure": args.pressure, "prestrain_span": args.prestrain_span,
+              "prestrain_chord": args.prestrain_chord, "rib_thickness_scale": args.rib_thickness_scale,
+              "rib_chord_scale": args.rib_chord_scale}
+    inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
+    report = dict(target=target, scene=scene, objective=args.objective, inputs=inputs,
+                  magnification=args.magnification)
+    timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
-        sol = solve_equilibrium(scene, args.pressure, (args.prestrain_span, args.prestrain_chord),
-                                rib_thickness_scale=args.rib_thickness_scale,
-                                max_steps=args.max_steps, throw=False)
-        errors = section_errors(sol, target, args.chord)
-        summary.update(mode="evaluate", pressure_pa=args.pressure,
-                       prestrain=[args.prestrain_span, args.prestrain_chord],
-                       rib_thickness_scale=args.rib_thickness_scale, result=sol.result.name,
-                       steps=sol.steps, relative_residual=sol.residual,
-                       mid_bay_rms_error_chord=errors.rms, mid_bay_max_error_chord=errors.max,
-                       wrinkled_fraction=sol.wrinkled_fraction, success=sol.converged,
-                       message=sol.message)
+        t = time.perf_counter()
+        result = solve_equilibrium(scene, args.pressure, (args.prestrain_span, args.prestrain_chord),
+                                   rib_thickness_scale=args.rib_thickness_scale,
+                                   rib_chord_scale=args.rib_chord_scale, max_steps=args.max_steps,
+                                   throw=False)
+        timings["equilibrium"] = time.perf_counter() - t
+        if not result.converged:
+            raise ConvergenceError(result)
+        return write_report(out, result, values=values, timings=timings, **report)
+    variables = _variables(args.variables)
+    all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
+                  "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
+                  "rib_chord_scale": args.rib_chord_bounds}
+    bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
+    constraints = (None if args.no_tension_constraints else
+                   Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
+    t = time.perf_counter()
+    result = optimise_pressure(scene, target, variables=variables, initial=values, bounds=bounds,
+                               objective=args.objective, constraints=constraints, method=args.method,
+                               root_condition=args.root_condition, max_iterations=args.max_iterations,
+                               tolerance=args.tolerance, progress=progress)
+    timings["optimisation"] = time.perf_counter() - t
+    return write_report(out, result, bounds=bounds, timings=timings, **report)
+
+
+def _describe(summary: dict) -> list[str]:
+    """The console lines of a finished run."""
+    case, res, err = summary["case"], summary["results"], summary["errors"]
+    v = res["values"]
+    lines = [f"{case['target']}, {case['grid'][0]}x{case['grid'][1]} grid, {err['objective']} objective"]
+    if summary["mode"] == "evaluate":
+        eq = res["equilibrium"]
+        lines.append(f"  equilibrium at {v['pressure_pa']:.6g} Pa: {eq['result']} in {eq['steps']} steps")
+        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} chord "
+                     f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
     else:
-        variables = tuple(v.strip() for v in args.variables.split(",") if v.strip())
-        initial = {"pressure": args.pressure, "prestrain_span": args.prestrain_span,
-                   "prestrain_chord": args.prestrain_chord,
-                   "rib_thickness_scale": args.rib_thickness_scale}
-        res = optimise_pressure(scene, target, variables=variables, initial=initial,
-                                bounds={"pressure": tuple(args.pressure_bounds)},
-                                objective=args.objective, method=args.method)
-        summary.update(mode="optimise", variables=list(variables), objective=args.objective,
-                       method=args.method, success=res.success, message=res.message,
-                       pressure_pa=res.pressure, prestrain=list(res.prestrain),
-                       rib_thickness_scale=res.rib_thickness_scale,
-                       rms_error_chord_before=res.initial_rms_error,
-                       max_error_chord_before=res.initial_max_error,
-                       rms_error_chord=res.rms_error, max_error_chord=res.max_error,
-                       active_constraints=list(res.active_constraints),
-                       iterations=len(res.history), forward_solves=res.solves,
-                       wrinkled_fraction=res.solution.wrinkled_fraction)
-    summary["wall_time_s"] = time.perf_counter() - start
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(out / "summary.json")
-    summary["out"] = str(out.resolve())
-    return summary
+        chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}"
+                           + (" Pa" if n == "pressure" else "") for n in res["variables"])
+        lines.append(f"  {res['method']}: {chosen}")
+        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} chord, "
+                     f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
+        lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
+                     f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+    wrinkled = res["equilibrium"]["wrinkled_fraction"]
+    if wrinkled:
+        lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
+    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``optimise-pressure`` console script; returns the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    try:
+        args, sources = parse_arguments(argv)
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    progress = sys.stderr.isatty() and not (args.quiet or args.json)
     from forward_solver import ConvergenceError
 
     try:
-        summary = run(args)
-    except (ValueError, OSError) as exc:  # bad input: one line, no traceback
-        print(f"optimise-pressure: error: {exc}", file=sys.stderr)
-        return 2
+        summary = run(args, sources, progress=progress, started=started)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing was written to {args.out}", file=sys.stderr)
+        return 130
     except ConvergenceError as exc:  # a forward solve failed: the reason, exit 1
-        print(f"optimise-pressure: failed: {exc}", file=sys.stderr)
+        print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
+        return 1
+    except ValueError as exc:  # bad input: one line, no traceback
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # input files are read (and checked) before: this is the output
+        print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
         return 1
     if args.json:
         print(json.dumps(summary, indent=2))
     elif not args.quiet:
-        if summary["mode"] == "evaluate":
-            print(f"{summary['target']}: {summary['result']} in {summary['steps']} steps, "
-                  f"mid-bay error rms {summary['mid_bay_rms_error_chord']:.3e} chord, "
-                  f"max {summary['mid_bay_max_error_chord']:.3e} chord")
-            if not summary["success"]:
-                print(f"equilibrium not reached: {summary['message']}", file=sys.stderr)
-        else:
-            print(f"{summary['target']}: pressure {summary['pressure_pa']:.1f} Pa, rib thickness "
-                  f"scale {summary['rib_thickness_scale']:.4f}, prestrain "
-                  f"{summary['prestrain'][0]:.4g}/{summary['prestrain'][1]:.4g}")
-            print(f"{summary['objective']} error rms {summary['rms_error_chord_before']:.3e} -> "
-                  f"{summary['rms_error_chord']:.3e} chord, max {summary['max_error_chord_before']:.3e}"
-                  f" -> {summary['max_error_chord']:.3e} chord; active constraints: "
-                  f"{', '.join(summary['active_constraints']) or 'none'}")
-            if not summary["success"]:
-                print(f"optimisation did not converge: {summary['message']}", file=sys.stderr)
-        print(f"wrote {summary['out']}/summary.json")
-    return 0 if summary["success"] else 1
+        print("\n".join(_describe(summary)))
+    if not summary["results"]["success"]:
+        print(f"{PROG}: failed: the optimiser did not converge: {summary['results']['message']} "
+              f"(the results are in {summary['out']})", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":

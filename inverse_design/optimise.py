@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
+from tqdm import tqdm
 
 from forward_solver import Scene, Solution
 from forward_solver.adjoint import GRADIENT_RTOL, Equilibrium
@@ -119,6 +120,7 @@ class _Problem:
         self.equilibrium = Equilibrium(scene, fixed, rtol=rtol,
                                        sequencing=scene.bay.n_contour > 128)
         self.history: list[dict] = []
+        self.on_record = None  # called with each new history entry (progress bar, callback)
         self.tension_scale = tension_scale(variables.values, self.chord)
 
     def residuals(self, u):
@@ -142,6 +144,8 @@ class _Problem:
             "gradient_norm": float(gradient_norm),
             "steps": int(sol.steps) if sol is not None else 0,
         })
+        if self.on_record is not None:
+            self.on_record(self.history[-1])
 
     def value_and_jacobian(self, u):
         """Residuals and their Jacobian in ``u`` (forward mode, one ``jax.jvp`` per variable)."""
@@ -170,6 +174,8 @@ def optimise_pressure(
     tolerance: float = 1e-8,
     optimiser=None,
     rtol: float = GRADIENT_RTOL,
+    progress: bool = False,
+    callback=None,
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring the inflated skin closest to ``target``.
 
@@ -196,6 +202,11 @@ def optimise_pressure(
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
             default ``optax.adam(0.02)`` on the scaled variables).
         rtol: relative residual of the forward solves.
+        progress: show a tqdm progress bar on stderr, one tick per iterate
+            (off by default: library code prints nothing unless asked).
+        callback: called as ``callback(entry)`` after every iterate with the
+            new `DesignResult.history` entry; an exception it raises stops the
+            optimisation and propagates.
 
     Returns:
         A `DesignResult`.
@@ -220,8 +231,10 @@ def optimise_pressure(
         if root_condition not in ROOT_CONDITIONS:
             raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
     start = time.perf_counter()
-    with jax.enable_x64(True):
+    with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
         problem = _Problem(scene, target, design, objective, constraints, rtol)
+        problem.on_record = _notify(bar, callback, method)
+        bar.set_postfix_str("initial equilibrium")
         u0 = design.to_vector(design.values)
         sol0 = problem.equilibrium.solve(design.from_vector(u0))
         initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
@@ -382,3 +395,28 @@ def _bracket(f, u0, lo, hi):
                 return down, min(x for x in points if x > down)
             points.append(down)
     return None
+
+
+# ------------------------------------------------------------------ progress
+def _progress_bar(progress: bool, max_iterations: int):
+    """A tqdm counter on stderr: iterates so far against the cap; a silent no-op when off.
+
+    No percentage or ETA: the cap is an upper bound, not the expected count.
+    """
+    return tqdm(total=max_iterations, desc="optimise_pressure", unit="iterate", disable=not progress,
+                leave=False, dynamic_ncols=True,
+                bar_format="{desc}: iterate {n_fmt} (cap {total_fmt}), {elapsed} elapsed{postfix}")
+
+
+def _notify(bar, callback, method: str):
+    """The per-iterate hook: tick the bar, show the objective, call the user's callback."""
+
+    def on_record(entry: dict) -> None:
+        value = entry["objective"]
+        shown = f"condition={value:.3e}" if method == "root" else f"rms={math.sqrt(max(value, 0.0)):.3e}"
+        bar.set_postfix_str(shown, refresh=False)
+        bar.update(1)
+        if callback is not None:
+            callback(entry)
+
+    return on_record

@@ -1,56 +1,275 @@
-"""The optimise-pressure command: exit codes, messages and the summary it writes."""
+"""The optimise-pressure command: the output folder, case files, exit codes and messages.
+
+The command runs in a subprocess, as a user runs it. JAX compilation
+dominates, so one run of the default case (on a small grid) serves every
+check of the output folder, and the runs share a JAX persistent compilation
+cache (a temporary folder of this module), so later runs reuse the compiled
+solvers of earlier ones (about a third of the compute of a fresh run).
+"""
 
 import json
 import os
+import struct
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from inverse_design import cli, report
+
 ROOT = Path(__file__).resolve().parents[1]
+SMALL = ("--n-span", "5", "--n-contour", "32")
+FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "mid_bay_section.png",
+          "deviation.png", "tensions.png", "history.png"}
 
 
-def _run(*args, cwd):
+@pytest.fixture(scope="module")
+def run_cli(tmp_path_factory):
+    """Run the command in a subprocess: ``run_cli(*args, cwd=folder)``."""
+    cache = tmp_path_factory.mktemp("jax-cache")
     # The repository's sources first, so the test runs the code under test whether or not
     # (and however) the package is installed.
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+               JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+
+    def run(*args, cwd):
+        return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=env,
+                              capture_output=True, text=True, timeout=600)
+
+    return run
 
 
+def _leftovers(folder: Path):
+    """Hidden staging or backup folders a run might leave next to its output."""
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+def _one_line_error(done, *fragments):
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    assert lines[0].startswith("optimise-pressure: error:")
+    for fragment in fragments:
+        assert fragment in lines[0]
+    assert "Traceback" not in done.stderr and done.stdout == ""
+
+
+# ------------------------------------------------------------------ the default case
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory, run_cli):
+    base = tmp_path_factory.mktemp("default")
+    done = run_cli(*SMALL, "--out", "out", cwd=base)
+    assert done.returncode == 0, done.stderr
+    out = base / "out"
+    return base, out, done, json.loads((out / "summary.json").read_text())
+
+
+def test_the_default_case_writes_a_complete_folder_and_says_where(default_run):
+    base, out, done, summary = default_run
+    assert {p.name for p in out.iterdir()} == FOLDER
+    assert set(summary["files"]) == FOLDER and summary["skipped"] == {}
+    assert _leftovers(base) == []
+    assert done.stdout.strip().splitlines()[-1].startswith(f"wrote {out.resolve()}")
+    assert done.stderr == ""  # stderr is not a terminal: no progress bar
+
+
+def test_the_summary_holds_inputs_results_errors_constraints_timings_version(default_run):
+    *_, summary = default_run
+    assert summary["package"] == {"name": "inflatable-wing", "version": version("inflatable-wing")}
+    inputs = summary["inputs"]
+    assert inputs["target"] == "naca2412" and inputs["rib"] is None and inputs["config"] is None
+    assert (inputs["n_span"], inputs["n_contour"]) == (5, 32)
+    assert inputs["sources"] == {"n_span": "command line", "n_contour": "command line",
+                                 "out": "command line"}
+    assert summary["case"]["grid"] == [5, 32] and summary["mode"] == "optimise"
+    results = summary["results"]
+    assert results["success"] is True and results["message"]
+    assert results["variables"] == ["pressure", "rib_thickness_scale"]
+    values = results["values"]
+    assert 1e3 <= values["pressure_pa"] <= 1e5 and 0.7 <= values["rib_thickness_scale"] <= 1.0
+    assert values["prestrain_span"] == values["prestrain_chord"] == 0.02
+    assert results["equilibrium"]["result"] == "converged" and results["equilibrium"]["steps"] > 0
+    assert results["equilibrium"]["relative_residual"] < 1e-6
+    assert results["iterations"] == len(summary["history"]) > 0
+    errors = summary["errors"]
+    assert errors["objective"] == "average" and errors["unit"] == "fraction of chord"
+    # The optimiser must improve on its start; max >= rms by definition.
+    assert 0 < errors["after"]["rms"] < errors["before"]["rms"]
+    assert errors["after"]["max"] >= errors["after"]["rms"]
+    constraints = summary["constraints"]
+    assert isinstance(constraints["active"], list)
+    assert constraints["values"]["min_tension_floor"] == 0.0
+    assert constraints["values"]["max_tension"] > constraints["values"]["min_tension"]
+    timings = summary["timings_s"]
+    assert {"setup", "optimisation", "report", "total"} <= set(timings)
+    assert timings["total"] >= timings["optimisation"] + timings["report"] > 0
+
+
+def test_the_npz_holds_the_equilibrium_and_its_parameters(default_run):
+    _, out, _, summary = default_run
+    with np.load(out / "equilibrium.npz") as data:
+        assert data["nodes"].shape == (5, 32, 3)
+        assert data["tension_span"].shape == data["tension_chord"].shape == data["wrinkled"].shape == (4, 32)
+        assert data["wrinkled"].dtype == bool and data["deviation"].shape == (5, 32)
+        assert data["target_xz"].shape[1] == 2 and data["mid_bay_section"].shape == (32, 2)
+        assert float(data["pressure"]) == pytest.approx(summary["results"]["values"]["pressure_pa"], rel=1e-12)
+        assert list(data["variables"]) == ["pressure", "rib_thickness_scale"]
+        assert data["history_values"].shape == (len(summary["history"]), 2)
+        # The ribs hold the skin: rib rows lie in the planes y = 0 and y = rib spacing.
+        assert np.allclose(data["nodes"][0, :, 1], 0.0) and np.allclose(data["nodes"][-1, :, 1], 0.25)
+
+
+def test_the_obj_and_stl_meshes_match_the_grid_and_point_outwards(default_run):
+    _, out, _, _ = default_run
+    with np.load(out / "equilibrium.npz") as data:
+        nodes = data["nodes"]
+    lines = (out / "skin.obj").read_text().splitlines()
+    assert any(line.startswith("#") and "metres" in line for line in lines)
+    vertices = np.array([[float(v) for v in line.split()[1:]] for line in lines if line.startswith("v ")])
+    faces = np.array([[int(v) for v in line.split()[1:]] for line in lines if line.startswith("f ")])
+    assert vertices.shape == (5 * 32, 3) and faces.shape == (4 * 32, 4)  # periodic contour: 32 cells a row
+    assert faces.min() == 1 and faces.max() == 5 * 32
+    np.testing.assert_allclose(vertices, nodes.reshape(-1, 3), atol=1e-8)
+
+    raw = (out / "skin.stl").read_bytes()
+    (count,) = struct.unpack("<I", raw[80:84])
+    assert count == 2 * 4 * 32 and len(raw) == 84 + 50 * count
+    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    tri = np.frombuffer(raw[84:], dtype=record)
+    corners = tri["corners"].astype(np.float64)
+    area_vectors = 0.5 * np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    centroids = corners.mean(axis=1)
+    # Divergence theorem over the open tube (its ends face +-y, so x and z see no ends):
+    # with outward normals the enclosed volume is positive and about the section area (NACA 2412:
+    # 0.0822 chord^2, Report 824) times the rib spacing; 10% covers the bulge and the coarse grid.
+    volume = 0.5 * np.sum(centroids[:, 0] * area_vectors[:, 0] + centroids[:, 2] * area_vectors[:, 2])
+    assert volume == pytest.approx(0.0822 * 0.25, rel=0.1)
+
+
+def test_every_png_is_an_image(default_run):
+    _, out, _, _ = default_run
+    for name in FOLDER:
+        if name.endswith(".png"):
+            data = (out / name).read_bytes()
+            assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000, name
+
+
+# ------------------------------------------------------------------ case files
+def test_a_case_file_is_read_and_the_command_line_overrides_it(run_cli, tmp_path):
+    (tmp_path / "case.toml").write_text(
+        'evaluate = true\ntarget = "naca0012"\nn-span = 5\nn_contour = 24\npressure = 2e4\n'
+        'prestrain-bounds = [0.0, 0.04]\njson = true\n')
+    done = run_cli("--config", "case.toml", "--n-contour", "32", "--out", "out", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)  # --json (from the file): stdout is the summary alone
+    assert summary == json.loads((tmp_path / "out" / "summary.json").read_text())
+    inputs = summary["inputs"]
+    assert inputs["config"] == "case.toml" and inputs["target"] == "naca0012"
+    assert (inputs["n_span"], inputs["n_contour"], inputs["pressure"]) == (5, 32, 2e4)
+    assert inputs["prestrain_bounds"] == [0.0, 0.04]
+    assert inputs["sources"]["n_contour"] == "command line" and inputs["sources"]["n_span"] == "config"
+    assert summary["mode"] == "evaluate" and summary["case"]["grid"] == [5, 32]
+    assert summary["results"]["equilibrium"]["result"] == "converged"
+    assert summary["errors"]["before"] is None and summary["errors"]["after"]["rms"] > 0
+    # A single equilibrium has no optimiser history: the plot is skipped and the summary says why.
+    assert "history.png" in summary["skipped"] and not (tmp_path / "out" / "history.png").exists()
+
+
+def test_case_file_values_are_checked_like_options(tmp_path):
+    case = tmp_path / "case.toml"
+    case.write_text('variables = ["pressure", "prestrain_span"]\npressure-bounds = [2e3, 5e4]\n'
+                    'no_tension_constraints = true\nmax-iterations = 7\n')
+    args, sources = cli.parse_arguments(["--config", str(case), "--max-iterations", "9"])
+    assert args.variables == "pressure,prestrain_span" and args.pressure_bounds == (2e3, 5e4)
+    assert args.no_tension_constraints is True and args.max_iterations == 9
+    assert sources["max_iterations"] == "command line" and sources["pressure_bounds"] == "config"
+    for text, fragment in [("n-span = 9.5\n", "n-span"), ("chord = -1\n", "chord"),
+                           ("pressure-bounds = 5\n", "pressure-bounds"), ("quiet = 1\n", "quiet"),
+                           ('method = "newton"\n', "method")]:
+        case.write_text(text)
+        with pytest.raises(cli.InputError, match=fragment):
+            cli.parse_arguments(["--config", str(case)])
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("n-spam = 5\n", "unknown key 'n-spam'"),
+        ("n-span = 'nine'\n", "n-span"),
+        ("chord = [1\n", "not valid TOML"),
+    ],
+)
+def test_a_bad_case_file_exits_2_with_one_line(run_cli, tmp_path, text, message):
+    (tmp_path / "case.toml").write_text(text)
+    done = run_cli("--config", "case.toml", "--out", "out", cwd=tmp_path)
+    _one_line_error(done, "case.toml", message)
+    assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------ bad input and failures
 @pytest.mark.parametrize(
     "args, message",
     [
         (["--target", "naca24x12"], "NACA"),
         (["--target", "missing.dat"], "missing.dat"),
+        (["--rib", "garbled.dat"], "garbled.dat"),
         (["--chord", "-1"], "chord"),
+        (["--pressure", "-5"], "pressure"),
+        (["--pressure", "abc"], "pressure"),
+        (["--pressure-bounds", "1e5", "1e3"], "pressure"),
         (["--n-span", "2"], "n_span"),
+        (["--variables", "pressure,thickness"], "thickness"),
+        (["--config", "absent.toml"], "absent.toml"),
     ],
 )
-def test_bad_input_exits_2_with_one_line(tmp_path, args, message):
-    done = _run(*args, "--out", str(tmp_path / "out"), cwd=tmp_path)
-    assert done.returncode == 2
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("optimise-pressure: error:") and message in lines[0]
-    assert "Traceback" not in done.stderr
-    assert not (tmp_path / "out" / "summary.json").exists()
+def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
+    (tmp_path / "garbled.dat").write_text("not an airfoil\n1 2 3\n")
+    done = run_cli(*args, "--out", "out", cwd=tmp_path)
+    _one_line_error(done, message)
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 
-def test_evaluate_writes_the_summary(tmp_path):
-    done = _run("--evaluate", "--n-span", "5", "--n-contour", "32", "--pressure", "2e4", "--json",
-                "--out", str(tmp_path / "out"), cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    summary = json.loads(done.stdout)
-    written = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert written["result"] == "converged" and written["grid"] == [5, 32]
-    assert summary["mid_bay_max_error_chord"] >= summary["mid_bay_rms_error_chord"] > 0
+def test_an_output_folder_that_is_not_ours_is_never_replaced(run_cli, tmp_path):
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "thesis.tex").write_text("precious")
+    done = run_cli("--out", "notes", cwd=tmp_path)
+    _one_line_error(done, "notes", "summary.json")
+    assert (tmp_path / "notes" / "thesis.tex").read_text() == "precious"
 
 
-def test_a_failed_solve_exits_1_with_the_reason(tmp_path):
-    # 60 steps cannot reach equilibrium: the command reports the failure code, no traceback.
-    done = _run("--evaluate", "--n-span", "5", "--n-contour", "32", "--max-steps", "60",
-                "--out", str(tmp_path / "out"), cwd=tmp_path)
+def test_a_failed_solve_exits_1_with_the_reason_and_writes_nothing(run_cli, tmp_path):
+    # 60 steps cannot reach equilibrium: the command reports the failure code, no traceback,
+    # and leaves neither the output folder nor a staging folder behind.
+    done = run_cli("--evaluate", *SMALL, "--max-steps", "60", "--out", "out", cwd=tmp_path)
     assert done.returncode == 1
-    assert "max_steps_reached" in done.stderr + done.stdout
-    assert "Traceback" not in done.stderr
+    assert "max_steps_reached" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
+
+
+def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(run_cli, tmp_path):
+    done = run_cli(*SMALL, "--max-iterations", "2", "--quiet", "--out", "out", cwd=tmp_path)
+    assert done.returncode == 1 and done.stdout == ""
+    assert "did not converge" in done.stderr and "Traceback" not in done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["results"]["success"] is False and summary["results"]["message"]
+
+
+# ------------------------------------------------------------------ the atomic folder
+def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")
+    for interruption in (RuntimeError("plot failed"), KeyboardInterrupt()):
+        with pytest.raises(type(interruption)):
+            with report.staged_folder(out) as staging:
+                (staging / "half.npz").write_bytes(b"partial")
+                raise interruption
+        assert [p.name for p in out.iterdir()] == ["summary.json"] and _leftovers(tmp_path) == []
+    with report.staged_folder(out) as staging:
+        (staging / "summary.json").write_text('{"new": true}')
+    assert json.loads((out / "summary.json").read_text()) == {"new": True}
+    assert _leftovers(tmp_path) == []
