@@ -161,10 +161,13 @@ def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay")
 def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:
     """``(rms, max)`` normal distance in fractions of chord, over the objective's sections.
 
-    For ``"worst"`` both refer to the worst row (largest RMS).
+    For ``"worst"`` both refer to the worst row (largest RMS). Computed in
+    float64 whatever the caller's JAX configuration (a thread-local scope).
     """
-    nodes = np.asarray(nodes)
-    d = np.asarray(section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0])))
+    nodes = np.asarray(nodes, dtype=np.float64)
+    with jax.enable_x64(True):
+        etas = station_etas(objective, nodes.shape[0])
+        d = np.asarray(section_distances(nodes, target, chord, etas))
     if objective == "worst":
         d = d[np.argmax(np.mean(d**2, axis=1))]
     return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))

@@ -41,7 +41,6 @@ import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from forward_solver import Solution
@@ -586,8 +585,7 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
     objective = objective or (design.objective if design is not None else "mid_bay")
     params = _parameter_values(solution, design, values)
     chord = scene.bay.chord
-    with jax.enable_x64(True):  # the distances run through JAX: keep them float64
-        rms, largest = design_errors(solution.nodes, target, chord, objective)
+    rms, largest = design_errors(solution.nodes, target, chord, objective)
     mid = section_errors(solution, target, chord)
     bay, fabric = scene.bay, scene.fabric
     summary = {

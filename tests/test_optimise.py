@@ -112,3 +112,23 @@ def test_optax_reduces_the_error(scene, generated):
 def test_bad_input_raises_a_clear_error(scene, kwargs, match):
     with pytest.raises(ValueError, match=match):
         optimise_pressure(scene, naca("2412"), initial={"pressure": 1e4}, **kwargs)
+
+
+def test_design_errors_are_float64_whatever_the_callers_jax_setting(scene, generated):
+    """A target a tiny offset away: float32 distances would round it to noise (or zero)."""
+    import warnings
+
+    import jax
+
+    from inverse_design import design_errors
+
+    nodes = np.asarray(Bay.from_airfoil(generated, chord=1.0, rib_spacing=0.25, n_span=9,
+                                        n_contour=32).nominal_nodes())
+    assert not jax.config.jax_enable_x64
+    offset = 1e-9  # m, chord 1 m: below float32's resolution of 1 m coordinates (6e-8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "explicitly requested dtype float64" truncation
+        rms, largest = design_errors(nodes * (1 + offset), generated, 1.0)
+        rms0, _ = design_errors(nodes, generated, 1.0)
+    assert rms0 < 1e-12
+    assert 0.1 * offset < rms < 10 * offset and largest < 10 * offset
