@@ -126,14 +126,14 @@ def test_float32_caller_gets_a_clear_error(scene):
         jax.grad(lambda p: jnp.sum(eq({"pressure": p})))(2e4)
 
 
-def test_host_solve_returns_float64_on_a_thread_without_float64(equilibrium, implicit_gradient):
+def test_host_solve_returns_float64_on_a_thread_without_float64(equilibrium):
     """XLA may run the LU callback on a worker thread outside the caller's float64 scope; JAX
     then canonicalises the returned array, which must stay float64 (else "Incorrect output
     dtype" aborts the gradient). Replays that on a fresh thread."""
     import threading
 
-    lin = equilibrium._linearisation
-    assert lin is not None  # the gradient fixture linearised at THETA
+    with jax.enable_x64(True):
+        lin = equilibrium._linearised(equilibrium.values(THETA))
     out = {}
 
     def worker():
