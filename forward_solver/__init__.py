@@ -7,6 +7,11 @@ Public names::
 
 Importing this package changes no JAX configuration: solvers run in float64
 inside a thread-local ``jax.enable_x64`` scope (see `scene.float64_scope`).
+The explicit solvers iterate in float32 on request (``precision="float32"``),
+only for tolerances float32 can meet (the rule is in `_precision`).
+
+Analytic references for validation: `closed_forms`; an independent numpy
+residual: `independent_residual`.
 """
 
 from .bay import Bay as Bay

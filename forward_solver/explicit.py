@@ -22,15 +22,22 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
+from ._precision import check_float32_tolerance, float32_floor
 from .scene import Scene, check_pressure, check_prestrain, float64_scope, PRECISIONS
 from .solution import Solution
 
 __all__ = ["PressureRamp", "simulate", "stable_time_step", "DEFAULT_COURANT"]
 
-#: Courant coefficient alpha_k of eq. (16) used unless the caller picks one.
-#: Measured limit of this grid scheme: about 0.7 on square cells (see the
-#: stability tests); 0.5 keeps a margin on distorted cells.
+#: Courant coefficient alpha_k of eq. (16) used unless the caller picks one;
+#: it keeps a margin of two below `MEASURED_COURANT_LIMIT` for distorted cells.
 DEFAULT_COURANT = 0.5
+#: Largest Courant coefficient at which the scheme came to rest on uniform
+#: square cells (`benchmarks/stability_map.py`, 9x33 panel, 20 kPa, viscosity
+#: 1-50 N*s/m): at 1.05 it already rings in its period-two mode (see
+#: `_explicit_detail`), without viscosity it blows up. A cosine-spaced wing bay
+#: (9x32 NACA 2412) still runs stably at 1.2: its smallest cell sets the step,
+#: and every other cell runs far below its own limit.
+MEASURED_COURANT_LIMIT = 1.0
 
 
 @dataclass(frozen=True)
@@ -87,9 +94,18 @@ def stable_time_step(courant, h_min, wave_speed, params, physics):
     return dt
 
 
-@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks"))
+@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks", "precision"))
 def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence_bound,
-                  physics, chunk, max_chunks):
+                  physics, chunk, max_chunks, precision="float64"):
+    """The run: loop output, float64 forces and nodes at its end, the time step, and
+    the ratio of the next step's velocity to the last one (see `_explicit_detail`)."""
+    static_physics = fk.static_physics(physics)
+    ref64, params64 = fk.prepare(geometry, params, physics), params
+    if precision != "float64":
+        dtype = jnp.dtype(precision)
+        geometry, params, x_init, ramp_time, courant, divergence_bound = jax.tree_util.tree_map(
+            lambda a: jnp.asarray(a).astype(dtype),
+            (geometry, params, x_init, ramp_time, courant, divergence_bound))
     ref = fk.prepare(geometry, params, physics)
     nu = params.poisson
     e_max = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
@@ -97,9 +113,8 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
     h_min = jnp.minimum(jnp.min(ref.span_length), jnp.min(ref.contour_length))
     dt = stable_time_step(courant, h_min, wave_speed, params, physics)
     mass = (params.areal_density * ref.node_area)[..., None]
-    static_physics = fk.static_physics(physics)
     load = params.pressure * ref.skin_area
-    ke_rest = kinetic_rest_threshold(rtol, load, e_max)
+    ke_rest = kinetic_rest_threshold(rtol.astype(load.dtype), load, e_max)
 
     def ramp(t):
         frac = jnp.where(ramp_time > 0, jnp.clip(t / jnp.where(ramp_time > 0, ramp_time, 1.0), 0.0, 1.0), 1.0)
@@ -111,8 +126,8 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
         x = s.x + dt * v  # eq. (17)
         return _State(x, v, s.t + dt)
 
-    def relative_residual(x):
-        return fk.relative_residual(x, ref, params, physics)
+    def relative_residual(x):  # always float64: "converged" holds for the returned shape
+        return fk.relative_residual(x.astype(ref64.nodes.dtype), ref64, params64, physics)
 
     def kinetic(s):
         return 0.5 * jnp.sum(mass * s.v * s.v)
@@ -144,8 +159,56 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
     state = _State(x_init, jnp.zeros_like(x_init), jnp.zeros((), x_init.dtype))
     out = run_chunks(state, step, relative_residual, at_rest, ref.nodes, rtol, divergence_bound,
                      chunk, max_chunks, record=record, n_record=max_chunks)
-    f = fk.forces(out.state.x, ref, params, static_physics)
-    return out, f, dt
+    # One more step, not taken: the next velocity projected on the last one, over the last
+    # one's square, is +1 for motion slow against the step and -1 (or below -1, growing)
+    # for the period-two mode of a time step over the stability limit.
+    v_now, v_next = out.state.v, step(out.state).v
+    vv = jnp.sum(v_now * v_now)
+    ratio = jnp.where(vv > 0, jnp.sum(v_now * v_next) / jnp.where(vv > 0, vv, 1.0), 0.0)
+    x64 = out.state.x.astype(ref64.nodes.dtype)
+    f = fk.forces(x64, ref64, params64, static_physics)
+    return out, f, dt, ratio, x64
+
+
+#: Ratio of successive velocities (see `_simulate_jit`) below which the motion
+#: counts as the period-two oscillation of an over-limit time step. Measured
+#: on the 9x33 panel: -1.000 at Courant 1.2-1.5 with viscosity 5-50 N*s/m,
+#: where the run rings at constant kinetic energy without blowing up; +0.91
+#: to +0.95 for the undamped in-plane ringing of a fabric without viscosity
+#: at Courant 0.6-1.0; below -1 (-1.13) for the blow-up at Courant 1.5
+#: without viscosity, stopped by the divergence guard.
+RINGING_RATIO = -0.5
+
+
+def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
+                     precision: str, floor: float | None) -> str:
+    """What to change after a failed run of the paper's scheme (the `Solution.detail`)."""
+    from .solution import Result
+
+    if code == Result.converged:
+        return ""
+    limit = (f"lower the Courant coefficient (now {courant:g}; the scheme's measured limit is "
+             f"{MEASURED_COURANT_LIMIT:.1f}, see benchmarks/stability_map.py)")
+    if ratio < RINGING_RATIO:
+        return (f"the velocity reverses at every step (ratio {ratio:.2f} of successive "
+                "velocities), the signature of a time step over the stability limit of "
+                f"eq. (16): {limit} rather than raising max_steps")
+    if code == Result.nonfinite:
+        return (f"the run overflowed between two guard checks: the time step is probably over "
+                f"the stability limit of eq. (16), so {limit}; else check the input")
+    if code == Result.diverged:
+        return ("the skin kept inflating past the bound: the pressure is probably beyond what "
+                "the fabric can hold at this prestrain (lower the pressure, stiffen the fabric "
+                "or raise the prestrain)")
+    if not viscous:
+        return ("the fabric has no viscosity (eq. 10), so its in-plane modes ring undamped and "
+                "never come to rest: give it viscosity (e.g. 5-20 N*s/m), or use "
+                "solve_equilibrium, which needs no damping")
+    if precision == "float32":
+        return ("if the residual has stopped falling, the float32 run has reached its rounding "
+                f"floor (about {floor:.1e} on this scene): use precision='float64'; otherwise "
+                "raise max_steps")
+    return ""
 
 
 def simulate(
@@ -185,13 +248,25 @@ def simulate(
         rib_chord_scale: rib chord multiplier.
         divergence_bound: displacement (m) past which the run is ``diverged``
             (default: chord + rib spacing).
-        precision: "float64" (default) or "float32".
+        precision: "float64" (default) or "float32": the steps run in
+            float32, the stop test and the returned `Solution` in float64; an
+            ``rtol`` below the scene's float32 floor raises a ValueError (see
+            `_precision`).
         throw: raise `ConvergenceError` unless the run converged.
 
     Returns:
         A `Solution` whose ``history`` holds time (s), kinetic_energy (J),
         peak_displacement (m) and pressure (Pa, the effective pressure of
-        eq. 11 averaged over the skin) after each chunk.
+        eq. 11 averaged over the skin) after each chunk; ``extra`` holds the
+        time step ``dt`` (s) and ``velocity_ratio``, the next step's
+        velocity projected on the last one over its square: near +1 for
+        motion slow against the step, near -1 when the run ended in the
+        period-two oscillation of a time step over the stability limit (then
+        `Solution.detail` says to lower the Courant coefficient).
+
+    Raises:
+        ValueError: for non-physical input or a float32 ``rtol`` below its floor.
+        ConvergenceError: if ``throw`` and the run did not converge.
     """
     ramp = pressure_history if isinstance(pressure_history, PressureRamp) else PressureRamp(pressure_history)
     check_prestrain(prestrain)
@@ -206,24 +281,34 @@ def simulate(
     bay = scene.bay
     bound = bay.chord + bay.rib_spacing if divergence_bound is None else divergence_bound
     max_chunks = -(-max_steps // record_every)
+    physics = scene.physics(dynamic=True)
     with float64_scope():
-        dtype = PRECISIONS[precision]
+        dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(ramp.pressure, prestrain, stiffness, rib_thickness_scale,
                               rib_chord_scale, dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        extra = {"precision": precision}
+        floor = None
+        if precision == "float32":
+            floor = float32_floor(geometry, params, physics)
+            check_float32_tolerance(rtol, floor)
+            extra["float32_floor"] = floor
         x_init = _initial_nodes(initial, geometry, params)
         start = time.perf_counter()
-        out, f, dt = _simulate_jit(
+        out, f, dt, ratio, nodes = _simulate_jit(
             x_init, geometry, params, jnp.asarray(ramp.ramp_time, dtype), jnp.asarray(courant, dtype),
-            jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), scene.physics(dynamic=True),
-            record_every, max_chunks,
+            jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), physics, record_every, max_chunks,
+            precision=precision,
         )
         jax.block_until_ready(out)
         wall = time.perf_counter() - start
         n = int(out.chunks)
-        history = {k: np.asarray(v)[:n] for k, v in out.history.items()}
+        history = {k: np.asarray(v, dtype=np.float64)[:n] for k, v in out.history.items()}
+        extra.update(dt=float(dt), velocity_ratio=float(ratio))
+        detail = _explicit_detail(int(out.result), float(ratio), courant, physics.viscous,
+                                  precision, floor)
         sol = _make_solution(out, f, int(out.chunks) * record_every, wall, "explicit", ramp.pressure,
-                             prestrain, bay, history=history, extra={"dt": float(dt)})
+                             prestrain, bay, history=history, extra=extra, nodes=nodes, detail=detail)
     if throw:
         sol.raise_if_failed()
     return sol
@@ -250,15 +335,15 @@ def _initial_nodes(initial, geometry, params):
 
 
 def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None,
-                   nodes=None):
+                   nodes=None, detail=""):
     from .scene import _pair
     from .solution import Result
 
     ps, pc = _pair(prestrain)
     return Solution(
-        nodes=np.asarray(out.state.x if nodes is None else nodes),
-        tension_span=np.asarray(f.tension_span),
-        tension_chord=np.asarray(f.tension_chord),
+        nodes=np.asarray(out.state.x if nodes is None else nodes, dtype=np.float64),
+        tension_span=np.asarray(f.tension_span, dtype=np.float64),
+        tension_chord=np.asarray(f.tension_chord, dtype=np.float64),
         wrinkled=np.asarray(f.wrinkled),
         result=Result(int(out.result)),
         steps=int(steps),
@@ -270,4 +355,5 @@ def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, histor
         rib_spacing=bay.rib_spacing,
         history=history,
         extra=extra or {},
+        detail=detail,
     )

@@ -1,12 +1,26 @@
 """The one loop every explicit solver plugs into.
 
 A `lax.while_loop` over chunks; each chunk is a `lax.scan` of ``chunk``
-explicit steps, so loop control costs one check per chunk. After each chunk
-the stop test runs on the static force residual (no velocity terms):
+explicit steps, so the residual test costs one evaluation per chunk.
+
+The steps are guarded every `GUARD_STEPS` steps: if a node has moved
+further than ``divergence_bound`` (m) from its mounted position, or a
+coordinate is NaN or infinite, the state goes back to the last guarded
+state (which was inside the bound) and the run ends ``diverged`` (or
+``nonfinite``). An unstable iteration crosses the bound (metres) while still
+finite, so a blow-up returns finite nodes and the code that says what
+happened, never NaN. Measured need: a relaxation whose masses were too
+light went from a 1 m displacement to overflow in about eight steps (the
+stiffness grows with the stretch, so the growth is faster than
+exponential); guarding every step instead costs 4-7% of a step on the
+default bay.
+
+After each chunk the stop test runs on the static force residual (no
+velocity terms):
 
 * ``nonfinite`` if any coordinate or velocity is NaN or infinite,
-* ``diverged`` if a node moved further than ``divergence_bound`` (m) from
-  its mounted position,
+* ``diverged`` if the step guard fired or a node moved further than
+  ``divergence_bound`` from its mounted position,
 * ``converged`` if ``||R_free||_2 / (p A) <= rtol`` and the kinetic test of
   the solver passes,
 * ``max_steps_reached`` once ``max_chunks`` chunks have run.
@@ -17,6 +31,7 @@ the state is any pytree with ``x`` and ``v`` leaves (a NamedTuple).
 
 from __future__ import annotations
 
+import math
 from typing import Callable, NamedTuple
 
 import jax
@@ -24,7 +39,11 @@ import jax.numpy as jnp
 
 from .solution import Result
 
-__all__ = ["LoopOutput", "run_chunks"]
+__all__ = ["LoopOutput", "run_chunks", "GUARD_STEPS"]
+
+#: Steps between two checks of the divergence guard (a chunk whose length is
+#: not a multiple of it is guarded every ``gcd(chunk, GUARD_STEPS)`` steps).
+GUARD_STEPS = 5
 
 
 class LoopOutput(NamedTuple):
@@ -67,7 +86,7 @@ def run_chunks(
             the relative residual after the previous one (inf before the
             first), e.g. to rescale fictitious masses, or None.
     """
-    dtype = x0.dtype
+    dtype = jax.eval_shape(relative_residual, state.x).dtype  # float64 even for a float32 state
     history0 = None
     if record is not None:
         template = jax.eval_shape(record, state)
@@ -75,8 +94,20 @@ def run_chunks(
             lambda s: jnp.zeros((n_record,) + s.shape, s.dtype), template
         )
 
+    guard = math.gcd(chunk, GUARD_STEPS)
+
     def scan_body(s, _):
         return step(s), None
+
+    def guarded_body(carry, _):
+        s, stop = carry
+        new, _ = jax.lax.scan(scan_body, s, None, length=guard)
+        inside = jnp.all(jnp.abs(new.x - x0) <= divergence_bound)  # False for NaN too
+        code = jnp.where(inside, -1,
+                         jnp.where(jnp.all(jnp.isfinite(new.x)), Result.diverged, Result.nonfinite))
+        take = (stop < 0) & (code < 0)
+        s = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), new, s)
+        return (s, jnp.where(stop < 0, code, stop).astype(jnp.int32)), None
 
     def cond(carry):
         _, code, k, _, _ = carry
@@ -86,17 +117,21 @@ def run_chunks(
         s, _, k, last, hist = carry
         if begin_chunk is not None:
             s = begin_chunk(s, last)
-        s, _ = jax.lax.scan(scan_body, s, None, length=chunk)
+        (s, stop), _ = jax.lax.scan(guarded_body, (s, jnp.int32(-1)), None, length=chunk // guard)
         res = relative_residual(s.x)
         finite = jnp.all(jnp.isfinite(s.x)) & jnp.all(jnp.isfinite(s.v)) & jnp.isfinite(res)
         moved = jnp.max(jnp.abs(s.x - x0))
         code = jnp.where(
-            ~finite,
-            Result.nonfinite,
+            stop >= 0,
+            stop,
             jnp.where(
-                moved > divergence_bound,
-                Result.diverged,
-                jnp.where((res <= rtol) & at_rest(s, res), Result.converged, -1),
+                ~finite,
+                Result.nonfinite,
+                jnp.where(
+                    moved > divergence_bound,
+                    Result.diverged,
+                    jnp.where((res <= rtol) & at_rest(s, res), Result.converged, -1),
+                ),
             ),
         ).astype(jnp.int32)
         if hist is not None:

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES"]
+__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE"]
 
 
 class Result(enum.IntEnum):
@@ -19,20 +19,30 @@ class Result(enum.IntEnum):
     diverged = 3
 
 
+#: What each result code means.
 RESULT_MESSAGES = {
     Result.converged: "converged: the relative residual is below the tolerance",
     Result.max_steps_reached: (
-        "max_steps_reached: the step cap was hit before the residual fell below the "
-        "tolerance; raise max_steps, loosen rtol, or warm-start from a nearby solution"
+        "max_steps_reached: the step cap was hit before the residual fell below the tolerance"
     ),
     Result.nonfinite: (
-        "nonfinite: the state became NaN or infinite; the time step is over the stability "
-        "limit (lower the Courant coefficient) or the input is non-physical"
+        "nonfinite: the state became NaN or infinite (the nodes returned are the last finite "
+        "state before it)"
     ),
     Result.diverged: (
-        "diverged: the skin moved further than the divergence bound from its mounted shape; "
-        "the time step is over the stability limit (lower the Courant coefficient) or the "
-        "pressure is beyond what the fabric can hold"
+        "diverged: a node moved further than the divergence bound (by default chord + rib "
+        "spacing) from its mounted shape; the run was stopped there, before it could overflow"
+    ),
+}
+
+#: What to change, when the solver has nothing more specific to say (`Solution.detail`).
+RESULT_ADVICE = {
+    Result.converged: "",
+    Result.max_steps_reached: "raise max_steps, loosen rtol, or warm-start from a nearby solution",
+    Result.nonfinite: "the iteration is unstable or the input is non-physical",
+    Result.diverged: (
+        "the pressure is beyond what the fabric can hold at this prestrain, or the iteration "
+        "is unstable"
     ),
 }
 
@@ -69,7 +79,16 @@ class Solution:
         rib_spacing: m, for `section`.
         history: for `simulate`, a dict of arrays (time, kinetic_energy,
             peak_displacement, pressure); None otherwise.
-        extra: solver-specific diagnostics.
+        extra: solver-specific diagnostics (``extra["precision"]`` is the
+            floating-point type the iteration ran in).
+        detail: what the solver found about this particular failure and what
+            to change (e.g. "lower the Courant coefficient"); `message` gives
+            it in place of the result code's general advice
+            (`RESULT_ADVICE`). Empty when there is nothing specific to say.
+
+    Arrays are float64 numpy arrays whatever precision the iteration ran in,
+    and ``residual`` is always evaluated in float64 at the returned ``nodes``:
+    a float32 solve reports the residual of the shape it returns.
     """
 
     nodes: np.ndarray
@@ -86,6 +105,7 @@ class Solution:
     rib_spacing: float
     history: dict | None = None
     extra: dict = field(default_factory=dict)
+    detail: str = ""
 
     @property
     def converged(self) -> bool:
@@ -93,7 +113,10 @@ class Solution:
 
     @property
     def message(self) -> str:
-        return RESULT_MESSAGES[Result(self.result)]
+        """Why the solve stopped, and for a failure what to change."""
+        code = Result(self.result)
+        advice = self.detail or RESULT_ADVICE[code]
+        return f"{RESULT_MESSAGES[code]}; {advice}" if advice else RESULT_MESSAGES[code]
 
     @property
     def wrinkled_fraction(self) -> float:

@@ -9,15 +9,18 @@ import jax
 import jax.numpy as jnp
 
 from . import forces as fk
+from ._precision import check_float32_tolerance, float32_floor
 from .explicit import _initial_nodes, _make_solution, simulate
 from .newton import chord_newton, newton
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, check_pressure, check_prestrain, float64_scope
 from .solution import Result, Solution
 
-__all__ = ["solve_equilibrium", "METHODS"]
+__all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 
 METHODS = ("relax", "newton", "relax+newton", "explicit")
+#: Methods that may iterate in float32 (Newton's LU and the adjoint need float64).
+FLOAT32_METHODS = ("relax", "explicit")
 
 #: Where "relax+newton" hands over from relaxation to Newton: loose enough that
 #: relaxation's slow tail is skipped, tight enough that Newton starts in its
@@ -81,13 +84,19 @@ def solve_equilibrium(
         sequencing: solve coarser grids first (relax, cold starts only).
         symmetry: solve half the bay when both ribs are identical and
             ``n_span`` is odd (relax; the answer is the same, see tests).
-        precision: "float64" or "float32".
+        precision: "float64" (default) or "float32" (methods "relax" and
+            "explicit" only): the iteration runs in float32, the stop test
+            and the returned `Solution` (float64 arrays, residual evaluated
+            at the returned nodes) in float64. An ``rtol`` below
+            `float32_residual_floor` of the scene is refused (see
+            `_precision` for the rule and the measurements).
 
     Returns:
-        The `Solution`.
+        The `Solution`; ``extra["precision"]`` records the iteration's type.
 
     Raises:
-        ValueError: for non-physical input.
+        ValueError: for non-physical input, or float32 asked of Newton or
+            for an ``rtol`` below its floor.
         ConvergenceError: if ``throw`` and the solve failed.
     """
     check_pressure(pressure)
@@ -100,6 +109,12 @@ def solve_equilibrium(
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    if precision == "float32" and method not in FLOAT32_METHODS:
+        raise ValueError(
+            f"precision='float32' is available for methods {FLOAT32_METHODS}, not {method!r}: "
+            "Newton's sparse LU, its quadratic convergence and the adjoint need float64; use "
+            "precision='float64' or method='relax'"
+        )
     if method == "explicit":
         return simulate(scene, pressure, prestrain, rtol=rtol, max_steps=max_steps, initial=initial,
                         stiffness=stiffness, rib_thickness_scale=rib_thickness_scale,
@@ -111,10 +126,17 @@ def solve_equilibrium(
     symmetric = symmetry and bay.symmetric
     max_chunks = -(-max_steps // RELAX_CHUNK)
     with float64_scope():
-        dtype = PRECISIONS[precision]
+        dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale,
                               dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        extra = {"precision": precision}
+        coarse_rtol = _COARSE_RTOL
+        if precision == "float32":
+            floor = float32_floor(geometry, params, physics)
+            check_float32_tolerance(rtol, floor)
+            extra["float32_floor"] = floor
+            coarse_rtol = max(_COARSE_RTOL, rtol)  # coarser grids have lower floors
         start = time.perf_counter()
         steps = 0
         levels = []
@@ -122,11 +144,11 @@ def solve_equilibrium(
             x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
         elif initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
-                                                     sequencing, symmetric)
+                                                     sequencing, symmetric, precision, coarse_rtol)
         else:
             x_init = _initial_nodes(initial, geometry, params)
         half = _use_half(geometry, symmetric)
-        extra = {"levels": levels, "half_bay": half}
+        extra.update(levels=levels, half_bay=half)
         previous = initial.extra.get("newton") if isinstance(initial, Solution) else None
         chord = None
         if method == "relax+newton" and previous is not None:
@@ -143,7 +165,7 @@ def solve_equilibrium(
             relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
             out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(relax_rtol, dtype),
                                       jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                      max_chunks, half=half)
+                                      max_chunks, half=half, precision=precision)
             jax.block_until_ready(out)
             steps += int(out.chunks) * RELAX_CHUNK
             relaxed = int(out.result) == Result.converged
@@ -154,10 +176,49 @@ def solve_equilibrium(
                                        geometry, physics, extra)
             else:
                 sol = _make_solution(out, f, steps, time.perf_counter() - start, method, pressure,
-                                     prestrain, bay, extra=extra, nodes=nodes)
+                                     prestrain, bay, extra=extra, nodes=nodes,
+                                     detail=_relax_detail(int(out.result), extra))
     if throw:
         sol.raise_if_failed()
     return sol
+
+
+def float32_residual_floor(scene: Scene, pressure, prestrain=(0.0, 0.0), *, stiffness=None,
+                           rib_thickness_scale=1.0, rib_chord_scale=1.0) -> float:
+    """Smallest ``rtol`` that a ``precision="float32"`` solve of this scene accepts.
+
+    `forces.rounding_residual_floor` with float32's machine epsilon: the
+    relative residual that rounding the coordinates to float32 can leave.
+
+    Args:
+        scene: the bay, fabric and physics switches.
+        pressure: Pa.
+        prestrain: ``(span, chord)`` or one number.
+        stiffness: ``(span, chord)`` N/m overriding the fabric's.
+        rib_thickness_scale, rib_chord_scale: rib geometry multipliers.
+
+    Returns:
+        The floor, dimensionless (``||R_free|| / (p A)``).
+    """
+    check_pressure(pressure)
+    check_prestrain(prestrain)
+    with float64_scope():
+        params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale)
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        return float32_floor(geometry, params, scene.physics(dynamic=False))
+
+
+def _relax_detail(code: int, extra: dict) -> str:
+    """What to change after a failed relaxation (the `Solution.detail`)."""
+    if code == Result.diverged:
+        return ("the skin kept inflating past the bound: the pressure is probably beyond what "
+                "the fabric can hold at this prestrain (lower the pressure, stiffen the fabric "
+                "or raise the prestrain)")
+    if code == Result.max_steps_reached and extra.get("precision") == "float32":
+        return ("if the residual has stopped falling, the float32 iteration has reached its "
+                f"rounding floor (about {extra['float32_floor']:.1e} on this scene): use "
+                "precision='float64'; otherwise raise max_steps")
+    return ""
 
 
 @partial(jax.jit, static_argnames=("physics",))
@@ -176,7 +237,8 @@ def _newton_solution(result, steps, start, pressure, prestrain, bay, params, geo
     extra = dict(extra, newton=result, newton_iterations=result.iterations)
     return _make_solution(out, f, steps + result.iterations, time.perf_counter() - start, "newton"
                           if "relax_steps" not in extra else "relax+newton", pressure, prestrain,
-                          bay, extra=extra, nodes=x)
+                          bay, extra=extra, nodes=x,
+                          detail="" if int(result.result) == Result.converged else result.message)
 
 
 def _coarsenable(shape, periodic: bool) -> bool:
@@ -216,18 +278,19 @@ def _use_half(geometry, symmetric: bool) -> bool:
     return symmetric and geometry.free.shape[0] % 2 == 1 and geometry.free.shape[0] >= 5
 
 
-def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric):
+def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric,
+                     precision="float64", coarse_rtol=_COARSE_RTOL):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
     x0 = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
     if not (sequencing and _coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
     xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing,
-                                         symmetric)
+                                         symmetric, precision, coarse_rtol)
     dtype = x0.dtype
-    out, _, xc_full = relax_jit(xc, coarse, params, jnp.asarray(_COARSE_RTOL, dtype),
+    out, _, xc_full = relax_jit(xc, coarse, params, jnp.asarray(coarse_rtol, dtype),
                                 jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                max_chunks, half=_use_half(coarse, symmetric))
+                                max_chunks, half=_use_half(coarse, symmetric), precision=precision)
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
     xc0 = fk.nominal_nodes(coarse, params.rib_thickness_scale, params.rib_chord_scale)

@@ -7,6 +7,7 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene
 from forward_solver import forces as fk
+from forward_solver.closed_forms import fabric_tensions, flat_panel_pressure_force
 
 
 def _setup(bay, pressure=2e4, prestrain=(0.005, 0.005), fabric=Fabric()):
@@ -38,7 +39,9 @@ def test_pressure_force_on_flat_panel_is_p_times_area(x64):
     bay = Bay.flat_panel(width=0.3, length=0.7, n_span=6, n_contour=9)
     _, physics, params, ref = _setup(bay)
     total = jnp.sum(fk.node_area_vectors(ref.nodes, physics.periodic), axis=(0, 1))
-    np.testing.assert_allclose(np.asarray(total), [0.0, 0.0, 0.3 * 0.7], rtol=1e-13, atol=1e-15)
+    # Area vectors are p A / p: the unit-pressure force.
+    np.testing.assert_allclose(np.asarray(total), [0.0, 0.0, flat_panel_pressure_force(1.0, 0.3, 0.7)],
+                               rtol=1e-13, atol=1e-15)
 
 
 def test_net_pressure_force_on_closed_tube_vanishes(x64):
@@ -77,8 +80,8 @@ def test_prestressed_flat_panel_is_in_equilibrium_with_closed_form_tensions(x64)
     bay = Bay.flat_panel(width=0.3, length=0.7, n_span=6, n_contour=9)
     _, physics, params, ref = _setup(bay, pressure=0.0, prestrain=(0.01, 0.004), fabric=fabric)
     f = fk.forces(ref.nodes, ref, params, physics)
-    t11 = (3e5 * 0.01 + 0.3 * 1e5 * 0.004) / (1 - 0.09)
-    t22 = (1e5 * 0.004 + 0.3 * 3e5 * 0.01) / (1 - 0.09)
+    t11, t22 = fabric_tensions(3e5, 1e5, 0.3, 0.01, 0.004)
+    assert t11 == pytest.approx((3e5 * 0.01 + 0.3 * 1e5 * 0.004) / (1 - 0.09), rel=1e-15)
     np.testing.assert_allclose(np.asarray(f.tension_span), t11, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(f.tension_chord), t22, rtol=1e-12)
     # Round-off scale: an edge force is about T * h ~ 1e3 * 0.1 N.
