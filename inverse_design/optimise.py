@@ -36,7 +36,7 @@ import numpy as np
 import scipy.optimize
 from tqdm import tqdm
 
-from forward_solver import Scene, Solution
+from forward_solver import ConvergenceError, Scene, Solution
 from forward_solver.adjoint import GRADIENT_RTOL, Equilibrium
 
 from .constraints import Constraints, cell_tensions, constraint_report, penalty_residuals, tension_scale
@@ -215,7 +215,11 @@ def optimise_pressure(
         ValueError: for an unknown method, objective, variable or condition,
             bad bounds, or (``method="root"``) no sign change inside the
             pressure bounds.
-        forward_solver.ConvergenceError: if a forward solve fails.
+        forward_solver.ConvergenceError: if the forward solve at the starting
+            values fails. A solve that fails later stops the optimisation
+            instead: the `DesignResult` holds the best iterate whose solve
+            converged, with ``success=False`` and a message naming the
+            failed solve.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -238,15 +242,25 @@ def optimise_pressure(
         u0 = design.to_vector(design.values)
         sol0 = problem.equilibrium.solve(design.from_vector(u0))
         initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
-        if method == "root":
-            u, success, message = _root(problem, root_condition, max_iterations, tolerance)
-        elif method == "least_squares":
-            u, success, message = _least_squares(problem, u0, max_iterations, tolerance)
-        else:
-            u, success, message = _optax(problem, u0, max_iterations, tolerance, optimiser)
+        try:
+            if method == "root":
+                u, success, message = _root(problem, root_condition, max_iterations, tolerance)
+            elif method == "least_squares":
+                u, success, message = _least_squares(problem, u0, max_iterations, tolerance)
+            else:
+                u, success, message = _optax(problem, u0, max_iterations, tolerance, optimiser)
+        except ConvergenceError as failure:
+            # Stop at the best iterate whose forward solve converged ("objective" is the
+            # mean square error, or for "root" the condition, whose size is what counts).
+            best = min(problem.history, key=lambda h: abs(h["objective"]), default=None)
+            u = design.to_vector(best["values"]) if best is not None else u0
+            success, message = False, _failed_solve_message(failure)
         values = design.from_vector(u)
         sol = problem.equilibrium.solve(values)
         rms, max_error = design_errors(sol.nodes, target, problem.chord, objective)
+        if not (np.isfinite([rms, max_error]).all() and np.isfinite(sol.nodes).all()):
+            success = False
+            message = f"{message}; the shape errors at the result are not finite"
         tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), values))
         active, report = constraint_report(constraints, design, values, tensions, scene.fabric,
                                            problem.tension_scale)
@@ -272,6 +286,14 @@ def optimise_pressure(
         solves=problem.equilibrium.solves,
         wall_time=time.perf_counter() - start,
     )
+
+
+def _failed_solve_message(failure: ConvergenceError) -> str:
+    sol = failure.solution
+    return (f"stopped: the forward solve at pressure {sol.pressure:.6g} Pa, prestrain "
+            f"({sol.prestrain[0]:.6g}, {sol.prestrain[1]:.6g}) failed ({sol.message}); the "
+            "result is the best iterate whose solve converged; narrow the bounds to where the "
+            "skin has an equilibrium")
 
 
 # ------------------------------------------------------------------ methods
