@@ -95,3 +95,20 @@ def check_float32_tolerance(rtol: float, floor: float) -> None:
             "(short edges on a fine grid and a stiff fabric under low pressure raise it); use "
             f"precision='float64', or rtol >= {floor:.2e}"
         )
+
+
+def precision_extra(precision: str, rtol: float, geometry, params, physics) -> dict:
+    """The `Solution.extra` entries of a solve in ``precision``; a float32 one is checked.
+
+    Returns ``{"precision": ...}``, plus ``"float32_floor"`` (`float32_floor`)
+    for float32.
+
+    Raises:
+        ValueError: float32 with ``rtol`` below its floor (`check_float32_tolerance`).
+    """
+    extra = {"precision": precision}
+    if precision == "float32":
+        floor = float32_floor(geometry, params, physics)
+        check_float32_tolerance(rtol, floor)
+        extra["float32_floor"] = floor
+    return extra

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
-from ._precision import check_float32_tolerance, float32_floor
+from ._precision import precision_extra
 from .scene import Scene, check_pressure, check_prestrain, float64_scope, PRECISIONS
 from .solution import Solution
 
@@ -287,12 +287,8 @@ def simulate(
         params = scene.params(ramp.pressure, prestrain, stiffness, rib_thickness_scale,
                               rib_chord_scale, dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
-        extra = {"precision": precision}
-        floor = None
-        if precision == "float32":
-            floor = float32_floor(geometry, params, physics)
-            check_float32_tolerance(rtol, floor)
-            extra["float32_floor"] = floor
+        extra = precision_extra(precision, rtol, geometry, params, physics)
+        floor = extra.get("float32_floor")
         x_init = _initial_nodes(initial, geometry, params)
         start = time.perf_counter()
         out, f, dt, ratio, nodes = _simulate_jit(

@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from . import forces as fk
-from ._precision import check_float32_tolerance, float32_floor
+from ._precision import float32_floor, precision_extra
 from .explicit import _initial_nodes, _make_solution, simulate
 from .newton import chord_newton, newton
 from .relax import MASS_SAFETY, relax_jit
@@ -130,12 +130,9 @@ def solve_equilibrium(
         params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale,
                               dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
-        extra = {"precision": precision}
+        extra = precision_extra(precision, rtol, geometry, params, physics)
         coarse_rtol = _COARSE_RTOL
         if precision == "float32":
-            floor = float32_floor(geometry, params, physics)
-            check_float32_tolerance(rtol, floor)
-            extra["float32_floor"] = floor
             coarse_rtol = max(_COARSE_RTOL, rtol)  # coarser grids have lower floors
         start = time.perf_counter()
         steps = 0
