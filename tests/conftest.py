@@ -14,3 +14,9 @@ import pytest
 def x64():
     with jax.enable_x64(True):
         yield
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "notebooks: executes the study notebooks in notebooks/ in their small mode "
+        "(a few minutes); deselect with -m 'not notebooks'")

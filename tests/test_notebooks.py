@@ -1,0 +1,115 @@
+"""The study notebooks run top to bottom in their small mode and show what they claim.
+
+Each notebook is read into memory (the committed file, with its full-study
+outputs, is never written), run in a fresh kernel with ``WING_FULL_STUDY=0``,
+and a cell appended at the end prints the notebook's ``summary`` dict as JSON.
+The checks below are on those small-mode results: each could fail if the
+physics or the solvers changed.
+
+Deselect with ``-m "not notebooks"`` (the four take one to one and a half minutes on two
+cores, a few minutes when other jobs share them).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+pytestmark = pytest.mark.notebooks
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+MARK = "NOTEBOOK_SUMMARY="
+REPORT = f"""
+import json as _json
+import numpy as _np
+
+def _plain(value):
+    if isinstance(value, _np.generic):
+        return value.item()
+    if isinstance(value, _np.ndarray):
+        return value.tolist()
+    return str(value)
+
+print({MARK!r} + _json.dumps(summary, default=_plain))
+"""
+
+
+def run_small(name: str, monkeypatch) -> dict:
+    """Execute ``notebooks/<name>`` in small mode; return its ``summary`` dict."""
+    monkeypatch.setenv("WING_FULL_STUDY", "0")  # the kernel inherits the environment
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    nb.cells.append(nbformat.v4.new_code_cell(REPORT))
+    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                     resources={"metadata": {"path": str(NOTEBOOKS)}})
+    client.execute()  # raises CellExecutionError if any cell fails
+    text = "".join(out.get("text", "") for out in nb.cells[-1].outputs if out.output_type == "stream")
+    line = next(line for line in text.splitlines() if line.startswith(MARK))
+    summary = json.loads(line[len(MARK):])
+    assert summary["full_study"] is False, "the test must run the small mode"
+    return summary
+
+
+def test_pressurisation_dynamics(monkeypatch):
+    s = run_small("01_pressurisation_dynamics.ipynb", monkeypatch)
+    energy = s["kinetic_energy_at_0.1s"]
+    # Viscosity (eq. 10) and aerodynamic damping (eq. 11) each take energy out of the oscillation.
+    assert energy["eta = 5 N s/m"] < 0.1 * energy["no damping"]
+    assert energy["nu_n = 0.05 s/m"] < 0.1 * energy["no damping"]
+    # The curved, inflated skin rings above the flat-membrane estimate, and a sudden load
+    # overshoots towards twice the static bulge.
+    assert s["membrane_estimate_hz"] < s["dominant_frequency_hz"] < 2 * s["membrane_estimate_hz"]
+    assert 1.5 < s["sudden_overshoot"] < 2.5
+    overshoot = {float(k): v for k, v in s["overshoot_by_ramp_periods"].items()}
+    assert overshoot[max(overshoot)] < overshoot[0.0]
+    # The damped run comes to rest at the equilibrium solver's shape (rest test rtol 1e-6).
+    assert s["rest_shape_error_m"] < 1e-6
+    bulges = [s["max_bulge_mm_by_kpa"][k] for k in sorted(s["max_bulge_mm_by_kpa"], key=float)]
+    assert all(b2 > b1 > 0 for b1, b2 in zip(bulges, bulges[1:]))
+
+
+def test_runtime_vs_error(monkeypatch):
+    s = run_small("02_runtime_vs_error.ipynb", monkeypatch)
+    assert s["all_finite"] and s["runs"] >= 5
+    # Nested grids converge at second order in the grid spacing.
+    assert 1.5 < s["observed_order"] < 2.5
+    errors = s["errors"]
+    assert errors["relax 9x64 1e-08"] < 0.5 * errors["relax 5x32 1e-08"]
+    # Newton and relaxation reach the same shape at the same tolerance.
+    assert math.isclose(errors["relax+newton 9x64 1e-08"], errors["relax 9x64 1e-08"], rel_tol=1e-2)
+    # The paper's physical-mass scheme is slower than relaxation on the same grid.
+    assert all(ratio > 1 for _, _, ratio, _ in s["paper_over_relax"])
+
+
+def test_stability_map(monkeypatch):
+    s = run_small("03_stability_map.ipynb", monkeypatch)
+    counts = s["map_counts"]
+    assert counts["converged"] >= 1
+    assert counts["diverged"] + counts["nonfinite"] >= 1
+    # The measured Courant limit matches the analysis of eq. (14) to the trial spacing.
+    for predicted, stable, unstable in s["limits"].values():
+        assert stable is not None and unstable is not None
+        assert stable < predicted + 0.01 and unstable > predicted - 0.05
+    # Without damping the tension-only fabric blows up at alpha_k = 0.9; with compression allowed
+    # it stays bounded.
+    assert s["undamped"]["tension_only 0.9"][0] in ("diverged", "nonfinite")
+    assert s["undamped"]["compression 0.9"][0] == "max_steps_reached"
+
+
+def test_inverse_design_study(monkeypatch):
+    s = run_small("04_inverse_design_study.ipynb", monkeypatch)
+    ref, bounds = s["reference"], s["bounds"]
+    assert ref["success"]
+    assert bounds["pressure"][0] <= ref["pressure"] <= bounds["pressure"][1]
+    for k, name in enumerate(("prestrain_span", "prestrain_chord")):
+        assert bounds[name][0] <= ref["prestrain"][k] <= bounds[name][1]
+    assert ref["rms_error"] < 0.5 * ref["initial_rms_error"]
+    # The optimum spanwise prestrain follows the membrane estimate (sag = rib gap) within 20 %.
+    for key, sweep in s["sweeps"].items():
+        if sweep["success"] and "min_tension" not in sweep["active"]:
+            assert math.isclose(sweep["prestrain"][0], sweep["rule_prestrain"], rel_tol=0.2), key
