@@ -29,6 +29,7 @@ __all__ = [
     "flat_panel_pressure_force",
     "hoop_tension",
     "strip_arc_radius",
+    "strip_elongation",
     "strip_sag",
 ]
 
@@ -157,16 +158,36 @@ def flat_panel_pressure_force(pressure, width, length):
     return pressure * width * length
 
 
-def circle_contour(n_points: int = 257):
+def circle_contour(n_points: int = 257, repeat_first: bool = True):
     """A circle of diameter 1 in Selig order, from ``(1, 0)`` over the top and back.
 
     The section of the long-cylinder case (``targets.Airfoil(x, z)`` turns
-    it into a rib); the last point repeats the first exactly.
+    it into a rib): with ``repeat_first`` the last point repeats the first
+    exactly. Without it, ``n_points`` distinct points, equally spaced, the
+    contour of a periodic `Bay` built directly (the closed-tube checks).
 
     Returns:
         ``(x, z)`` arrays of ``n_points`` chord-normalised coordinates.
     """
-    phi = 2 * np.pi * np.arange(n_points) / (n_points - 1)
+    intervals = n_points - 1 if repeat_first else n_points
+    phi = 2 * np.pi * np.arange(n_points) / intervals
     x, z = (1 + np.cos(phi)) / 2, np.sin(phi) / 2
-    x[-1], z[-1] = x[0], z[0]  # closed exactly (sin(2 pi) is 2e-16, not 0)
+    if repeat_first:
+        x[-1], z[-1] = x[0], z[0]  # closed exactly (sin(2 pi) is 2e-16, not 0)
     return x, z
+
+
+def strip_elongation(nodes, length, prestrain_chord):
+    """Elongation along an inflated strip at its centre, measured on a flat-panel grid.
+
+    The strip closed form takes ``e22`` as given: with zero shear stiffness
+    T22 is uniform along each strip line, and the bulged ends lengthen the
+    line, so at mid-length it exceeds the prestrain. This measures it on the
+    ``(n_span, n_contour, 3)`` nodes of ``Bay.flat_panel(..., length=length)``
+    by a central difference at the middle node, against the cut spacing.
+    """
+    nodes = np.asarray(nodes)
+    i, j = nodes.shape[0] // 2, nodes.shape[1] // 2
+    spacing = length / (nodes.shape[1] - 1)
+    stretched = np.linalg.norm(nodes[i, j + 1] - nodes[i, j - 1]) / (2 * spacing)
+    return stretched * (1 + prestrain_chord) - 1

@@ -7,7 +7,7 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene
 from forward_solver import forces as fk
-from forward_solver.closed_forms import fabric_tensions, flat_panel_pressure_force
+from forward_solver.closed_forms import circle_contour, fabric_tensions, flat_panel_pressure_force
 
 
 def _setup(bay, pressure=2e4, prestrain=(0.005, 0.005), fabric=Fabric()):
@@ -26,8 +26,7 @@ def _perturbed(bay, ref, seed=0, amplitude=0.01):
 
 def _circle_bay(n_span=5, n_contour=20, spacing=0.3):
     """A periodic tube built directly from a circle contour (no airfoil package needed)."""
-    phi = 2 * np.pi * np.arange(n_contour) / n_contour
-    contour = np.stack([(1 + np.cos(phi)) / 2, np.sin(phi) / 2], axis=-1)
+    contour = np.stack(circle_contour(n_contour, repeat_first=False), axis=-1)
     fixed = np.zeros((n_span, n_contour), bool)
     fixed[0] = fixed[-1] = True
     zeros = np.zeros(n_contour)
