@@ -3,7 +3,7 @@
 It parses the options (and a TOML case file, ``--config``), builds the
 `forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
 ``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
-to `inverse_design.report.write_report`, which writes the output folder. No
+to `inverse_design.summary.write_report`, which writes the output folder. No
 physics lives here.
 
 Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
@@ -341,7 +341,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
     from .constraints import Constraints
     from .optimise import optimise_pressure
-    from .report import check_output_folder, write_report
+    from .export import check_output_folder
+    from .summary import write_report
 
     out = check_output_folder(args.out)  # before the long work, not after it
     bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import cli, report
+from inverse_design import cli, export
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -265,11 +265,11 @@ def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
     (out / "summary.json").write_text("{}")
     for interruption in (RuntimeError("plot failed"), KeyboardInterrupt()):
         with pytest.raises(type(interruption)):
-            with report.staged_folder(out) as staging:
+            with export.staged_folder(out) as staging:
                 (staging / "half.npz").write_bytes(b"partial")
                 raise interruption
         assert [p.name for p in out.iterdir()] == ["summary.json"] and _leftovers(tmp_path) == []
-    with report.staged_folder(out) as staging:
+    with export.staged_folder(out) as staging:
         (staging / "summary.json").write_text('{"new": true}')
     assert json.loads((out / "summary.json").read_text()) == {"new": True}
     assert _leftovers(tmp_path) == []

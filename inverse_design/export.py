@@ -1,0 +1,209 @@
+"""Files of a design: the equilibrium as ``.npz``, the skin as OBJ and STL, and the atomic output folder.
+
+`write_npz`, `write_obj` and `write_stl` write one file each. The output
+folder is written atomically (`staged_folder`): into a hidden temporary
+folder next to the destination, renamed into place when complete. An
+earlier folder of the same name is replaced only then, and only if it is
+empty or holds a ``summary.json`` (so a mistyped ``out_dir`` never deletes
+unrelated files; `check_output_folder`).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+import uuid
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from forward_solver import Solution
+
+from .optimise import DesignResult
+
+__all__ = [
+    "check_output_folder",
+    "deviation",
+    "staged_folder",
+    "write_npz",
+    "write_obj",
+    "write_stl",
+]
+
+
+def deviation(solution: Solution, target, chord: float) -> np.ndarray:
+    """Signed normal distance of every node from the target, ``(n_span, n_contour)``, fraction of chord.
+
+    Positive outside the target. ``chord`` (m) scales the nodes to the target's
+    chord-normalised frame (the bay's mean chord, as the objectives use). It is
+    stored in ``equilibrium.npz`` and drawn by `inverse_design.plots.plot_deviation`.
+    """
+    points = np.asarray(solution.nodes)[..., [0, 2]] / chord
+    return np.asarray(target.distance(points), dtype=np.float64)
+
+
+# ------------------------------------------------------------------ surface files
+def _quads(n_span: int, n_contour: int, periodic: bool) -> np.ndarray:
+    """``(n_quads, 4)`` zero-based node indices of the grid's cells, counter-clockwise seen from outside."""
+    index = np.arange(n_span * n_contour).reshape(n_span, n_contour)
+    j = np.arange(n_contour if periodic else n_contour - 1)
+    j1 = (j + 1) % n_contour
+    # (i, j) -> (i+1, j) -> (i+1, j+1) -> (i, j+1): the normal e1 x e2 points out of the section.
+    quads = np.stack([index[:-1][:, j], index[1:][:, j], index[1:][:, j1], index[:-1][:, j1]], axis=-1)
+    return quads.reshape(-1, 4)
+
+
+def write_obj(path, nodes, periodic: bool, name: str = "skin") -> Path:
+    """Write the skin as a Wavefront OBJ: one vertex per node, one quad per cell.
+
+    Args:
+        path: file to write.
+        nodes: ``(n_span, n_contour, 3)`` m.
+        periodic: close the contour (a wing section) with a last column of quads.
+        name: object name in the file.
+
+    Returns:
+        The path. Vertex ``1 + i * n_contour + j`` is node ``(i, j)``; faces
+        wind counter-clockwise seen from outside the wing.
+    """
+    nodes = np.asarray(nodes, dtype=np.float64)
+    n_span, n_contour, _ = nodes.shape
+    quads = _quads(n_span, n_contour, periodic) + 1
+    lines = [
+        "# inflatable-wing equilibrium skin; units: metres (x chordwise, y spanwise, z up)",
+        f"# grid {n_span} x {n_contour} nodes (span x contour); vertex 1 + i*{n_contour} + j is node (i, j)",
+        f"o {name}",
+    ]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in nodes.reshape(-1, 3)]
+    lines += [f"f {a} {b} {c} {d}" for a, b, c, d in quads]
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_stl(path, nodes, periodic: bool) -> Path:
+    """Write the skin as a binary STL (two triangles per cell, outward normals), metres."""
+    nodes = np.asarray(nodes, dtype=np.float64)
+    n_span, n_contour, _ = nodes.shape
+    quads = _quads(n_span, n_contour, periodic)
+    flat = nodes.reshape(-1, 3)
+    triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    corners = flat[triangles]  # (n, 3, 3)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    data = np.zeros(len(triangles), dtype=record)
+    data["normal"], data["corners"] = normals, corners
+    header = b"inflatable-wing equilibrium skin, units: metres".ljust(80, b" ")
+    path = Path(path)
+    with open(path, "wb") as f:
+        f.write(header)
+        f.write(np.uint32(len(triangles)).tobytes())
+        f.write(data.tobytes())
+    return path
+
+
+def write_npz(path, solution: Solution, target, scene, values: dict, result: DesignResult | None = None) -> Path:
+    """Write the equilibrium and its parameters as a compressed ``.npz`` (no pickles).
+
+    Arrays: ``nodes`` (n_span, n_contour, 3) m; ``tension_span``,
+    ``tension_chord`` (n_span - 1, n_cells) N/m; ``wrinkled`` (same, bool);
+    ``fixed`` (n_span, n_contour) bool; ``deviation`` (n_span, n_contour)
+    signed normal distance from the target, fraction of chord;
+    ``target_xz`` (n, 2) the chord-normalised target; ``mid_bay_section``
+    and ``rib_section`` (n_contour, 2) x-z in m; scalars ``pressure`` (Pa),
+    ``prestrain`` (span, chord), ``rib_thickness_scale``, ``rib_chord_scale``,
+    ``chord`` and ``rib_spacing`` (m); ``variables`` (names) and, after an
+    optimisation, ``history_objective`` and ``history_values`` (iterate x
+    variable).
+    """
+    bay = scene.bay
+    arrays = dict(
+        nodes=np.asarray(solution.nodes), tension_span=np.asarray(solution.tension_span),
+        tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled, bool),
+        fixed=np.asarray(bay.fixed, bool), deviation=deviation(solution, target, bay.chord),
+        target_xz=np.stack([np.asarray(target.x), np.asarray(target.z)], axis=-1),
+        mid_bay_section=solution.section(0.5), rib_section=solution.section(0.0),
+        pressure=np.float64(values["pressure"]),
+        prestrain=np.array([values["prestrain_span"], values["prestrain_chord"]]),
+        rib_thickness_scale=np.float64(values["rib_thickness_scale"]),
+        rib_chord_scale=np.float64(values["rib_chord_scale"]),
+        chord=np.float64(bay.chord), rib_spacing=np.float64(bay.rib_spacing),
+        target_name=np.array(str(target.name)),
+    )
+    if result is not None:
+        names = list(result.variables)
+        arrays["variables"] = np.array(names, dtype=str)
+        arrays["history_objective"] = np.array([h["objective"] for h in result.history], dtype=np.float64)
+        arrays["history_values"] = np.array([[h["values"][n] for n in names] for h in result.history],
+                                            dtype=np.float64).reshape(-1, len(names))
+    path = Path(path)
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **arrays)
+    return path
+
+
+# ------------------------------------------------------------------ the folder
+def check_output_folder(out_dir) -> Path:
+    """The absolute output path, after checking that `write_report` may write (and replace) it.
+
+    Raises:
+        ValueError: if ``out_dir`` is a file, or a non-empty folder that holds
+            no ``summary.json`` of an earlier report (it is never replaced), or
+            its nearest existing parent is not a writable folder.
+    """
+    out = Path(os.path.abspath(os.fspath(out_dir)))
+    if out.exists() or out.is_symlink():
+        if not out.is_dir():
+            raise ValueError(f"the output folder {out} exists and is not a folder; choose another path")
+        if any(out.iterdir()) and not (out / "summary.json").is_file():
+            raise ValueError(f"refusing to replace {out}: it is not empty and holds no summary.json of "
+                             f"an earlier report; choose another output folder or empty this one")
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    try:  # a real probe: permission bits do not tell everything (read-only mounts, /proc)
+        os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
+    except OSError as exc:
+        raise ValueError(f"cannot create the output folder {out}: {parent} is not a writable folder "
+                         f"({exc.strerror or exc})") from None
+    return out
+
+
+@contextmanager
+def staged_folder(out_dir):
+    """Write a folder atomically: yield a temporary folder, rename it to ``out_dir`` on success.
+
+    The temporary folder (``.NAME.partial-*``) sits next to ``out_dir``, so the
+    final rename stays on one file system. An existing ``out_dir`` (checked by
+    `check_output_folder`) is moved aside and deleted only after the new
+    folder is in place. On any exception, KeyboardInterrupt included, the
+    temporary folder is removed and ``out_dir`` is left as it was.
+    """
+    out = check_output_folder(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = out.parent / f".{out.name}.partial-{uuid.uuid4().hex[:8]}"
+    staging.mkdir()  # (not mkdtemp: the folder keeps the user's umask permissions)
+    try:
+        yield staging
+        old = None
+        if out.exists() or out.is_symlink():
+            old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
+            os.rename(out, old)
+        try:
+            os.rename(staging, out)
+        except BaseException:
+            if old is not None:
+                os.rename(old, out)
+            raise
+        if old is not None:
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old, ignore_errors=True)
+            else:
+                old.unlink()
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise

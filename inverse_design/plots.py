@@ -1,0 +1,360 @@
+"""Figures of a design: the mid-bay section, the deviation map, the tensions, the optimiser's history.
+
+The ``plot_*`` functions return `matplotlib.figure.Figure` objects built
+without pyplot (no global state, an Agg canvas), so they serve notebooks and
+scripts as well as the command line (`inverse_design.summary.write_report`
+saves them into the output folder). Maps of the whole bay are drawn on the
+developed skin: the horizontal axis is the distance along the rib contour
+from the trailing edge over the upper surface, the leading edge and the
+lower surface (Selig order), with x/chord marked on the top axis.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from forward_solver import Solution
+
+from .export import deviation
+from .objectives import section_errors
+from .optimise import DesignResult
+
+__all__ = [
+    "MAGNIFIED_DEVIATION",
+    "auto_magnification",
+    "plot_deviation",
+    "plot_history",
+    "plot_section",
+    "plot_tensions",
+]
+
+#: Largest magnified deviation in the section plot, fraction of chord
+#: (`auto_magnification` picks the largest 1-2-5 factor that stays below it).
+MAGNIFIED_DEVIATION = 0.1
+
+_TARGET_STYLE = dict(color="black", lw=1.4)
+_RIB_STYLE = dict(color="C0", lw=1.4)
+_SKIN_STYLE = dict(color="C3", lw=1.6)
+
+
+def auto_magnification(largest_deviation: float, goal: float = MAGNIFIED_DEVIATION) -> float:
+    """The largest factor 1, 2, 5, 10, 20, ... that keeps ``factor * largest_deviation <= goal``.
+
+    Never below 1 (a deviation larger than ``goal`` is drawn true to scale).
+    """
+    if not (math.isfinite(largest_deviation) and largest_deviation > 0):
+        return 1.0
+    best = 1.0
+    for exponent in range(7):
+        for mantissa in (1, 2, 5):
+            factor = mantissa * 10.0**exponent
+            if factor * largest_deviation <= goal:
+                best = factor
+    return best
+
+
+def _leading_edge_index(nodes: np.ndarray) -> int:
+    """Contour index of the rib's leading edge (smallest x of the root row)."""
+    return int(np.argmin(nodes[0, :, 0]))
+
+
+def _surfaces(n_contour: int, j_le: int, periodic: bool) -> dict:
+    """Contour indices of the upper (TE -> LE) and lower (LE -> TE) surfaces."""
+    upper = np.arange(0, j_le + 1)
+    lower = np.arange(j_le, n_contour)
+    if periodic:
+        lower = np.append(lower, 0)  # back to the trailing edge
+    return {"upper": upper, "lower": lower}
+
+
+class _Developed:
+    """The developed skin: distance along the nominal rib contour (m) against span (m)."""
+
+    def __init__(self, scene):
+        bay = scene.bay
+        contour = np.asarray(bay.contour_root) * bay.chord_root
+        closed = np.concatenate([contour, contour[:1]]) if bay.periodic else contour
+        self.edges = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed, axis=0).T))])
+        self.s = self.edges[: bay.n_contour]  # node positions (the last edge closes the loop)
+        self.y = np.linspace(0.0, bay.rib_spacing, bay.n_span)
+        self.periodic = bay.periodic
+        self.j_le = int(np.argmin(contour[:, 0]))
+        self.contour_x = np.asarray(bay.contour_root)[:, 0]
+
+    def wrap(self, values: np.ndarray) -> np.ndarray:
+        """Node values with the first column repeated at the closing edge (periodic contour)."""
+        return np.concatenate([values, values[:, :1]], axis=1) if self.periodic else values
+
+    @property
+    def node_s(self) -> np.ndarray:
+        return self.edges if self.periodic else self.s
+
+    def decorate(self, ax, with_labels: bool = True) -> None:
+        """Leading-edge line and an x/chord scale on the top axis."""
+        ax.axvline(self.edges[self.j_le], color="0.3", ls="--", lw=1.0,
+                   label="leading edge" if with_labels else None)
+        x = self.contour_x
+        upper_s, upper_x = self.edges[: self.j_le + 1][::-1], x[: self.j_le + 1][::-1]
+        lower_x = np.append(x[self.j_le:], x[0]) if self.periodic else x[self.j_le:]
+        lower_s = self.edges[self.j_le: self.j_le + lower_x.size]
+        stations = (1.0, 0.75, 0.5, 0.25)
+        ticks = [float(np.interp(t, upper_x, upper_s)) for t in stations]
+        ticks += [float(self.edges[self.j_le])]
+        ticks += [float(np.interp(t, lower_x, lower_s)) for t in stations[::-1]]
+        labels = [f"{t:g}" for t in stations] + ["0"] + [f"{t:g}" for t in stations[::-1]]
+        top = ax.secondary_xaxis("top")
+        top.set_xticks(ticks, labels=labels)
+        top.set_xlabel("x / chord  (upper surface | lower surface)")
+        ax.set_xlim(self.edges[0], self.edges[-1] if self.periodic else self.s[-1])
+        ax.set_ylim(self.y[0], self.y[-1])
+        ax.set_xlabel("distance along the contour from the trailing edge, m "
+                      "(upper surface, leading edge, lower surface)")
+        ax.set_ylabel("span position y, m")
+
+
+def _kpa(pressure: float) -> str:
+    return f"{pressure / 1e3:.4g} kPa"
+
+
+def _figure(width: float, height: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+# ------------------------------------------------------------------ plots
+def plot_section(solution: Solution, target, scene, *, magnification: float | None = None,
+                 eta: float = 0.5):
+    """The skin section at ``y = eta * rib_spacing`` against the rib (y = 0) and the target.
+
+    Top: the profiles with their deviation from the target magnified, as a
+    structural engineer draws a deformed shape: each grid node ``p`` is drawn
+    at ``q + magnification * (p - q)``, where ``q`` is the target's point at
+    the same contour station (the target resampled as the bay resamples its
+    rib); the target itself is drawn true. (Offsetting along the target's
+    normal instead folds the curve wherever a magnified inward deviation
+    exceeds the local radius of curvature, as at a pulled-back leading edge.)
+    Bottom: the true signed normal distances along x/chord, upper and lower
+    surfaces.
+
+    Args:
+        solution: the equilibrium.
+        target: the target `targets.Airfoil` (chord-normalised).
+        scene: the `forward_solver.Scene` it was solved on (chord, grid).
+        magnification: deviation factor of the top panel; default
+            `auto_magnification` of the largest deviation shown.
+        eta: span station of the skin section, fraction of the rib spacing.
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    chord = scene.bay.chord
+    skin = solution.section(eta) / chord
+    rib = solution.section(0.0) / chord
+    skin_proj, rib_proj = target.project(skin), target.project(rib)
+    stations = _target_stations(target, scene)
+    largest = float(max(np.max(np.linalg.norm(skin - stations, axis=1)),
+                        np.max(np.linalg.norm(rib - stations, axis=1))))
+    factor = auto_magnification(largest) if magnification is None else float(magnification)
+    if not (math.isfinite(factor) and factor > 0):
+        raise ValueError(f"magnification must be a positive number, got {magnification!r}")
+
+    def magnified(points):
+        return stations + factor * (points - stations)
+
+    errors = section_errors(solution, target, chord, eta)
+    fig = _figure(10.0, 7.0)
+    top, bottom = fig.subplots(2, 1, height_ratios=(1, 1))
+    station = "mid-bay" if eta == 0.5 else f"y = {eta:g} b"
+    times = f"\u00d7{factor:g}"
+    closed_target = np.stack([target.x, target.z], axis=-1)
+    top.plot(closed_target[:, 0], closed_target[:, 1], label=f"target {target.name}", **_TARGET_STYLE)
+    rib_m, skin_m = magnified(rib), magnified(skin)
+    if scene.bay.periodic:
+        rib_m, skin_m = np.vstack([rib_m, rib_m[:1]]), np.vstack([skin_m, skin_m[:1]])
+    top.plot(rib_m[:, 0], rib_m[:, 1], ls="--", label=f"rib at y = 0 (deviation {times})", **_RIB_STYLE)
+    top.plot(skin_m[:, 0], skin_m[:, 1], label=f"{station} skin (deviation {times})", **_SKIN_STYLE)
+    top.set_aspect("equal", adjustable="datalim")  # true shape; the box keeps its size
+    top.set_xlabel("x / chord")
+    top.set_ylabel("z / chord")
+    top.grid(alpha=0.3)
+    top.legend(loc="upper center", fontsize="small", ncols=3)
+    top.set_title(f"profiles; deviations from the target magnified {times}", fontsize="medium")
+
+    j_le = _leading_edge_index(np.asarray(solution.nodes))
+    for surface, idx in _surfaces(skin.shape[0], j_le, scene.bay.periodic).items():
+        ls = "-" if surface == "upper" else "--"
+        bottom.plot(rib[idx, 0], rib_proj.distance[idx], ls=ls, color=_RIB_STYLE["color"],
+                    label=f"rib, {surface} surface")
+        bottom.plot(skin[idx, 0], skin_proj.distance[idx], ls=ls, color=_SKIN_STYLE["color"],
+                    label=f"{station} skin, {surface} surface")
+    bottom.axhline(0.0, **_TARGET_STYLE, label=f"target {target.name}")
+    bottom.set_xlabel("x / chord")
+    bottom.set_ylabel("normal distance / chord\n(+ outside the target)")
+    mm = bottom.secondary_yaxis("right", functions=(lambda d: d * chord * 1e3,
+                                                    lambda m: m / (chord * 1e3)))
+    mm.set_ylabel("mm")
+    bottom.grid(alpha=0.3)
+    bottom.legend(fontsize="small", ncols=3, loc="best")
+    bottom.set_title(f"true deviation (not magnified): {station} rms {errors.rms:.2e}, "
+                     f"max {errors.max:.2e} chord", fontsize="medium")
+    fig.suptitle(f"{target.name}: {station} section against the rib and the target, "
+                 f"p = {_kpa(solution.pressure)}")
+    return fig
+
+
+def _target_stations(target, scene) -> np.ndarray:
+    """``(n_contour, 2)`` chord-normalised target points at the grid's contour stations."""
+    from forward_solver import Bay
+
+    bay = scene.bay
+    return np.asarray(Bay.from_airfoil(target, chord=1.0, rib_spacing=1.0, n_span=3,
+                                       n_contour=bay.n_contour).contour_root)
+
+
+def plot_deviation(solution: Solution, target, scene):
+    """Signed normal distance of the skin from the target over the whole bay, on the developed skin.
+
+    Args:
+        solution: the equilibrium.
+        target: the target `targets.Airfoil`.
+        scene: the `forward_solver.Scene` it was solved on.
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    chord = scene.bay.chord
+    dev = deviation(solution, target, chord)
+    grid = _Developed(scene)
+    limit = float(np.max(np.abs(dev))) or 1.0
+    fig = _figure(10.0, 5.0)
+    ax = fig.subplots()
+    mesh = ax.pcolormesh(grid.node_s, grid.y, grid.wrap(dev), shading="gouraud", cmap="RdBu_r",
+                         vmin=-limit, vmax=limit)
+    bar = fig.colorbar(mesh, ax=ax)
+    bar.set_label("normal distance from the target / chord\n(red: outside, blue: inside)")
+    bar.formatter.set_powerlimits((-2, 2))
+    grid.decorate(ax)
+    ax.axhline(0.5 * scene.bay.rib_spacing, color="0.2", ls=":", lw=1.0, label="mid-bay section")
+    i, j = np.unravel_index(np.argmax(np.abs(dev)), dev.shape)
+    ax.plot(grid.s[j], grid.y[i], marker="*", ms=13, color="gold", mec="black", ls="none",
+            label=f"largest deviation {dev[i, j]:+.2e} chord ({dev[i, j] * chord * 1e3:+.2f} mm)")
+    ax.legend(loc="upper left", fontsize="small", framealpha=0.9)
+    rms = float(np.sqrt(np.mean(dev**2)))
+    ax.set_title(f"{target.name}: deviation of the skin from the target over the bay "
+                 f"(true scale, not magnified)\np = {_kpa(solution.pressure)}; rms over all nodes "
+                 f"{rms:.2e} chord; ribs at y = 0 and y = {scene.bay.rib_spacing:g} m", fontsize="medium")
+    return fig
+
+
+def plot_tensions(solution: Solution, scene):
+    """Fibre tensions T11 (span) and T22 (contour) of every cell, wrinkled cells marked.
+
+    Args:
+        solution: the equilibrium (tensions as the solver reports them: with
+            ``tension_only`` a compressive fibre is clamped to zero and its
+            cell flagged in ``solution.wrinkled``).
+        scene: the `forward_solver.Scene` it was solved on.
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    grid = _Developed(scene)
+    s_edges = grid.edges if grid.periodic else grid.s
+    s_mid = 0.5 * (s_edges[:-1] + s_edges[1:])
+    y_mid = 0.5 * (grid.y[:-1] + grid.y[1:])
+    wrinkled = np.asarray(solution.wrinkled, dtype=bool)
+    count, total = int(wrinkled.sum()), wrinkled.size
+    fig = _figure(10.0, 8.0)
+    axes = fig.subplots(2, 1, sharex=True)
+    panels = (("span fibres T11", np.asarray(solution.tension_span)),
+              ("contour fibres T22", np.asarray(solution.tension_chord)))
+    for k, (ax, (name, tension)) in enumerate(zip(axes, panels)):
+        mesh = ax.pcolormesh(s_edges, grid.y, tension, shading="flat", cmap="viridis",
+                             vmin=min(0.0, float(tension.min())))
+        bar = fig.colorbar(mesh, ax=ax)
+        bar.set_label(f"{name.split()[-1]}, N/m")
+        grid.decorate(ax)
+        if k == 0:
+            ax.set_xlabel("")
+        if count:
+            ii, jj = np.nonzero(wrinkled)
+            ax.plot(s_mid[jj], y_mid[ii], ls="none", marker="x", ms=5, mew=1.2, color="red",
+                    label=f"wrinkled cell ({count} of {total})")
+        else:
+            ax.plot([], [], ls="none", marker="x", color="red", label="wrinkled cells: none")
+        ax.legend(loc="upper left", fontsize="small", framealpha=0.9)
+        ax.set_title(f"{name}: min {tension.min():.4g} N/m, max {tension.max():.4g} N/m",
+                     fontsize="medium")
+    fig.suptitle(f"{scene.bay.name} bay: fibre tensions per unit width at p = {_kpa(solution.pressure)}; "
+                 f"{100 * count / total:.1f}% of cells wrinkled (a fibre would be in compression)",
+                 fontsize="medium")
+    return fig
+
+
+_UNITS = {"pressure": ("pressure, kPa", 1e-3), "prestrain_span": ("span prestrain, %", 100.0),
+          "prestrain_chord": ("chord prestrain, %", 100.0),
+          "rib_thickness_scale": ("rib thickness scale", 1.0), "rib_chord_scale": ("rib chord scale", 1.0)}
+
+
+def plot_history(result: DesignResult, bounds: dict | None = None):
+    """The optimiser's iterates: the objective and each design variable against the iterate.
+
+    Args:
+        result: a `DesignResult` with a non-empty history.
+        bounds: ``{name: (lower, upper)}`` to draw (as passed to `optimise_pressure`).
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+
+    Raises:
+        ValueError: if the result has no history (a single equilibrium).
+    """
+    history = list(getattr(result, "history", None) or [])
+    if not history:
+        raise ValueError("the result has no optimiser history to plot (a single equilibrium)")
+    from matplotlib.ticker import FormatStrFormatter, MaxNLocator, NullFormatter
+
+    names = list(result.variables)
+    it = np.arange(1, len(history) + 1)
+    objective = np.array([h["objective"] for h in history], dtype=np.float64)
+    fig = _figure(8.0, 2.4 + 1.9 * len(names))
+    axes = np.atleast_1d(fig.subplots(len(names) + 1, 1, sharex=True))
+    ax = axes[0]
+    if result.method == "root":
+        ax.semilogy(it, np.abs(objective), "o-", color="C3", label="|root condition|, chord")
+        ax.set_ylabel("|condition|, chord")
+    else:
+        ax.semilogy(it, np.sqrt(np.maximum(objective, 0.0)), "o-", color="C3",
+                    label="objective: rms distance, incl. constraint penalties")
+        ax.axhline(result.rms_error, color="0.3", ls=":", label=f"result: rms {result.rms_error:.3e}")
+        ax.set_ylabel("rms distance / chord")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize="small")
+    bounds = bounds or {}
+    for ax, name in zip(axes[1:], names):
+        label, unit = _UNITS.get(name, (name, 1.0))
+        ax.plot(it, [h["values"][name] * unit for h in history], "o-", color="C0", label="iterate")
+        ax.axhline(result.values[name] * unit, color="0.3", ls=":",
+                   label=f"result: {result.values[name] * unit:.5g}")
+        if name in bounds:
+            for k, b in enumerate(bounds[name]):
+                ax.axhline(b * unit, color="0.5", ls="--", lw=1.0, label="bounds" if k == 0 else None)
+        if name == "pressure" and name in bounds and bounds[name][1] > 10 * bounds[name][0]:
+            ax.set_yscale("log")  # bounds over decades; plain numbers, not powers of ten
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize="small", loc="best")
+    axes[-1].set_xlabel("iterate (one forward solve each)")
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    status = "converged" if result.success else "did not converge"
+    fig.suptitle(f"optimiser history: {result.method}, {result.objective} objective, "
+                 f"{len(history)} iterates, {status}")
+    return fig
