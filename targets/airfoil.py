@@ -40,6 +40,8 @@ from scipy.interpolate import CubicSpline, PPoly
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
+from .monotone_spline import REVERSAL_TOLERANCE, limit_x_reversals
+
 MIN_POINTS = 7
 """Fewest points of a contour: the trailing edge, two points per surface, the
 leading edge and the closing trailing-edge point."""
@@ -149,12 +151,15 @@ def _is_smooth_join(x: np.ndarray, z: np.ndarray) -> bool:
     """Whether a closed contour turns through its trailing edge like a smooth curve.
 
     The polygon's turning angle at the trailing-edge node is compared with the
-    turn a smooth curve would make there, the larger curvature estimated at
+    turn a smooth curve would make there, the smaller curvature estimated at
     its two neighbours (turn / mean adjacent segment length) times the mean
     length of the two trailing-edge segments. A sharp trailing edge (a NACA
     section) turns through almost pi whatever the spacing; a smooth closed
     curve (a circle, an ellipse) turns no more than about that estimate, so
-    the threshold is three times it.
+    the threshold is three times it. The smaller curvature, because a smooth
+    join looks smooth from both sides: a kink in the points next to a sharp
+    trailing edge (UIUC ``fx73170a``, 0.6 rad at the node before it) must not
+    make the corner pass for a curve.
     """
     step = np.column_stack([np.diff(x), np.diff(z)])
     length = np.linalg.norm(step, axis=1)
@@ -164,7 +169,7 @@ def _is_smooth_join(x: np.ndarray, z: np.ndarray) -> bool:
         return math.atan2(abs(a[0] * b[1] - a[1] * b[0]), float(a @ b))
 
     at_te = turn(direction[-1], direction[0])
-    curvature = max(
+    curvature = min(
         turn(direction[0], direction[1]) / (0.5 * (length[0] + length[1])),
         turn(direction[-2], direction[-1]) / (0.5 * (length[-2] + length[-1])),
     )
@@ -176,7 +181,10 @@ class _SmoothContour:
 
     The spline is periodic when the contour is closed and smooth through its
     trailing edge, otherwise it has not-a-knot ends (the trailing edge is a
-    corner, or open).
+    corner, or open). Where its x(s) turns back between nodes whose x is
+    monotonic (beside a sharp nose, or beside the trailing-edge node of a
+    periodic contour), the x part is repaired by
+    :func:`~targets.monotone_spline.limit_x_reversals` and is C1 there.
     """
 
     def __init__(self, x: np.ndarray, z: np.ndarray):
@@ -185,9 +193,10 @@ class _SmoothContour:
         points = np.column_stack([x, z])
         knots = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(z)))])
         self.length = float(knots[-1])
-        self.spline = CubicSpline(
+        spline = CubicSpline(
             knots, points, axis=0, bc_type="periodic" if self.periodic else "not-a-knot"
         )
+        self.spline = limit_x_reversals(spline, x, self.periodic)
         self._tangent = self.spline.derivative(1)
         self._second = self.spline.derivative(2)
         self._x_poly = PPoly(self.spline.c[..., 0], knots, extrapolate=False)
@@ -233,8 +242,8 @@ class _SmoothContour:
         slope = self._tangent(s)
         speed = np.hypot(slope[:, 0], slope[:, 1])
         for surface, part, wrong_sign in (
-            ("upper", s < self.le_parameter, slope[:, 0] > 1e-9 * speed),
-            ("lower", s > self.le_parameter, slope[:, 0] < -1e-9 * speed),
+            ("upper", s < self.le_parameter, slope[:, 0] > REVERSAL_TOLERANCE * speed),
+            ("lower", s > self.le_parameter, slope[:, 0] < -REVERSAL_TOLERANCE * speed),
         ):
             bad = part & wrong_sign
             if bad.any():
