@@ -6,7 +6,8 @@ Public names:
   representation (thickness, camber, leading-edge radius, resampling, signed
   distance).
 * :func:`naca`: NACA 4- and 5-digit sections (Report 824 formulas).
-* :func:`load_airfoil`: Selig or Lednicer ``.dat`` files.
+* :func:`load_airfoil`: Selig or Lednicer ``.dat`` files; it warns with
+  :class:`AirfoilWarning` when it renormalises a slightly-off chord.
 * :func:`parse_naca`, :class:`NacaSection`: the analytic section behind
   :func:`naca` (mean line, thickness, surface).
 * :class:`Projection`: closest points returned by :meth:`Airfoil.project`.
@@ -17,9 +18,18 @@ import its other names with ``from targets.naca import ...``.
 
 from .airfoil import Airfoil as Airfoil
 from .airfoil import Projection as Projection
+from .dat import AirfoilWarning as AirfoilWarning
 from .dat import load_airfoil as load_airfoil
 from .naca import NacaSection as NacaSection
 from .naca import naca as naca
 from .naca import parse_naca as parse_naca
 
-__all__ = ["Airfoil", "NacaSection", "Projection", "load_airfoil", "naca", "parse_naca"]
+__all__ = [
+    "Airfoil",
+    "AirfoilWarning",
+    "NacaSection",
+    "Projection",
+    "load_airfoil",
+    "naca",
+    "parse_naca",
+]

@@ -9,20 +9,41 @@ line, chord-normalised, after a name line:
   (e.g. ``61. 61.``); then the upper surface leading edge -> trailing edge, a
   blank line, and the lower surface leading edge -> trailing edge.
 
-The format is detected from the line after the name: two whole numbers of at
-least 2 are point counts (Lednicer); a Selig file starts at the trailing edge,
-x close to 1. A file whose first line is already a point has no name line,
-and the file's stem names it.
+The format is detected from the first numeric line after the name: two whole
+numbers of at least 2 are point counts (Lednicer); a Selig file starts at the
+trailing edge, x close to 1. A file whose first line is already a point has no
+name line, and the file's stem names it.
+
+Real files (the UIUC database) carry text around the points, which the reader
+skips: more header lines after the name (lines whose first word is not a
+number), the MSES domain line (four numbers right after the name, as in the
+TASOPT sections), and comments after the last point (from the first line
+that is not all numbers). Text between points, and a line of numbers other
+than two right after the last point, are refused, naming the line. A chord
+slightly off unit length is renormalised with an :class:`AirfoilWarning`;
+see :func:`load_airfoil`.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .airfoil import MIN_POINTS, Airfoil
+from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil
+
+RENORMALISE_LIMIT = 5e-3
+"""Largest chord error (chord units) that :func:`load_airfoil` renormalises: the
+trailing edge off x = 1 and the leading edge off x = 0 by at most this. It
+covers six-decimal data and files whose last cosine station stops short of
+x = 1 (Wortmann's, 1.07e-3 and 2.7e-3); coordinates in percent, in metres or
+measured to a tab (VR-8 with tab, 1.01) stay refused."""
+
+
+class AirfoilWarning(UserWarning):
+    """An airfoil file was read with a correction (see :func:`load_airfoil`)."""
 
 
 def _numbers(line: str) -> list[float] | None:
@@ -31,6 +52,21 @@ def _numbers(line: str) -> list[float] | None:
         return [float(token) for token in line.replace(",", " ").split()]
     except ValueError:
         return None
+
+
+def _is_text(line: str) -> bool:
+    """Whether a non-blank line is text: its first word is not a number."""
+    try:
+        float(line.replace(",", " ").split()[0])
+    except ValueError:
+        return True
+    return False
+
+
+def _is_point(line: str) -> bool:
+    """Whether a line holds exactly two numbers."""
+    values = _numbers(line)
+    return values is not None and len(values) == 2
 
 
 def _read_points(
@@ -101,12 +137,67 @@ def _lednicer(
     return upper[::-1] + lower
 
 
+def _renormalised(
+    where: str, label: str, x: np.ndarray, z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """The points mapped to unit chord when the trailing edge is slightly off x = 1.
+
+    The trailing edge is the mid-point of the first and last points and the
+    leading edge the minimum-x point, as :class:`~targets.Airfoil` defines
+    them. Only a trailing edge off x = 1 (beyond
+    :data:`~targets.airfoil.CHORD_TOLERANCE`) triggers the renormalisation:
+    with the trailing edge in place, a minimum-x point a little off x = 0 is
+    no chord error (a NACA section bulges ahead of x = 0, a nose not sampled
+    at its tip lies behind it).
+
+    Returns:
+        ``(x, z, note)``: the points, unchanged or renormalised, and what was
+        done for the warning (None when nothing was).
+
+    Raises:
+        ValueError: If the chord error exceeds :data:`RENORMALISE_LIMIT`.
+    """
+    x_te = 0.5 * (x[0] + x[-1])
+    x_le = float(np.min(x))
+    if abs(x_te - 1.0) <= CHORD_TOLERANCE:
+        return x, z, None
+    if abs(x_te - 1.0) > RENORMALISE_LIMIT or abs(x_le) > RENORMALISE_LIMIT:
+        uneven = abs(x[0] - x[-1]) > RENORMALISE_LIMIT
+        raise ValueError(
+            f"{where}: airfoil {label!r} is not chord-normalised: its trailing edge (mid-point of "
+            f"the first and last points, at x = {x[0]:.6g} and {x[-1]:.6g}) is at "
+            f"x = {x_te:.6g} and its leading edge (minimum x) at x = {x_le:.6g}; chord errors up "
+            f"to {RENORMALISE_LIMIT:g} are renormalised, this one is larger: divide the "
+            f"coordinates by the chord and put the leading edge at x = 0"
+            + (
+                f" (the two surfaces end {abs(x[0] - x[-1]):.3g} apart in x: is one incomplete?)"
+                if uneven
+                else ""
+            )
+        )
+    chord = x_te - x_le
+    note = (
+        f"{where}: airfoil {label!r} renormalised to unit chord: its trailing edge was at "
+        f"x = {x_te:.9g} and its leading edge at x = {x_le:.9g} (chord {chord:.9g}); x shifted by "
+        f"{0.0 - x_le:.3g}, x and z scaled by {1.0 / chord:.9g}"
+    )
+    return (x - x_le) / chord, z / chord, note
+
+
 def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     """Reads a Selig or Lednicer ``.dat`` file (format detected, see the module docstring).
 
-    Consecutive repeated points (a quirk of some database files) are read
-    once; nothing else is changed: the coordinates must already be
-    chord-normalised (leading edge at x = 0, trailing edge at x = 1).
+    Text lines before the first point (beyond the name line) and after the
+    last point are skipped; consecutive repeated points (a quirk of some
+    database files) are read once. The coordinates must be chord-normalised
+    (leading edge at x = 0, trailing edge at x = 1) up to
+    :data:`RENORMALISE_LIMIT`: a file whose trailing edge (mid-point of the
+    first and last points) is off x = 1 by more than
+    :data:`~targets.airfoil.CHORD_TOLERANCE`, but by no more than that limit,
+    with its minimum x as close to 0, is mapped onto unit chord (x from the
+    minimum-x point to the trailing edge becomes 0 to 1, z scaled alike, so
+    thickness and camber ratios are kept) and an :class:`AirfoilWarning` says
+    by how much.
 
     Args:
         path: The file.
@@ -116,10 +207,15 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     Returns:
         The :class:`~targets.Airfoil`, in Selig order.
 
+    Warns:
+        AirfoilWarning: When the chord was renormalised, with the trailing
+            and leading edge found, the shift and the scale factor.
+
     Raises:
         ValueError: If the file is malformed; the message names the file and
-            the offending line: a line that is not two numbers, a non-finite
-            coordinate, a missing surface, wrong Lednicer counts, or a contour
+            the offending line: a line that is not two numbers (text between
+            points included), a non-finite coordinate, a missing surface,
+            wrong Lednicer counts, a chord error above the limit, or a contour
             that :class:`~targets.Airfoil` rejects.
     """
     where = str(path)
@@ -131,13 +227,32 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
 
     first_number, first_line = content[0]
     first_values = _numbers(first_line)
-    if first_values is not None and len(first_values) == 2:
-        label, body = Path(path).stem, lines[first_number - 1 :]
-    else:
+    named = first_values is None or len(first_values) != 2
+    if named:
         label, body = first_line.strip(), lines[first_number:]
+    else:
+        label, body = Path(path).stem, lines[first_number - 1 :]
+
+    numeric = [number for number, line in body if line.strip() and not _is_text(line)]
+    if numeric:
+        # The data run from the first numeric line to the last point (two numbers): text
+        # before them is header, after them comment (whatever its words), and text in
+        # between stays for _read_points to refuse. A line of numbers right after the last
+        # point is a damaged point, not a comment: it stays too.
+        pairs = [number for number, line in body if _is_point(line)]
+        end = pairs[-1] if pairs else numeric[-1]
+        after = [(number, line) for number, line in body if number > end and line.strip()]
+        if after and _numbers(after[0][1]) is not None:
+            end = after[0][0]
+        body = [(number, line) for number, line in body if numeric[0] <= number <= end]
+    body_content = [(number, line) for number, line in body if line.strip()]
+    if named and body_content and body_content[0][0] == first_number + 1:
+        domain = _numbers(body_content[0][1])
+        if domain is not None and len(domain) == 4:  # MSES: x_inlet x_outlet z_bottom z_top
+            body = [(number, line) for number, line in body if number > first_number + 1]
+            body_content = body_content[1:]
 
     counts = None
-    body_content = [(number, line) for number, line in body if line.strip()]
     if body_content:
         header_line, second = body_content[0]
         values = _numbers(second)
@@ -180,7 +295,12 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     kept += [q for p, q in zip(points[:-1], points[1:]) if (p[1], p[2]) != (q[1], q[2])]
     x = np.array([p[1] for p in kept])
     z = np.array([p[2] for p in kept])
+    label = label if name is None else name
+    x, z, note = _renormalised(where, label, x, z)
     try:
-        return Airfoil(x, z, name=label if name is None else name)
+        airfoil = Airfoil(x, z, name=label)
     except ValueError as err:
         raise ValueError(f"{where}: {err}") from err
+    if note is not None:
+        warnings.warn(note, AirfoilWarning, stacklevel=2)
+    return airfoil
