@@ -8,7 +8,10 @@ physics lives here.
 
 Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
 nothing written; or the optimiser stopped without converging: the folder is
-written and says so); 2 bad input (one line on stderr); 130 interrupted.
+written and says so); 2 bad input (one line on stderr), a grid too large
+for the machine among it (`inverse_design.resources.check_grid`); 130
+interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
+Ctrl-C, so the staging folder is removed).
 
 Like the library, the command changes no JAX setting: the solvers run in
 their own thread-local float64 scope.
@@ -19,15 +22,23 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
-__all__ = ["InputError", "build_parser", "main", "parse_arguments", "read_config", "run"]
+from .resources import MAX_NODES, check_grid
+
+__all__ = ["InputError", "Terminated", "build_parser", "main", "parse_arguments", "read_config", "run"]
 
 PROG = "optimise-pressure"
 #: ``--variables`` of the default case.
 DEFAULT_VARIABLES = "pressure,rib_thickness_scale"
+#: Exit codes of a run stopped by Ctrl-C (SIGINT) or SIGTERM: 128 + the signal number, as a shell reports it.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
 
 
 class InputError(ValueError):
@@ -96,6 +107,10 @@ OPTIONS = (
                              help="grid nodes along the span, ribs included (default 9)")),
     ("bay", "--n-contour", dict(type=_whole, default=64, metavar="N",
                                 help="grid nodes around the contour (default 64)")),
+    ("bay", "--allow-large-grid", dict(action="store_true",
+                                       help="run a grid that is refused otherwise: one whose estimated peak "
+                                       "memory exceeds half of the available memory, or with more than "
+                                       f"{MAX_NODES:,} nodes (hours per design)")),
     ("fabric", "--stiffness-span", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
                                         help="tensile stiffness E11 of the span fibres per unit width, N/m "
                                         "(default 2e5)")),
@@ -177,8 +192,9 @@ every section from rib to rib matches the target, with a wrinkle-free skin.
 """
 
 _EPILOG = """\
-output folder (--out DIR, written to a temporary folder next to DIR and renamed
-into place when complete; an earlier DIR is replaced only then):
+output folder (--out DIR, written to a temporary folder .DIR.partial-XXXXXXXX next
+to DIR and renamed into place when complete; an earlier DIR is replaced only then;
+such temporary folders left by a killed run are removed by the next run to DIR):
   summary.json          inputs, results, errors before/after, active constraints,
                         timings, package version, the files written
   equilibrium.npz       nodes (n_span, n_contour, 3) m, tensions N/m, wrinkled
@@ -198,8 +214,13 @@ are relative to the current folder; options on the command line override it):
   n-span = 17
   n-contour = 128
 
-exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input; 130 interrupted.
-"""
+grid size: a grid whose estimated peak memory exceeds half of the available memory,
+or with more than {max_nodes:,} nodes, is refused before the run (exit 2, with the
+estimate); --allow-large-grid runs it anyway.
+
+exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input; 130 interrupted
+(Ctrl-C); 143 terminated (SIGTERM). Interrupted or terminated, nothing is written.
+""".format(max_nodes=MAX_NODES)
 
 
 def build_parser(suppress_defaults: bool = False) -> argparse.ArgumentParser:
@@ -305,6 +326,8 @@ def _airfoil(spec: str, option: str):
     from targets import load_airfoil, naca
 
     path = Path(spec)
+    if path.is_dir():
+        raise InputError(f"{option}: {spec} is a directory; give a NACA code such as naca2412 or a .dat file")
     if path.suffix.lower() == ".dat" or path.exists():
         if not path.is_file():
             raise InputError(f"{option}: no such file {spec!r}; give a NACA code such as naca2412 or the "
@@ -335,6 +358,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         forward_solver.ConvergenceError: a forward solve failed (nothing written).
     """
     start = time.perf_counter() if started is None else started
+    check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
     from forward_solver import Bay, ConvergenceError, Fabric, Scene, solve_equilibrium
@@ -408,22 +432,94 @@ def _describe(summary: dict) -> list[str]:
     return lines
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received while `main` runs: unwinds like Ctrl-C (staging folders are removed), exit 143."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _handle_sigterm():
+    """Make SIGTERM raise `Terminated` in the main thread; returns the handler to restore, or None.
+
+    Only `main` installs it (importing this module changes nothing), and only
+    from the main thread (where Python runs signal handlers).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGTERM)
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    return signal.SIG_DFL if previous is None else previous  # None: installed outside Python
+
+
+def _exit_now(code: int) -> None:
+    """End the process at once (``os._exit``) after flushing the output.
+
+    An interruption can abandon an XLA compilation that goes on in a thread
+    of JAX's own; the interpreter's normal shutdown then destroys the CPU
+    client under it and the process dies of SIGSEGV instead of exiting with
+    ``code`` (seen with JAX 0.10.2, Ctrl-C and SIGTERM alike). The output
+    folder's staging has been cleaned up by then (the exception unwound it).
+    """
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``optimise-pressure`` console script; returns the exit code."""
+    """Entry point of the ``optimise-pressure`` console script; returns the exit code.
+
+    While it runs, SIGTERM raises `Terminated`, which unwinds like Ctrl-C
+    (the staging folder is removed): exit code 143, or 130 for Ctrl-C. The
+    previous SIGTERM handler is restored on return. Run as the command
+    (``argv`` None), an interrupted or terminated run ends the process
+    itself with that code (see `_exit_now`); called with ``argv`` it returns.
+    """
     started = time.perf_counter()
+    previous = _handle_sigterm()
+    try:
+        code = _main(argv, started)
+    except Terminated:  # before the run (importing JAX) or after its folder was written
+        print(f"{PROG}: terminated", file=sys.stderr)
+        code = EXIT_TERMINATED
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        code = EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        _exit_now(code)
+    return code
+
+
+def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
+    """The one-line message and exit code of a run stopped by Ctrl-C or SIGTERM."""
+    terminated = isinstance(exc, Terminated)
+    print(f"{PROG}: {'terminated' if terminated else 'interrupted'}; nothing was written to {out}",
+          file=sys.stderr)
+    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None, started: float) -> int:
     try:
         args, sources = parse_arguments(argv)
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     progress = sys.stderr.isatty() and not (args.quiet or args.json)
-    from forward_solver import ConvergenceError
-
+    try:
+        from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc, args.out)
     try:
         summary = run(args, sources, progress=progress, started=started)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing was written to {args.out}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
+        return _interrupted(exc, args.out)
     except ConvergenceError as exc:  # a forward solve failed: the reason, exit 1
         print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
         return 1

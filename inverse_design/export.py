@@ -5,12 +5,15 @@ folder is written atomically (`staged_folder`): into a hidden temporary
 folder next to the destination, renamed into place when complete. An
 earlier folder of the same name is replaced only then, and only if it is
 empty or holds a ``summary.json`` (so a mistyped ``out_dir`` never deletes
-unrelated files; `check_output_folder`).
+unrelated files; `check_output_folder`). Temporary folders that a killed
+writer left behind are removed by the next `staged_folder` of the same
+destination (`remove_stale_partials`).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 import uuid
@@ -23,9 +26,15 @@ from forward_solver import Solution
 
 from .optimise import DesignResult
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: no flock, stale folders are left alone
+    fcntl = None
+
 __all__ = [
     "check_output_folder",
     "deviation",
+    "remove_stale_partials",
     "staged_folder",
     "write_npz",
     "write_obj",
@@ -173,20 +182,94 @@ def check_output_folder(out_dir) -> Path:
     return out
 
 
+def _partial_pattern(out: Path) -> re.Pattern:
+    """Names of the temporary folders of ``out``: ``.NAME.partial-`` and 8 hex digits (`staged_folder`)."""
+    return re.compile(re.escape(f".{out.name}.partial-") + "[0-9a-f]{8}")
+
+
+def _try_lock(folder: Path) -> int | None:
+    """An open descriptor of ``folder`` holding an exclusive ``flock``, or None if it cannot be locked.
+
+    None when another process holds the lock, when the file system refuses
+    locks, or without ``fcntl``. The lock lasts until the descriptor is
+    closed, or the process dies (a SIGKILL included), and follows the folder
+    through a rename.
+    """
+    if fcntl is None:
+        return None
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def remove_stale_partials(out_dir) -> list[Path]:
+    """Remove the temporary folders that killed writers of ``out_dir`` left beside it.
+
+    Only folders named exactly as `staged_folder` names those of this
+    ``out_dir`` (``.NAME.partial-`` and 8 hex digits) whose writer is gone:
+    a writer holds a lock on its folder until it ends, so a folder still being
+    written (by another run to the same ``out_dir``) is left alone, and so is
+    every folder where locks are not available (Windows, some network file
+    systems).
+
+    Returns:
+        The folders removed.
+    """
+    out = Path(os.path.abspath(os.fspath(out_dir)))
+    if not out.parent.is_dir():
+        return []
+    pattern, removed = _partial_pattern(out), []
+    for entry in sorted(out.parent.iterdir()):
+        if not pattern.fullmatch(entry.name) or entry.is_symlink() or not entry.is_dir():
+            continue
+        fd = _try_lock(entry)
+        if fd is None:
+            continue
+        try:
+            shutil.rmtree(entry, ignore_errors=True)
+        finally:
+            os.close(fd)
+        removed.append(entry)
+    return removed
+
+
 @contextmanager
 def staged_folder(out_dir):
     """Write a folder atomically: yield a temporary folder, rename it to ``out_dir`` on success.
 
-    The temporary folder (``.NAME.partial-*``) sits next to ``out_dir``, so the
-    final rename stays on one file system. An existing ``out_dir`` (checked by
-    `check_output_folder`) is moved aside and deleted only after the new
-    folder is in place. On any exception, KeyboardInterrupt included, the
-    temporary folder is removed and ``out_dir`` is left as it was.
+    The temporary folder (``.NAME.partial-`` and 8 hex digits) sits next to
+    ``out_dir``, so the final rename stays on one file system. An existing
+    ``out_dir`` (checked by `check_output_folder`) is moved aside and deleted
+    only after the new folder is in place. On any exception, KeyboardInterrupt
+    included, the temporary folder is removed and ``out_dir`` is left as it
+    was. A temporary folder that a killed process (SIGKILL, power loss) left
+    behind is removed here by the next writer of the same ``out_dir``
+    (`remove_stale_partials`); the writer locks its own until it ends.
     """
     out = check_output_folder(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.parent / f".{out.name}.partial-{uuid.uuid4().hex[:8]}"
-    staging.mkdir()  # (not mkdtemp: the folder keeps the user's umask permissions)
+    remove_stale_partials(out)
+    tag = uuid.uuid4().hex[:8]
+    # Created under a name outside the pattern and renamed once locked, so that a concurrent
+    # `remove_stale_partials` never sees it unlocked.
+    creating = out.parent / f".{out.name}.creating-{tag}"
+    creating.mkdir()  # (not mkdtemp: the folder keeps the user's umask permissions)
+    lock = _try_lock(creating)
+    staging = out.parent / f".{out.name}.partial-{tag}"
+    try:
+        os.rename(creating, staging)
+    except BaseException:
+        shutil.rmtree(creating, ignore_errors=True)
+        if lock is not None:
+            os.close(lock)
+        raise
     try:
         yield staging
         old = None
@@ -207,3 +290,6 @@ def staged_folder(out_dir):
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)

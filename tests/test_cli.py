@@ -9,16 +9,18 @@ solvers of earlier ones (about a third of the compute of a fresh run).
 
 import json
 import os
+import signal
 import struct
 import subprocess
 import sys
+import time
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from inverse_design import cli, export
+from inverse_design import cli, export, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -27,20 +29,36 @@ FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "mid_bay_se
 
 
 @pytest.fixture(scope="module")
-def run_cli(tmp_path_factory):
-    """Run the command in a subprocess: ``run_cli(*args, cwd=folder)``."""
+def cli_env(tmp_path_factory):
+    """The environment of the command's subprocesses."""
     cache = tmp_path_factory.mktemp("jax-cache")
     # The repository's sources first, so the test runs the code under test whether or not
     # (and however) the package is installed.
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-               JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+                JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+                JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
 
-    def run(*args, cwd):
-        return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=env,
-                              capture_output=True, text=True, timeout=600)
+
+@pytest.fixture(scope="module")
+def run_cli(cli_env):
+    """Run the command in a subprocess: ``run_cli(*args, cwd=folder)``."""
+
+    def run(*args, cwd, timeout=600):
+        return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+                              capture_output=True, text=True, timeout=timeout)
 
     return run
+
+
+@pytest.fixture(scope="module")
+def start_cli(cli_env):
+    """Start the command in a subprocess and return at once: ``start_cli(*args, cwd=folder)``."""
+
+    def start(*args, cwd):
+        return subprocess.Popen([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    return start
 
 
 def _leftovers(folder: Path):
@@ -224,6 +242,8 @@ def test_a_bad_case_file_exits_2_with_one_line(run_cli, tmp_path, text, message)
         (["--n-span", "2"], "n_span"),
         (["--variables", "pressure,thickness"], "thickness"),
         (["--config", "absent.toml"], "absent.toml"),
+        (["--target", "."], "--target: . is a directory; give a NACA code such as naca2412 or a .dat file"),
+        (["--rib", ".."], "--rib: .. is a directory"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
@@ -273,3 +293,119 @@ def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
         (staging / "summary.json").write_text('{"new": true}')
     assert json.loads((out / "summary.json").read_text()) == {"new": True}
     assert _leftovers(tmp_path) == []
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_else(tmp_path):
+    out = tmp_path / "out"
+    stale = tmp_path / ".out.partial-0123abcd"  # what a SIGKILL leaves: no process holds its lock
+    stale.mkdir()
+    (stale / "equilibrium.npz").write_bytes(b"half")
+    # Not ours, or not that pattern: kept.
+    kept = [".out.partial-notes", ".out.partial-0123abcd.bak", ".other.partial-0123abcd",
+            ".out.partial-0123ABCD", ".out.partial-89abcdef"]
+    for name in kept[:-1]:
+        (tmp_path / name).mkdir()
+    (tmp_path / kept[-1]).write_text("a file, not a folder")
+    with export.staged_folder(out) as staging:
+        assert not stale.exists() and all((tmp_path / name).exists() for name in kept)
+        with export.staged_folder(out) as second:  # a second writer of the same folder, meanwhile
+            assert staging.is_dir()  # the first holds its lock: being written, not stale
+            (second / "summary.json").write_text('{"writer": 2}')
+        (staging / "summary.json").write_text('{"writer": 1}')
+    assert json.loads((out / "summary.json").read_text()) == {"writer": 1}
+    assert _leftovers(tmp_path) == sorted(kept)
+
+
+# ------------------------------------------------------------------ signals
+def _sigterm_handler_installed(pid: int) -> bool:
+    """Whether process ``pid`` catches SIGTERM (the SigCgt mask of /proc/PID/status, Linux)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) >> (signal.SIGTERM - 1) & 1)
+    return False
+
+
+def _wait_for(condition, process, what: str, limit: float = 300.0):
+    """Poll ``condition()`` every 10 ms until it holds; fail if the process ends first."""
+    deadline = time.monotonic() + limit
+    while not condition():
+        assert process.poll() is None, f"the command ended before {what}: {process.communicate()}"
+        assert time.monotonic() < deadline, f"no {what} after {limit} s"
+        time.sleep(0.01)
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists() or export.fcntl is None,
+                    reason="reads /proc (Linux) and needs flock")
+@pytest.mark.parametrize("moment", ["solving", "writing the folder"])
+def test_sigterm_stops_the_run_like_ctrl_c_and_leaves_nothing(start_cli, tmp_path, moment):
+    stale = tmp_path / ".out.partial-0badc0de"  # from an earlier, killed run
+    stale.mkdir()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "summary.json").write_text('{"earlier": true}')
+    process = start_cli(*SMALL, "--out", "out", cwd=tmp_path)
+    try:
+        _wait_for(lambda: _sigterm_handler_installed(process.pid), process, "the SIGTERM handler")
+        if moment == "solving":
+            time.sleep(1.0)  # into the JIT compilation and the solves (a run takes 10 s or more)
+        else:
+            def staging():
+                return [p for p in tmp_path.glob(".out.partial-*") if p != stale]
+
+            _wait_for(staging, process, "a staging folder")
+            assert not stale.exists()  # removed by this run, before it made its own
+        process.send_signal(signal.SIGTERM)
+        stdout, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert process.returncode == 143, stderr
+    assert stderr == "optimise-pressure: terminated; nothing was written to out\n" and stdout == ""
+    assert json.loads((tmp_path / "out" / "summary.json").read_text()) == {"earlier": True}
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["summary.json"]
+    assert _leftovers(tmp_path) == ([] if moment != "solving" else [stale.name])
+
+
+def test_main_installs_its_sigterm_handler_only_while_it_runs(tmp_path, capsys):
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert "NACA" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ grid size
+def test_a_grid_too_large_for_the_machine_is_refused_before_the_run(run_cli, tmp_path):
+    # A 10000 x 64 optimisation needs tens of GB and hours: refused with the estimate before any
+    # compilation (the timeout catches a run that starts anyway).
+    done = run_cli("--n-span", "10000", "--out", "out", cwd=tmp_path, timeout=120)
+    _one_line_error(done, "10000 x 64", "estimate", "GiB of memory", "--allow-large-grid")
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
+
+
+def test_the_estimate_reproduces_its_measurements():
+    # Peak memory measured on the development machine (resources' docstring), MiB; the fit is
+    # within 3 % of these square-ish grids, 5 % allowed.
+    for grid, measured in [((65, 512), 2035), ((129, 1024), 6864)]:
+        assert resources.estimate_cost(*grid).memory / 2**20 == pytest.approx(measured, rel=0.05)
+    assert resources.estimate_cost(129, 1024, evaluate=True).memory / 2**20 == pytest.approx(1166, rel=0.15)
+    small, large = resources.estimate_cost(9, 64), resources.estimate_cost(129, 1024)
+    assert small.memory < large.memory and small.seconds < large.seconds
+    assert resources.estimate_cost(129, 1024, evaluate=True).memory < large.memory
+
+
+def test_check_grid_refuses_by_memory_and_by_node_count_and_says_what_to_change():
+    plenty = (1e15, "test")
+    with pytest.raises(ValueError, match=r"estimate .* GiB of memory .* limit of 1\.0 GiB \(half of the 2\.0 GiB"
+                                         r" available, test\).*--allow-large-grid"):
+        resources.check_grid(129, 1024, available=(2 * 2**30, "test"))
+    assert resources.check_grid(129, 1024, available=(2 * 2**30, "test"), allow_large=True).nodes == 129 * 1024
+    over = resources.MAX_NODES // 100 + 1  # x 100 contour nodes: just over the cap
+    with pytest.raises(ValueError, match="exceeds the cap of 250,000 nodes: estimate"):
+        resources.check_grid(over, 100, evaluate=True, available=plenty)
+    # Memory unknown (no /proc/meminfo, no sysconf): the node cap still holds.
+    with pytest.raises(ValueError, match="exceeds the cap"):
+        resources.check_grid(over, 100, available=(None, "unknown"))
+    assert resources.check_grid(9, 64, available=(None, "unknown")).nodes == 576
+    assert resources.check_grid(2, 64, available=plenty).nodes == 128  # too small: Bay says so, not this
+    free, source = resources.available_memory()
+    assert free is None or (free > 0 and source)

@@ -1,0 +1,202 @@
+"""What a grid costs: the memory and time that ``optimise-pressure`` estimates before it starts.
+
+The command refuses a grid whose estimated peak memory exceeds half of the
+memory available, or that has more than `MAX_NODES` nodes (hours per
+design), unless told ``--allow-large-grid``; nothing here imports JAX.
+
+The coefficients are fits to measurements of the command (peak resident set
+size and wall time from ``/usr/bin/time -v``) on the development machine:
+Linux, 2-core Intel Xeon shared with other jobs, 24 GB, Python 3.11.7, JAX
+0.10.2 on the CPU. Memory in MiB; "optimise" is the default case with
+``--max-iterations 2`` (3 forward solves, relaxation then sparse Newton with
+its LU factor, and the adjoint), "evaluate" is ``--evaluate`` (one relaxation
+solve); times include JIT compilation and the report::
+
+    grid (span x contour)   nodes   evaluate         optimise (3 solves)
+    9 x 64                    576    625 MiB   7.8 s    588 MiB    15 s
+    17 x 128                 2176    722 MiB    11 s    664 MiB    16 s
+    33 x 256                 8448    740 MiB    21 s    950 MiB    46 s
+    65 x 512                33280    920 MiB    36 s   2035 MiB    64 s
+    129 x 1024             132096   1166 MiB   139 s   6864 MiB   291 s
+    9 x 1024, 129 x 64,  ~8200-9200                     810, 822,
+    257 x 32 (same nodes, other shapes)                 1011 MiB
+
+Fits of the peak memory, ``a + b * nodes**p`` (`MEMORY_FIT`): optimise
+583 MiB + 0.02425 MiB * nodes**1.057 (within 3 % of the five square-ish
+grids; the Newton LU fill makes it slightly faster than linear; other
+shapes of the same node count lie within 15 %); evaluate 705 MiB + 3.75 KiB
+per node (within 13 %). Wall time, ``a + solves * b * nodes**p``
+(`TIME_FIT`; ``a`` is mostly start-up and JIT compilation): evaluate 10 s +
+2.5e-4 s * nodes**1.115 (one solve and the report); optimise 20 s + solves *
+4.2e-5 s * nodes**1.237 per forward solve. Both within 40 % (a shared
+machine), enough to tell minutes from hours. The default case (9 x 64)
+takes 14 forward solves (`TYPICAL_SOLVES`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = [
+    "MAX_NODES",
+    "MEMORY_FIT",
+    "MEMORY_FRACTION",
+    "TIME_FIT",
+    "TYPICAL_SOLVES",
+    "GridCost",
+    "available_memory",
+    "check_grid",
+    "estimate_cost",
+]
+
+#: Most grid nodes (n_span x n_contour) run without ``--allow-large-grid``: at
+#: the cap an optimisation takes about 50 minutes on the development machine
+#: (one equilibrium, ``--evaluate``, about 5).
+MAX_NODES = 250_000
+#: Largest fraction of the available memory that a run's estimate may take.
+MEMORY_FRACTION = 0.5
+#: ``(a MiB, b MiB, p)`` of peak memory ``a + b * nodes**p``, per mode (see the module docstring).
+MEMORY_FIT = {"evaluate": (705.0, 3.75 / 1024, 1.0), "optimise": (583.0, 0.02425, 1.057)}
+#: ``(a s, b s, p)`` of the wall time ``a + solves * b * nodes**p``, per mode (see the module docstring).
+TIME_FIT = {"evaluate": (10.1, 2.5e-4, 1.115), "optimise": (20.3, 4.2e-5, 1.237)}
+#: Forward solves of an optimisation, as the default case takes (14).
+TYPICAL_SOLVES = 15
+
+_MIB = 2**20
+# cgroup memory limits (containers): v2, then v1; "max" or a huge number means no limit.
+_CGROUP_LIMITS = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                  ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                   "/sys/fs/cgroup/memory/memory.usage_in_bytes"))
+
+
+@dataclass(frozen=True)
+class GridCost:
+    """Estimated cost of a run.
+
+    Attributes:
+        nodes: grid nodes, n_span * n_contour.
+        memory: peak resident memory, bytes.
+        seconds: wall time on the development machine (2 cores): one solve
+            for ``--evaluate``, `TYPICAL_SOLVES` for an optimisation.
+        solves: forward solves counted in ``seconds``.
+    """
+
+    nodes: int
+    memory: float
+    seconds: float
+    solves: int
+
+
+def estimate_cost(n_span: int, n_contour: int, evaluate: bool = False) -> GridCost:
+    """The estimated peak memory and time of ``optimise-pressure`` on an ``n_span x n_contour`` grid.
+
+    Args:
+        n_span: grid nodes along the span (ribs included).
+        n_contour: grid nodes around the contour.
+        evaluate: one equilibrium (``--evaluate``) rather than an optimisation.
+
+    Returns:
+        The `GridCost` from the fits of the module docstring.
+    """
+    nodes = int(n_span) * int(n_contour)
+    mode = "evaluate" if evaluate else "optimise"
+    a, b, p = MEMORY_FIT[mode]
+    t0, t1, q = TIME_FIT[mode]
+    solves = 1 if evaluate else TYPICAL_SOLVES
+    return GridCost(nodes=nodes, memory=(a + b * nodes**p) * _MIB, seconds=t0 + solves * t1 * nodes**q,
+                    solves=solves)
+
+
+def _read_int(path: str) -> int | None:
+    try:
+        text = Path(path).read_text().strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def available_memory() -> tuple[float | None, str]:
+    """Memory a new run may use, bytes, and where the number comes from.
+
+    Linux: ``MemAvailable`` of ``/proc/meminfo`` (free memory plus what the
+    kernel can reclaim), else free pages (``os.sysconf``, which leaves out
+    the reclaimable cache, so it errs low); lowered to the room left under a
+    cgroup memory limit (a container's) when there is one. ``(None, reason)``
+    where none of these exist (macOS, Windows): the memory is then not checked.
+    """
+    available, source = None, ""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    available, source = int(line.split()[1]) * 1024, "MemAvailable in /proc/meminfo"
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if available is None:
+        try:
+            available = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+            source = "free pages (os.sysconf)"
+        except (AttributeError, ValueError, OSError):
+            return None, "the available memory is unknown on this system"
+    for limit_file, usage_file in _CGROUP_LIMITS:
+        limit, usage = _read_int(limit_file), _read_int(usage_file)
+        if limit is not None and usage is not None and limit < 2**60:
+            if limit - usage < available:
+                available, source = max(limit - usage, 0), f"the cgroup limit {limit_file}"
+            break
+    return float(available), source
+
+
+def _size(n_bytes: float) -> str:
+    return f"{n_bytes / 2**30:.1f} GiB" if n_bytes >= 2**30 else f"{n_bytes / _MIB:.0f} MiB"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 2 * 3600:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_grid(n_span: int, n_contour: int, *, evaluate: bool = False, allow_large: bool = False,
+               available: tuple[float | None, str] | None = None) -> GridCost:
+    """Refuse a grid the machine cannot run in reasonable memory and time.
+
+    Args:
+        n_span, n_contour: the grid (sizes below 1 are left to `forward_solver.Bay` to refuse).
+        evaluate: one equilibrium rather than an optimisation.
+        allow_large: skip both refusals (``--allow-large-grid``).
+        available: ``(bytes or None, source)`` as `available_memory` returns
+            it (the default: measured now).
+
+    Returns:
+        The `GridCost` estimate.
+
+    Raises:
+        ValueError: if the estimated peak memory exceeds `MEMORY_FRACTION`
+            of the available memory, or the grid has more than `MAX_NODES`
+            nodes; the message gives the estimate, the limit and what to change.
+    """
+    if not (isinstance(n_span, int) and isinstance(n_contour, int) and n_span >= 1 and n_contour >= 1):
+        return GridCost(nodes=0, memory=0.0, seconds=0.0, solves=0)
+    cost = estimate_cost(n_span, n_contour, evaluate)
+    if allow_large:
+        return cost
+    free, source = available_memory() if available is None else available
+    what = "one equilibrium" if evaluate else f"an optimisation of about {cost.solves} forward solves"
+    grid = f"the {n_span} x {n_contour} grid ({cost.nodes:,} nodes)"
+    estimate = (f"estimate {_size(cost.memory)} of memory and {_duration(cost.seconds)} for {what} "
+                "on a 2-core machine")
+    advice = "use a smaller --n-span or --n-contour, or --allow-large-grid to run it anyway"
+    if free is not None and cost.memory > MEMORY_FRACTION * free:
+        raise ValueError(f"{grid} is too large for this machine: {estimate}, more than the limit of "
+                         f"{_size(MEMORY_FRACTION * free)} (half of the {_size(free)} available, {source}); "
+                         f"{advice}")
+    if cost.nodes > MAX_NODES:
+        raise ValueError(f"{grid} exceeds the cap of {MAX_NODES:,} nodes: {estimate}; {advice}")
+    return cost
