@@ -2,8 +2,11 @@
 
 Public names::
 
-    Fabric, Bay, Scene, Solution, Result, ConvergenceError, PressureRamp,
-    solve_equilibrium, simulate
+    Fabric, Bay, Scene, Parameters, Solution, Result, ConvergenceError,
+    PressureRamp, solve_equilibrium, simulate
+
+``solve_equilibrium`` is differentiable in its `Parameters` (``jax.grad``,
+``jax.jacfwd``; implicit adjoint by default, see `adjoint`).
 
 Importing this package changes no JAX configuration: solvers run in float64
 inside a thread-local ``jax.enable_x64`` scope (see `scene.float64_scope`).
@@ -19,6 +22,7 @@ from .explicit import DEFAULT_COURANT as DEFAULT_COURANT
 from .explicit import PressureRamp as PressureRamp
 from .explicit import simulate as simulate
 from .fabric import Fabric as Fabric
+from .parameters import Parameters as Parameters
 from .scene import Scene as Scene
 from .solution import ConvergenceError as ConvergenceError
 from .solution import Result as Result
@@ -30,6 +34,7 @@ __all__ = [
     "ConvergenceError",
     "DEFAULT_COURANT",
     "Fabric",
+    "Parameters",
     "PressureRamp",
     "Result",
     "Scene",

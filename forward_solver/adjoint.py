@@ -1,61 +1,64 @@
-"""Derivatives of the equilibrium shape (DESIGN section 5).
+"""Derivatives of the equilibrium shape (DESIGN section 5): the custom JVP of `solve_equilibrium`.
 
-Implicit differentiation. At equilibrium the static residual vanishes on the
-free degrees of freedom, ``R(x*(theta), theta) = 0``, so (implicit function
-theorem)::
+Implicit differentiation. At equilibrium the static residual of eq. (10)-(15)
+vanishes on the free degrees of freedom, ``R(x*(theta), theta) = 0``, so
+(implicit function theorem)::
 
     dx*/dtheta = -J^-1 dR/dtheta,   J = dR/dx on the free dofs (N/m).
 
-`Equilibrium` wraps `solve_equilibrium` in a `jax.custom_jvp`:
+`solve_equilibrium` calls `differentiable_solution` when any of its
+`Parameters` is a JAX tracer. That wraps the solve in a ``jax.custom_jvp``
+over the whole `Parameters` pytree:
 
-* primal: the concrete host solve (``method="relax+newton"``, tolerance
-  `GRADIENT_RTOL`), warm-started from the previous call's equilibrium;
-* tangent (forward mode, ``jax.jvp`` / ``jax.jacfwd``): ``dR/dtheta . dtheta``
-  is one ``jax.jvp`` of `forces.residual` (through `forces.prepare`, so the
-  cut lengths see the prestrain, and through the mounted rib nodes, which
-  move with the rib geometry parameters), then ``dx = -J^-1 (...)`` with the
-  sparse LU of J: Newton's own factor when it was factorised at the returned
-  state (``NewtonResult.factor_current``), else a fresh one from
-  `newton.assemble_jacobian`;
+* primal: the concrete host solve (relaxation, Newton, warm starts) at the
+  concrete parameter values;
+* tangent (forward mode, ``jax.jvp`` / ``jax.jacfwd``): ``dR/dtheta .
+  dtheta`` is one ``jax.jvp`` of `forces.residual` (through
+  `forces.prepare`, so the cut lengths see the prestrain, and through the
+  mounted rib nodes, which move with the rib scales), then ``dx = -J^-1
+  (...)`` with the sparse LU of J: the solution's own factor
+  (`Solution.factor`) when it was factorised at the returned state, else a
+  fresh one from `jacobian.assemble_jacobian`;
 * cotangent (reverse mode, ``jax.grad`` / ``jax.vjp``): JAX transposes the
   tangent rule. The linear solve is a `jax.lax.custom_linear_solve` whose
   transpose solves the adjoint system ``J^T lambda = xbar`` with the same
-  factor (``factor.solve(b, trans="T")``), and the transpose of the
-  ``jax.jvp`` above is ``thetabar = -(dR/dtheta)^T lambda``. This is the
-  custom VJP of the issue, derived from the JVP rule instead of written
-  twice, so the two modes cannot disagree.
+  factor (``lu.solve(b, trans="T")``), and the transpose of the ``jax.jvp``
+  above is ``thetabar = -(dR/dtheta)^T lambda``: one adjoint solve per
+  gradient, whatever the number of parameters. The two modes cannot
+  disagree: one is derived from the other.
 
 Tolerance under differentiation. The derivative is exact only at an exact
 equilibrium; at a state with residual ``r`` the tangent is wrong by about
 ``|J^-1| |dJ/dtheta| |J^-1 r|``, i.e. relative error of order the relative
-residual. `GRADIENT_RTOL` = 1e-11 (``||R_free|| / (p A)``, the residual force
-over the total pressure load) keeps that error several orders below the
-1e-5 agreement with finite differences that the tests demand; Newton reaches
-it in one or two extra iterations, so it costs little.
+residual. `GRADIENT_RTOL` = 1e-11 (``||R_free|| / (p A)``) keeps that error
+several orders below the 1e-5 agreement with finite differences that the
+tests demand; with ``method="relax+newton"`` Newton reaches it in one or two
+extra iterations and leaves the factor the adjoint reuses.
 
-Precision: everything runs in float64. A concrete call enters
-``jax.enable_x64`` itself (`scene.float64_scope`); under the caller's own
-``jax.grad`` / ``jax.jacfwd`` float64 must be on already (wrap the call in
-``with jax.enable_x64(True):``), else a RuntimeError says so.
+Precision: everything runs in float64; under the caller's own ``jax.grad``
+float64 must be on already (wrap the call in ``with jax.enable_x64(True):``),
+else a RuntimeError says so.
 
 Limits: the primal is host code (scipy, Python control flow), so the
 parameters must be concrete when the solve runs: use ``jax.grad``,
 ``jax.jacfwd``, ``jax.jvp`` and ``jax.vjp`` eagerly, not under ``jax.jit``
 or ``jax.vmap`` of the parameters (a clear TypeError says so).
 
-Unrolled differentiation. `unrolled_equilibrium_nodes` is a pure JAX
-dynamic relaxation (the loop of `relax`, kinetic damping, Gershgorin masses)
-for a fixed number of steps, as a `lax.scan` of checkpointed chunks, so plain
-reverse-mode AD runs through it in memory proportional to the number of
-chunks. Its derivative converges to the implicit one as the iterates
-converge; it is slow and is meant for checking `Equilibrium` on small grids.
+Unrolled differentiation (``adjoint="unrolled"``). `unrolled_equilibrium_nodes`
+is a pure JAX dynamic relaxation (the loop of `relax`, kinetic damping,
+Gershgorin masses) for a fixed number of steps, as a `lax.scan` of
+checkpointed chunks, so plain AD runs through it in memory proportional to
+the number of chunks. Its derivative converges to the implicit one as the
+iterates converge; it is slow and is meant for checking the implicit rule on
+small grids.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from functools import partial
-from typing import Mapping
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -63,58 +66,31 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from . import forces as fk
-from .newton import PERMC_SPEC, assemble_jacobian, free_dofs
+from ._precision import float64_scope
+from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
+from .loop import LoopOutput
+from .parameters import PARAMETER_NAMES, Parameters
 from .relax import MASS_SAFETY, kinetic_damping_step
-from .scene import Scene, float64_scope
-from .solution import Solution
-from .solve import solve_equilibrium
+from .scene import Scene
+from .solution import Result, Solution, make_solution, static_forces
 
 __all__ = [
+    "ADJOINTS",
     "DIFFERENTIABLE",
     "GRADIENT_RTOL",
-    "Equilibrium",
-    "equilibrium_nodes",
+    "differentiable_solution",
     "unrolled_equilibrium_nodes",
 ]
 
-#: Parameters the equilibrium can be differentiated in (names of `forces.Params` fields).
-DIFFERENTIABLE = (
-    "pressure",
-    "prestrain_span",
-    "prestrain_chord",
-    "stiffness_span",
-    "stiffness_chord",
-    "rib_thickness_scale",
-    "rib_chord_scale",
-)
+#: How `solve_equilibrium` is differentiated.
+ADJOINTS = ("implicit", "unrolled")
 
-#: Relative residual ``||R_free||_2 / (p A)`` of the solves under
-#: differentiation (see the module docstring for why).
+#: Parameters the equilibrium can be differentiated in (the `Parameters` fields).
+DIFFERENTIABLE = PARAMETER_NAMES
+
+#: Relative residual ``||R_free||_2 / (p A)`` of solves whose derivative must
+#: be accurate (see the module docstring for why).
 GRADIENT_RTOL = 1e-11
-
-
-def _defaults(scene: Scene) -> dict:
-    fab = scene.fabric
-    return {
-        "prestrain_span": 0.0,
-        "prestrain_chord": 0.0,
-        "stiffness_span": fab.stiffness_span,
-        "stiffness_chord": fab.stiffness_chord,
-        "rib_thickness_scale": 1.0,
-        "rib_chord_scale": 1.0,
-    }
-
-
-def _check_names(names) -> None:
-    for name in names:
-        if name not in DIFFERENTIABLE:
-            raise ValueError(
-                f"unknown parameter {name!r}: the equilibrium is differentiable in {DIFFERENTIABLE}"
-            )
-
-
-def _is_traced(value) -> bool:
-    return isinstance(value, jax.core.Tracer)
 
 
 # ------------------------------------------------------------ linearisation
@@ -187,15 +163,12 @@ class _Linearisation:
         physics = fk.static_physics(scene.physics(dynamic=False))
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
         x = jnp.asarray(solution.nodes)
-        newton_result = solution.extra.get("newton")
-        if newton_result is not None and newton_result.factor_current and newton_result.factor is not None:
-            factor, free = newton_result.factor, np.asarray(newton_result.free_dofs)
-            self.reused_factor = True
+        if solution.factor is not None and solution.factor.current:
+            factor, free = solution.factor.lu, np.asarray(solution.factor.free_dofs)
         else:
             ref = _prepare(geometry, params, physics)
             factor = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
             free = free_dofs(ref)
-            self.reused_factor = False
         self.factor = factor
         self.free = jnp.asarray(free)
         self.x = x
@@ -233,172 +206,108 @@ class _Linearisation:
         return _assemble_tangent(dx_free, dheld, self.free, tuple(self.x.shape))
 
 
-# ---------------------------------------------------------------- the map
-class Equilibrium:
-    """Differentiable map from design parameters to the equilibrium nodes of one scene.
-
-    Calling it solves the equilibrium on the host (``solve_equilibrium`` with
-    ``method="relax+newton"``) and returns the nodes as a JAX array whose
-    derivatives in the parameters of ``names`` follow from the implicit
-    function theorem (module docstring). Each solve warm-starts from the
-    previous call's equilibrium (``initial=previous_solution``).
-
-    Args:
-        scene: the bay, fabric and physics switches.
-        fixed: values of parameters that are not passed at call time
-            (``pressure`` in Pa, prestrains, stiffnesses in N/m, rib scales);
-            unspecified ones take the fabric's stiffnesses, zero prestrain and
-            unit rib scales.
-        rtol: relative residual of every solve (`GRADIENT_RTOL` by default).
-        warm_start: start each solve from the previous equilibrium.
-        max_steps: step cap of each solve.
-        sequencing: let the first (cold) solve use grid sequencing; off, it
-            compiles one relaxation loop fewer, which on small grids saves
-            more time than sequencing gains.
-
-    Attributes:
-        solution: the last `Solution`.
-        solves: forward solves so far.
-        steps: forward-solve steps (relaxation steps plus Newton iterations)
-            of each solve, in order.
-
-    Raises:
-        ValueError: for an unknown parameter name or a non-physical value.
-    """
-
-    def __init__(self, scene: Scene, fixed: Mapping | None = None, *, rtol: float = GRADIENT_RTOL,
-                 warm_start: bool = True, max_steps: int = 200_000, sequencing: bool = True):
-        if not isinstance(scene, Scene):
-            raise TypeError(f"scene must be a forward_solver.Scene, got {type(scene).__name__}")
-        fixed = dict(fixed or {})
-        _check_names(fixed)
-        self.scene = scene
-        self.fixed = fixed
-        self.sequencing = sequencing
-        self.rtol = rtol
-        self.warm_start = warm_start
-        self.max_steps = max_steps
-        self.solution: Solution | None = None
-        self.solves = 0
-        self.steps: list[int] = []
-        self._linearisation: _Linearisation | None = None
-        self._key = None
-
-    def values(self, theta: Mapping) -> dict:
-        """All seven parameter values (concrete floats) for ``theta`` over ``fixed``."""
-        merged = {**_defaults(self.scene), **self.fixed, **theta}
-        if "pressure" not in merged:
-            raise ValueError("pressure must be given, in theta or in fixed (Pa)")
-        return merged
-
-    def solve(self, theta: Mapping) -> Solution:
-        """The equilibrium `Solution` at concrete ``theta`` (no derivatives); cached per value."""
-        _check_names(theta)
-        values = {k: float(np.asarray(v)) for k, v in self.values(theta).items()}
-        key = tuple(sorted(values.items()))
-        if key == self._key and self.solution is not None:
-            return self.solution
-        initial = self._initial(values)
-        sol = solve_equilibrium(
-            self.scene,
-            values["pressure"],
-            (values["prestrain_span"], values["prestrain_chord"]),
-            rtol=self.rtol,
-            max_steps=self.max_steps,
-            method="relax+newton",
-            initial=initial,
-            stiffness=(values["stiffness_span"], values["stiffness_chord"]),
-            rib_thickness_scale=values["rib_thickness_scale"],
-            rib_chord_scale=values["rib_chord_scale"],
-            sequencing=self.sequencing,
-            throw=True,
-        )
-        self.solution, self._key, self._linearisation = sol, key, None
-        self.solves += 1
-        self.steps.append(int(sol.steps))
-        return sol
-
-    def _initial(self, values: dict):
-        """Warm start: the previous equilibrium (`solve_equilibrium` re-mounts its held
-        nodes on the new ribs, and with ``relax+newton`` reuses its factor)."""
-        return self.solution if self.warm_start else None
-
-    def _linearised(self, values: dict) -> _Linearisation:
-        self.solve(values)
-        if self._linearisation is None:
-            params = self.scene.params(
-                values["pressure"], (values["prestrain_span"], values["prestrain_chord"]),
-                (values["stiffness_span"], values["stiffness_chord"]),
-                values["rib_thickness_scale"], values["rib_chord_scale"])
-            self._linearisation = _Linearisation(self.scene, self.solution, params)
-        return self._linearisation
-
-    def __call__(self, theta: Mapping) -> jnp.ndarray:
-        """Equilibrium nodes ``(n_span, n_contour, 3)`` in m, differentiable in ``theta``.
-
-        Args:
-            theta: ``{name: scalar}`` for names in `DIFFERENTIABLE`; values may
-                be JAX tracers of ``jax.grad`` / ``jax.jacfwd`` (not of
-                ``jax.jit``).
-        """
-        _check_names(theta)
-        names = tuple(sorted(theta))
-        with float64_scope(*(theta[n] for n in names)):
-            leaves = tuple(jnp.asarray(theta[n], jnp.float64) for n in names)
-            for name, leaf in zip(names, leaves):
-                if leaf.shape != ():
-                    raise ValueError(f"{name} must be a scalar, got shape {leaf.shape}")
-            return self._nodes(names, leaves)
-
-    def _nodes(self, names, leaves):
-        @jax.custom_jvp
-        def nodes(*values):
-            concrete = self._concrete(names, values)
-            return jnp.asarray(self.solve(concrete).nodes, jnp.float64)
-
-        @nodes.defjvp
-        def nodes_jvp(primals, tangents):
-            concrete = self._concrete(names, primals)
-            lin = self._linearised(self.values(concrete))
-            zero = fk.Params(*(np.zeros((), np.float64) for _ in fk.Params._fields))
-            dparams = zero._replace(**dict(zip(names, tangents)))
-            return lin.x, lin.tangent(dparams)
-
-        return nodes(*leaves)
-
-    @staticmethod
-    def _concrete(names, values) -> dict:
-        if any(_is_traced(v) for v in values):
-            raise TypeError(
-                "the equilibrium is solved on the host, so its parameters must be concrete: "
-                "differentiate with jax.grad / jax.jacfwd / jax.jvp outside jax.jit and jax.vmap"
-            )
-        return {n: float(np.asarray(v)) for n, v in zip(names, values)}
+# ---------------------------------------------------------------- the rule
+def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
+    """The kernel-parameter tangent of a `Parameters` tangent (fabric constants do not move)."""
+    zero = jnp.zeros_like(like.pressure)
+    tangents = {name: zero if getattr(dparameters, name) is None else getattr(dparameters, name)
+                for name in PARAMETER_NAMES}
+    return fk.Params(*(tangents.get(name, zero) for name in fk.Params._fields))
 
 
-def equilibrium_nodes(scene: Scene, theta: Mapping, fixed: Mapping | None = None, *,
-                      rtol: float = GRADIENT_RTOL, initial: Solution | None = None) -> jnp.ndarray:
-    """Equilibrium nodes, differentiable in ``theta`` (a one-off `Equilibrium`).
+def _concrete(parameters: Parameters) -> Parameters:
+    """Float values of the primal parameters; a clear TypeError under jit or vmap."""
+    try:
+        return parameters.as_floats()
+    except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
+        raise TypeError(
+            "solve_equilibrium solves on the host, so its parameters must be concrete: "
+            "differentiate it with jax.grad / jax.jacfwd / jax.jvp / jax.vjp outside jax.jit and "
+            "jax.vmap (a pure-JAX path under jit and vmap is not available yet)"
+        ) from None
+
+
+def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callable[[Parameters], Solution],
+                            adjoint: str, rtol: float, max_steps: int) -> Solution:
+    """The `Solution` at traced ``parameters``, its nodes and tensions differentiable.
 
     Args:
-        scene: the bay, fabric and physics switches.
-        theta: ``{name: scalar}`` for names in `DIFFERENTIABLE` (Pa, N/m or
-            dimensionless).
-        fixed: other parameters (see `Equilibrium`).
-        rtol: relative residual of the solve.
-        initial: a nearby `Solution` to warm-start from.
+        scene: the bay, fabric and switches.
+        parameters: resolved `Parameters`, some leaves JAX tracers.
+        solve: the concrete host solve, ``Parameters -> Solution``.
+        adjoint: "implicit" (the host solve, implicit derivative) or
+            "unrolled" (``max_steps`` steps of `unrolled_equilibrium_nodes`,
+            derivative by plain AD through them).
+        rtol: the solve's tolerance (the unrolled result is "converged" when
+            its relative residual is below it).
+        max_steps: the unrolled run's length.
 
     Returns:
-        ``(n_span, n_contour, 3)`` nodes in m (float64).
+        The concrete solve's `Solution` with ``nodes``, ``tension_span``,
+        ``tension_chord`` replaced by traced values (and its concrete nodes
+        in ``extra["primal_nodes"]``, for warm starts).
     """
-    eq = Equilibrium(scene, fixed, rtol=rtol)
-    eq.solution = initial
-    return eq(theta)
+    found = {}
+
+    def primal_solution(p: Parameters) -> Solution:
+        if adjoint == "unrolled":
+            return _unrolled_solution(scene, p, rtol, max_steps)
+        return solve(p)
+
+    @jax.custom_jvp
+    def nodes_of(p):
+        found["solution"] = primal_solution(_concrete(p))
+        return jnp.asarray(found["solution"].nodes, jnp.float64)
+
+    @nodes_of.defjvp
+    def nodes_jvp(primals, tangents):
+        (p,), (dp,) = primals, tangents
+        concrete = _concrete(p)
+        sol = found["solution"] = primal_solution(concrete)
+        if adjoint == "unrolled":
+            return jax.jvp(partial(unrolled_equilibrium_nodes, scene, n_steps=max_steps), (p,), (dp,))
+        if not sol.converged:
+            # No equilibrium, no implicit derivative: the caller sees the failure (throw) or
+            # gets the failed solution, whose tangent is undefined.
+            nan = jnp.full(sol.nodes.shape, jnp.nan)
+            return jnp.asarray(sol.nodes), nan
+        lin = _Linearisation(scene, sol, scene.params(concrete))
+        return lin.x, lin.tangent(_kernel_tangent(dp, lin.params))
+
+    with float64_scope(parameters):
+        nodes = nodes_of(parameters)
+        sol = found["solution"]
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        f = static_forces(nodes, geometry, scene.params(parameters), scene.physics(dynamic=False))
+    return Solution(nodes=nodes, tension_span=f.tension_span, tension_chord=f.tension_chord,
+                    wrinkled=sol.wrinkled, result=sol.result, steps=sol.steps, residual=sol.residual,
+                    wall_time=sol.wall_time, method=sol.method, parameters=sol.parameters,
+                    rib_spacing=sol.rib_spacing, history=sol.history,
+                    extra={**sol.extra, "primal_nodes": sol.nodes, "adjoint": adjoint},
+                    detail=sol.detail, factor=sol.factor)
+
+
+def _unrolled_solution(scene: Scene, parameters: Parameters, rtol: float, steps: int) -> Solution:
+    """A `Solution` from ``steps`` steps of `unrolled_equilibrium_nodes` (concrete parameters)."""
+    start = time.perf_counter()
+    with float64_scope():
+        params = scene.params(parameters)
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        physics = scene.physics(dynamic=False)
+        nodes = unrolled_equilibrium_nodes(scene, parameters, n_steps=steps)
+        f = static_forces(nodes, geometry, params, physics)
+        ref = fk.prepare(geometry, params, fk.static_physics(physics))
+        rel = float(fk.relative_residual(nodes, ref, params, fk.static_physics(physics)))
+    code = Result.converged if rel <= rtol else (Result.nonfinite if not math.isfinite(rel)
+                                                 else Result.max_steps_reached)
+    out = LoopOutput(None, int(code), 0, rel, None)
+    return make_solution(out, f, steps, time.perf_counter() - start, "unrolled", parameters, scene.bay,
+                         nodes=nodes, extra={"precision": "float64"})
 
 
 # ----------------------------------------------------------------- unrolled
-def unrolled_equilibrium_nodes(scene: Scene, theta: Mapping, fixed: Mapping | None = None, *,
-                               n_steps: int = 20_000, chunk: int = 100) -> jnp.ndarray:
+def unrolled_equilibrium_nodes(scene: Scene, parameters: Parameters, *, n_steps: int = 20_000,
+                               chunk: int = 100) -> jnp.ndarray:
     """Equilibrium nodes by ``n_steps`` of dynamic relaxation, differentiable by plain JAX AD.
 
     The loop of `relax` (fictitious Gershgorin masses re-estimated every
@@ -410,30 +319,22 @@ def unrolled_equilibrium_nodes(scene: Scene, theta: Mapping, fixed: Mapping | No
     (``stop_gradient``). Traceable: use it under ``jax.grad`` or ``jax.jit``
     (in float64).
 
-    Meant for checking the implicit derivative on small grids: it is exact
-    for the iterate it returns, so it agrees with `Equilibrium` once the
+    Meant for checking the implicit derivative on small grids (it is what
+    ``solve_equilibrium(..., adjoint="unrolled")`` runs): it is exact for the
+    iterate it returns, so it agrees with the implicit derivative once the
     iterates (and their tangents) have converged.
 
     Args:
         scene: the bay, fabric and physics switches.
-        theta: ``{name: scalar}`` (JAX values allowed).
-        fixed: other parameters (as for `Equilibrium`).
+        parameters: resolved `Parameters` (JAX values allowed).
         n_steps: relaxation steps (rounded up to whole chunks).
         chunk: steps per checkpointed chunk.
 
     Returns:
         ``(n_span, n_contour, 3)`` nodes in m.
     """
-    _check_names(theta)
-    fixed = dict(fixed or {})
-    _check_names(fixed)
-    merged = {**_defaults(scene), **fixed, **theta}
-    if "pressure" not in merged:
-        raise ValueError("pressure must be given, in theta or in fixed (Pa)")
-    with float64_scope(*theta.values()):
-        params = scene.params(merged["pressure"], (merged["prestrain_span"], merged["prestrain_chord"]),
-                              (merged["stiffness_span"], merged["stiffness_chord"]),
-                              merged["rib_thickness_scale"], merged["rib_chord_scale"])
+    with float64_scope(parameters):
+        params = scene.params(parameters.resolved(scene.fabric))
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
         physics = fk.static_physics(scene.physics(dynamic=False))
         n_chunks = max(1, -(-int(n_steps) // int(chunk)))

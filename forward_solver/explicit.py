@@ -23,10 +23,12 @@ import numpy as np
 
 from . import forces as fk
 from ._precision import precision_extra
-from .scene import Scene, check_pressure, check_prestrain, float64_scope, PRECISIONS
-from .solution import Solution
+from .parameters import Parameters, as_parameters
+from .scene import PRECISIONS, Scene, float64_scope
+from .solution import Solution, initial_nodes, make_solution
 
-__all__ = ["PressureRamp", "simulate", "stable_time_step", "DEFAULT_COURANT"]
+__all__ = ["PressureRamp", "simulate", "stable_time_step", "wave_speed", "plane_strain_modulus",
+           "DEFAULT_COURANT"]
 
 #: Courant coefficient alpha_k of eq. (16) used unless the caller picks one;
 #: it keeps a margin of two below `MEASURED_COURANT_LIMIT` for distorted cells.
@@ -53,7 +55,7 @@ class PressureRamp:
     ramp_time: float = 0.0
 
     def __post_init__(self):
-        check_pressure(self.pressure)
+        Parameters(self.pressure).check()
         if not (math.isfinite(self.ramp_time) and self.ramp_time >= 0):
             raise ValueError(f"ramp_time must be zero or positive in s, got {self.ramp_time!r}")
 
@@ -72,6 +74,25 @@ def kinetic_rest_threshold(rtol, load, stiffness):
     ``k`` the fabric's plane-strain stiffness (N/m) gives this bound.
     """
     return 0.5 * (rtol * load) ** 2 / stiffness
+
+
+def plane_strain_modulus(material):
+    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)``, N/m.
+
+    Args:
+        material: a `Fabric` or the kernel's `forces.Params` (anything with
+            ``stiffness_span``, ``stiffness_chord`` and ``poisson``).
+    """
+    return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
+
+
+def wave_speed(material):
+    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s.
+
+    Args:
+        material: a `Fabric` or `forces.Params` (also ``areal_density``, kg/m^2).
+    """
+    return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
 
 
 def stable_time_step(courant, h_min, wave_speed, params, physics):
@@ -107,11 +128,9 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
             lambda a: jnp.asarray(a).astype(dtype),
             (geometry, params, x_init, ramp_time, courant, divergence_bound))
     ref = fk.prepare(geometry, params, physics)
-    nu = params.poisson
-    e_max = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
-    wave_speed = jnp.sqrt(e_max / params.areal_density)
+    e_max = plane_strain_modulus(params)
     h_min = jnp.minimum(jnp.min(ref.span_length), jnp.min(ref.contour_length))
-    dt = stable_time_step(courant, h_min, wave_speed, params, physics)
+    dt = stable_time_step(courant, h_min, wave_speed(params), params, physics)
     mass = (params.areal_density * ref.node_area)[..., None]
     load = params.pressure * ref.skin_area
     ke_rest = kinetic_rest_threshold(rtol.astype(load.dtype), load, e_max)
@@ -214,7 +233,7 @@ def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
 def simulate(
     scene: Scene,
     pressure_history,
-    prestrain=(0.0, 0.0),
+    prestrain=None,
     *,
     courant: float = DEFAULT_COURANT,
     rtol: float = 1e-6,
@@ -222,8 +241,8 @@ def simulate(
     record_every: int = 200,
     initial=None,
     stiffness=None,
-    rib_thickness_scale: float = 1.0,
-    rib_chord_scale: float = 1.0,
+    rib_thickness_scale=None,
+    rib_chord_scale=None,
     divergence_bound: float | None = None,
     precision: str = "float64",
     throw: bool = True,
@@ -234,7 +253,8 @@ def simulate(
         scene: the bay, fabric and physics switches (viscosity from the fabric,
             aerodynamic damping from the scene).
         pressure_history: a `PressureRamp`, or a final pressure in Pa applied
-            at once.
+            at once, or a `Parameters` (its pressure applied at once; then
+            give none of the loose values below).
         prestrain: ``(span, chord)`` prestrain or one number for both.
         courant: Courant coefficient ``alpha_k`` of eq. (16).
         rtol: stop when ``||R_free|| / (p A) <= rtol``, the ramp is over and
@@ -268,8 +288,14 @@ def simulate(
         ValueError: for non-physical input or a float32 ``rtol`` below its floor.
         ConvergenceError: if ``throw`` and the run did not converge.
     """
-    ramp = pressure_history if isinstance(pressure_history, PressureRamp) else PressureRamp(pressure_history)
-    check_prestrain(prestrain)
+    loose = dict(prestrain=prestrain, stiffness=stiffness, rib_thickness_scale=rib_thickness_scale,
+                 rib_chord_scale=rib_chord_scale)
+    if isinstance(pressure_history, PressureRamp):
+        ramp, parameters = pressure_history, as_parameters(pressure_history.pressure, **loose)
+    else:
+        parameters = as_parameters(pressure_history, **loose)
+        ramp = PressureRamp(parameters.pressure)
+    parameters = parameters.resolved(scene.fabric).check()
     if not (math.isfinite(courant) and courant > 0):
         raise ValueError(f"courant must be a positive number (eq. 16), got {courant!r}")
     if not (isinstance(record_every, int) and record_every >= 1):
@@ -284,12 +310,11 @@ def simulate(
     physics = scene.physics(dynamic=True)
     with float64_scope():
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
-        params = scene.params(ramp.pressure, prestrain, stiffness, rib_thickness_scale,
-                              rib_chord_scale, dtype=dtype)
+        params = scene.params(parameters, dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
         extra = precision_extra(precision, rtol, geometry, params, physics)
         floor = extra.get("float32_floor")
-        x_init = _initial_nodes(initial, geometry, params)
+        x_init = initial_nodes(initial, geometry, params)
         start = time.perf_counter()
         out, f, dt, ratio, nodes = _simulate_jit(
             x_init, geometry, params, jnp.asarray(ramp.ramp_time, dtype), jnp.asarray(courant, dtype),
@@ -303,53 +328,8 @@ def simulate(
         extra.update(dt=float(dt), velocity_ratio=float(ratio))
         detail = _explicit_detail(int(out.result), float(ratio), courant, physics.viscous,
                                   precision, floor)
-        sol = _make_solution(out, f, int(out.chunks) * record_every, wall, "explicit", ramp.pressure,
-                             prestrain, bay, history=history, extra=extra, nodes=nodes, detail=detail)
+        sol = make_solution(out, f, int(out.chunks) * record_every, wall, "explicit", parameters, bay,
+                            history=history, extra=extra, nodes=nodes, detail=detail)
     if throw:
         sol.raise_if_failed()
     return sol
-
-
-def _initial_nodes(initial, geometry, params):
-    """Starting shape: the mounted one, or a warm start whose held nodes are re-mounted.
-
-    Held nodes (ribs, seams) always start at this solve's mounted position, so
-    a warm start from a solution with other rib scales moves the ribs too.
-    """
-    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
-    if initial is None:
-        return mounted
-    nodes = initial.nodes if isinstance(initial, Solution) else initial
-    nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
-    expected = geometry.free.shape + (3,)
-    if nodes.shape != expected:
-        raise ValueError(
-            f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
-            "interpolate it to the grid or start from the mounted shape (initial=None)"
-        )
-    return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
-
-
-def _make_solution(out, f, steps, wall, method, pressure, prestrain, bay, history=None, extra=None,
-                   nodes=None, detail=""):
-    from .scene import _pair
-    from .solution import Result
-
-    ps, pc = _pair(prestrain)
-    return Solution(
-        nodes=np.asarray(out.state.x if nodes is None else nodes, dtype=np.float64),
-        tension_span=np.asarray(f.tension_span, dtype=np.float64),
-        tension_chord=np.asarray(f.tension_chord, dtype=np.float64),
-        wrinkled=np.asarray(f.wrinkled),
-        result=Result(int(out.result)),
-        steps=int(steps),
-        residual=float(out.residual),
-        wall_time=wall,
-        method=method,
-        pressure=float(pressure),
-        prestrain=(float(ps), float(pc)),
-        rib_spacing=bay.rib_spacing,
-        history=history,
-        extra=extra or {},
-        detail=detail,
-    )

@@ -61,13 +61,3 @@ class Fabric:
             raise ValueError(
                 f"allowable_tension must be positive in N/m (inf for none), got {self.allowable_tension!r}"
             )
-
-    @property
-    def wave_speed(self) -> float:
-        """Speed of small in-plane disturbances, m/s (the ``c`` of eq. 16).
-
-        The stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)`` over the
-        areal density.
-        """
-        e_max = max(self.stiffness_span, self.stiffness_chord) / (1.0 - self.poisson**2)
-        return math.sqrt(e_max / self.areal_density)

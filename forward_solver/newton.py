@@ -2,30 +2,9 @@
 
 The static force residual ``R(x)`` of `forces.residual` is solved on the free
 degrees of freedom with Newton's method. Its Jacobian ``J = dR/dx`` (N/m) is
-assembled from a handful of Jacobian-vector products:
-
-* Locality. On the structured grid the force on node ``(i, j)`` depends only
-  on the nodes ``(i', j')`` with ``|i' - i| <= 1`` and ``|j' - j| <= 1``
-  (``j`` taken modulo ``n_contour`` on a closed contour), checked against
-  `forces`: the span-edge force of edge ``(i+1/2, j)`` sums the tensions of
-  cells ``(i+1/2, j-1/2)`` and ``(i+1/2, j+1/2)``, each a function of its four
-  corners only (stretches of eq. 12 of its two span and two contour edges,
-  tensions of eq. 10); the contour-edge force of ``(i, j+1/2)`` likewise
-  sums cells ``(i-1/2, j+1/2)`` and ``(i+1/2, j+1/2)``; edge directions
-  (eq. 13) depend on the edge's two nodes; the pressure area vector of a
-  node (eq. 15) sums quarter-cell contributions of its (up to four) adjacent
-  cells, each a function of that cell's corners; gravity is constant. Every
-  one of these lies in the 3x3 block of nodes around ``(i, j)``, so each row
-  of ``J`` has at most 27 non-zeros.
-* Colouring. Two columns may share one seed vector when no row sees both.
-  Column ``(i, j, c)`` gets colour ``(i mod 3, j mod 3, c)``: same-coloured
-  nodes are at least 3 apart in each index, so no 3x3 block holds two of
-  them. 27 colours on an open grid. On a closed contour ``j mod 3`` wraps
-  correctly only if ``n_contour % 3 == 0``; otherwise the last
-  ``n_contour % 3`` contour columns get colours of their own (36 or 45).
-* One ``jax.vmap`` of ``jax.jvp`` over the colour seeds gives every column
-  of ``J`` compressed; the known sparsity pattern decompresses it into a
-  `scipy.sparse.csc_matrix`.
+assembled by `jacobian.assemble_jacobian` from a handful of coloured
+Jacobian-vector products (the locality argument and the colouring are
+documented there).
 
 ``J`` is not symmetric (measured on a 5x7 panel: ``max|J - J^T| / max|J|``
 of 0.02 with ``nu = 0``, 0.08 with ``nu = 0.25``): the fibre forces act on
@@ -65,16 +44,10 @@ import scipy.sparse.linalg as spla
 
 from . import forces as fk
 from .scene import float64_scope
+from .jacobian import PERMC_SPEC, JacobianFactor, _FreePattern, _linearise, _pattern, free_dofs
 from .solution import Result
 
-__all__ = [
-    "Sparsity",
-    "NewtonResult",
-    "jacobian_sparsity",
-    "free_dofs",
-    "assemble_jacobian",
-    "newton",
-]
+__all__ = ["NewtonResult", "newton", "chord_newton"]
 
 #: Armijo constant of the line search: accept a step of length ``alpha`` when
 #: ``||R(x + alpha dx)|| <= (1 - ARMIJO alpha) ||R(x)||``.
@@ -82,11 +55,6 @@ ARMIJO = 1e-4
 #: Levenberg shifts tried in turn (multiples of ``|diag J|``) when the plain
 #: Newton step fails; the first is small enough to keep quadratic convergence.
 SHIFTS = (0.0, 1e-6, 1e-4, 1e-2, 1.0, 1e2)
-#: Column ordering of SuperLU. The pattern is structurally symmetric, so a
-#: minimum-degree ordering of ``J^T + J`` fits it; measured on a 33x257 closed
-#: grid (one core): 0.17 s and 4.0e6 factor non-zeros against 0.58 s and
-#: 1.0e7 for the default COLAMD.
-PERMC_SPEC = "MMD_AT_PLUS_A"
 #: Relative residual to which intermediate load steps are solved: they only
 #: need to land in the next step's basin of attraction.
 STAGE_RTOL = 1e-4
@@ -95,37 +63,6 @@ STAGE_RTOL = 1e-4
 STAGNATION_WINDOW = 10
 #: Smallest load increment (fraction of p) before continuation gives up.
 MIN_LOAD_INCREMENT = 1.0 / 1024.0
-
-
-class Sparsity(NamedTuple):
-    """Sparsity pattern and column colouring of ``dR/dx`` on a full grid.
-
-    Degrees of freedom are numbered as ``x.reshape(-1)`` of an
-    ``(n_span, n_contour, 3)`` array: ``dof = (i * n_contour + j) * 3 + c``.
-
-    Attributes:
-        rows: ``(nnz,)`` row dof of every structural non-zero.
-        cols: ``(nnz,)`` column dof of every structural non-zero.
-        colours: ``(n_dof,)`` colour of every column.
-        n_colours: number of colours (27, 36 or 45).
-    """
-
-    rows: np.ndarray
-    cols: np.ndarray
-    colours: np.ndarray
-    n_colours: int
-
-
-class _FreePattern(NamedTuple):
-    """The pattern restricted to free dofs, in CSC order, with its gather indices."""
-
-    free_dofs: np.ndarray  # (nf,) full dof index of each free dof
-    indices: np.ndarray  # CSC row indices (reduced numbering)
-    indptr: np.ndarray  # CSC column pointers
-    gather_colour: np.ndarray  # (nnz_free,) colour of each non-zero's column
-    gather_row: np.ndarray  # (nnz_free,) full row dof of each non-zero
-    colours: np.ndarray  # (n_dof,) int32 column colours
-    n_colours: int
 
 
 class NewtonResult(NamedTuple):
@@ -177,175 +114,25 @@ class NewtonResult(NamedTuple):
     message: str
     history: dict
 
-
-# ------------------------------------------------------------------ sparsity
-def _contour_colours(n_contour: int, periodic: bool) -> tuple[np.ndarray, int]:
-    """Colour of each contour index ``j`` and the number of contour colours."""
-    j = np.arange(n_contour)
-    colour = j % 3
-    extra = n_contour % 3 if periodic else 0
-    if extra:
-        # The wrap joins j = n_contour-1 to j = 0: the last `extra` columns
-        # would sit closer than 3 to a same-coloured one, so they get their own.
-        last = np.arange(n_contour - extra, n_contour)
-        colour[last] = 3 + (last - (n_contour - extra))
-    return colour, 3 + extra
-
-
-@functools.lru_cache(maxsize=16)
-def jacobian_sparsity(shape: tuple[int, int], periodic: bool) -> Sparsity:
-    """Structural non-zeros and column colours of ``dR/dx`` on an ``(n_span, n_contour)`` grid.
-
-    Each node's force depends only on its 3x3 node neighbourhood (see the
-    module docstring for the check against `forces`), so row ``(i, j, c)``
-    has non-zeros in columns ``(i', j', c')`` with ``|i' - i| <= 1``,
-    ``|j' - j| <= 1`` (``j`` modulo ``n_contour`` when ``periodic``) and any
-    ``c'``. Columns are coloured ``(i mod 3, j mod 3, c)``; on a periodic
-    contour with ``n_contour % 3 != 0`` the last ``n_contour % 3`` contour
-    indices get extra colours. Cached per ``(shape, periodic)``; the returned
-    arrays are read-only.
-
-    Args:
-        shape: ``(n_span, n_contour)`` grid shape.
-        periodic: True for a closed contour.
-
-    Returns:
-        The `Sparsity`.
-    """
-    ns, nc = (int(s) for s in shape)
-    node = np.arange(ns * nc).reshape(ns, nc)
-    row_nodes, col_nodes = [], []
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            i = np.arange(ns)[:, None]
-            j = np.arange(nc)[None, :]
-            i2 = i + di
-            j2 = j + dj
-            if periodic:
-                j2 = j2 % nc
-            ok = (i2 >= 0) & (i2 < ns) & (j2 >= 0) & (j2 < nc)
-            ok = np.broadcast_to(ok, (ns, nc))
-            i2 = np.broadcast_to(np.clip(i2, 0, ns - 1), (ns, nc))
-            j2 = np.broadcast_to(np.clip(j2, 0, nc - 1), (ns, nc))
-            row_nodes.append(node[ok])
-            col_nodes.append(node[i2[ok], j2[ok]])
-    pairs = np.unique(np.stack([np.concatenate(row_nodes), np.concatenate(col_nodes)]), axis=1)
-    c = np.arange(3)
-    rows = (3 * pairs[0][:, None, None] + c[:, None]).repeat(3, axis=2).reshape(-1)
-    cols = (3 * pairs[1][:, None, None] + c[None, :]).repeat(3, axis=1).reshape(-1)
-
-    contour_colour, n_contour_colours = _contour_colours(nc, periodic)
-    node_colour = (np.arange(ns)[:, None] % 3) * n_contour_colours + contour_colour[None, :]
-    colours = (3 * node_colour[..., None] + c).reshape(-1)
-    sparsity = Sparsity(rows.astype(np.int64), cols.astype(np.int64), colours.astype(np.int64),
-                        9 * n_contour_colours)
-    for a in sparsity[:3]:
-        a.setflags(write=False)  # shared through the cache
-    return sparsity
-
-
-@functools.lru_cache(maxsize=16)
-def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> _FreePattern:
-    """The pattern of `jacobian_sparsity` on the free dofs, in CSC order."""
-    sparsity = jacobian_sparsity(shape, periodic)
-    free_node = np.frombuffer(free_key, dtype=bool).reshape(shape)
-    free_dof = np.repeat(free_node.reshape(-1), 3)
-    reduced = np.cumsum(free_dof) - 1
-    keep = free_dof[sparsity.rows] & free_dof[sparsity.cols]
-    rows, cols = sparsity.rows[keep], sparsity.cols[keep]
-    order = np.lexsort((rows, cols))  # column-major: CSC order
-    rows, cols = rows[order], cols[order]
-    n_free = int(free_dof.sum())
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(reduced[cols], minlength=n_free))])
-    pattern = _FreePattern(
-        free_dofs=np.flatnonzero(free_dof),
-        indices=reduced[rows].astype(np.int32),
-        indptr=indptr.astype(np.int32),
-        gather_colour=sparsity.colours[cols].astype(np.int32),
-        gather_row=rows.astype(np.int32),
-        colours=sparsity.colours.astype(np.int32),
-        n_colours=sparsity.n_colours,
-    )
-    for a in pattern[:6]:
-        a.setflags(write=False)  # shared through the cache
-    return pattern
-
-
-def _pattern(ref: fk.Reference, periodic: bool) -> _FreePattern:
-    free_node = np.asarray(ref.free[..., 0]) > 0.5
-    return _free_pattern(free_node.shape, bool(periodic), free_node.tobytes())
-
-
-def free_dofs(ref: fk.Reference) -> np.ndarray:
-    """Index of each free degree of freedom into ``x.reshape(-1)`` (the Jacobian's numbering)."""
-    free_node = np.asarray(ref.free[..., 0]) > 0.5
-    return np.flatnonzero(np.repeat(free_node.reshape(-1), 3))
-
-
-# ------------------------------------------------------------------ jacobian
-@functools.partial(jax.jit, static_argnames=("physics", "n_colours"))
-def _jacobian_values(x, ref, params, colours, gather_colour, gather_row, physics, n_colours):
-    """Residual and the Jacobian's structural non-zeros from one vmap of jvp over the colours."""
-    physics = fk.static_physics(physics)
-    free = jnp.broadcast_to(ref.free, x.shape).reshape(-1)
-    seeds = (colours[None, :] == jnp.arange(n_colours, dtype=colours.dtype)[:, None]).astype(x.dtype)
-    seeds = seeds * free
-
-    def flat_residual(flat):
-        return fk.residual(flat.reshape(x.shape), ref, params, physics).reshape(-1)
-
-    def column_group(seed):
-        return jax.jvp(flat_residual, (x.reshape(-1),), (seed,))
-
-    r, compressed = jax.vmap(column_group, out_axes=(None, 0))(seeds)
-    return r, compressed[gather_colour, gather_row]
-
-
-def _linearise(x, ref, params, physics, pattern: _FreePattern):
-    """``(J, R_free)`` at ``x``: the free-dof Jacobian (csc, N/m) and residual (N)."""
-    r, data = _jacobian_values(jnp.asarray(x), ref, params, pattern.colours, pattern.gather_colour,
-                               pattern.gather_row, physics, pattern.n_colours)
-    n = pattern.free_dofs.size
-    # Copies: scipy may sort or prune index arrays in place, and these are cached.
-    jac = sp.csc_matrix((np.asarray(data, dtype=np.float64), pattern.indices.copy(),
-                         pattern.indptr.copy()), shape=(n, n))
-    return jac, np.asarray(r, dtype=np.float64)[pattern.free_dofs]
-
-
-def assemble_jacobian(x, ref: fk.Reference, params: fk.Params, physics: fk.Physics) -> sp.csc_matrix:
-    """Sparse Jacobian ``dR/dx`` of `forces.residual` on the free degrees of freedom.
-
-    One ``jax.vmap`` of ``jax.jvp`` over the colour seeds of
-    `jacobian_sparsity` (27 to 45 products, compiled once per grid shape and
-    physics), decompressed along the sparsity pattern. Rows and columns are
-    the free dofs of ``ref.free`` in the order of `free_dofs`. The velocity
-    terms of ``physics`` are ignored (static residual).
-
-    Args:
-        x: ``(n_span, n_contour, 3)`` node positions, m.
-        ref: cut lengths and free mask from `forces.prepare`.
-        params: traced parameters (pressure in Pa, ...).
-        physics: static switches.
-
-    Returns:
-        ``(n_free, n_free)`` `scipy.sparse.csc_matrix` in N/m.
-    """
-    with float64_scope(x, ref, params):
-        return _linearise(x, ref, params, physics, _pattern(ref, physics.periodic))[0]
+    def jacobian_factor(self) -> JacobianFactor | None:
+        """The factor as a `JacobianFactor` (for `Solution.factor`); None if none was made."""
+        if self.factor is None:
+            return None
+        return JacobianFactor(self.factor, self.jacobian, np.asarray(self.free_dofs), float(self.shift),
+                              bool(self.factor_current))
 
 
 # -------------------------------------------------------------------- newton
 @functools.partial(jax.jit, static_argnames=("physics",))
 def _relative_residual(x, ref, params, physics):
-    """`forces.relative_residual`, NaN unless the state and the residual are finite.
+    """`forces.relative_residual`, NaN when a coordinate is not finite.
 
-    `forces.safe_norm` maps a NaN vector to 0 (its ``sq > 0`` test is False
-    for NaN), so the relative residual alone would call a NaN state
-    converged; the explicit check keeps the stop test honest.
+    A NaN residual already gives NaN (`forces.safe_norm` keeps it); the
+    coordinate check also refuses a state with an infinite node, whose
+    residual need not be NaN.
     """
     rel = fk.relative_residual(x, ref, params, physics)
-    finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(fk.residual(x, ref, params, physics)))
-    return jnp.where(finite, rel, jnp.nan)
+    return jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
 
 
 _prepare = jax.jit(fk.prepare, static_argnames=("physics",))
@@ -651,21 +438,22 @@ def _residual_and_relative(x, ref, params, physics):
     return r, _relative_residual(x, ref, params, physics)
 
 
-def chord_newton(x_init, geometry, params, physics, previous: NewtonResult, rtol: float,
+def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rtol: float,
                  max_iterations: int = 12) -> NewtonResult | None:
     """Warm-started Newton that reuses a nearby solution's factorised Jacobian.
 
     Each iteration costs one residual and one pair of triangular solves with
-    ``previous.factor`` (no assembly, no LU): the chord (modified Newton)
+    ``previous.lu`` (no assembly, no LU): the chord (modified Newton)
     method. After a small change of parameters the old Jacobian is close to
     the new one, so the residual falls by about the relative change of J per
     iteration (two orders for a 1% pressure change). The returned factor is
     the old one (``factor_current`` False).
 
     Args:
-        x_init: ``(n_span, n_contour, 3)`` start, usually ``previous.x``.
+        x_init: ``(n_span, n_contour, 3)`` start, usually the nearby solution's nodes.
         geometry, params, physics: the new problem.
-        previous: a converged `NewtonResult` on the same grid and free dofs.
+        previous: the `JacobianFactor` of a nearby solution on the same grid
+            and free dofs (`Solution.factor`).
         rtol: relative residual tolerance.
         max_iterations: cap; the method also stops as soon as an iteration
             fails to halve the residual.
@@ -674,7 +462,7 @@ def chord_newton(x_init, geometry, params, physics, previous: NewtonResult, rtol
         A converged `NewtonResult`, or None when the chord iteration does not
         converge (the caller then falls back on a full solve).
     """
-    if previous is None or previous.factor is None:
+    if previous is None:
         return None
     with float64_scope():
         physics = fk.static_physics(physics)
@@ -696,10 +484,10 @@ def chord_newton(x_init, geometry, params, physics, previous: NewtonResult, rtol
             if rel <= rtol:
                 return NewtonResult(
                     x=jnp.asarray(x.reshape(shape), dtype), result=Result.converged,
-                    iterations=iteration, residual=rel, factor=previous.factor,
+                    iterations=iteration, residual=rel, factor=previous.lu,
                     jacobian=previous.jacobian, factor_current=False, shift=previous.shift,
                     free_dofs=free, load_steps=0, message="converged (chord Newton, reused factor)",
                     history=log.arrays())
             last = rel
-            x[free] += previous.factor.solve(-np.asarray(r, dtype=np.float64).reshape(-1)[free])
+            x[free] += previous.lu.solve(-np.asarray(r, dtype=np.float64).reshape(-1)[free])
         return None

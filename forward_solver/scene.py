@@ -5,16 +5,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .bay import Bay
 from .fabric import Fabric
 from ._precision import float64_scope
 from .forces import Params, Physics
+from .parameters import Parameters
 
-__all__ = ["Scene", "float64_scope", "check_pressure", "check_prestrain"]
+__all__ = ["Scene", "float64_scope"]
 
 #: dtype of each precision mode.
 PRECISIONS = {"float64": jnp.float64, "float32": jnp.float32}
@@ -70,79 +69,28 @@ class Scene:
             gravity=self.gravity,
         )
 
-    def params(
-        self,
-        pressure,
-        prestrain=(0.0, 0.0),
-        stiffness=None,
-        rib_thickness_scale=1.0,
-        rib_chord_scale=1.0,
-        dtype=jnp.float64,
-    ) -> Params:
-        """Traced parameters of one solve.
+    def params(self, parameters: Parameters, dtype=jnp.float64) -> Params:
+        """The force kernel's traced parameters: ``parameters`` merged with the fabric's constants.
 
         Args:
-            pressure: internal overpressure, Pa.
-            prestrain: ``(span, chord)`` prestrain, or one number for both.
-            stiffness: ``(span, chord)`` tensile stiffness in N/m overriding the
-                fabric's (to differentiate or sweep it), or None.
-            rib_thickness_scale: multiplies the rib thickness about the camber line.
-            rib_chord_scale: multiplies the rib chord.
+            parameters: the design `Parameters` (unset stiffnesses take the
+                fabric's).
             dtype: floating dtype of the arrays.
         """
-        ps, pc = _pair(prestrain)
+        p = parameters.resolved(self.fabric)
         fab = self.fabric
-        es, ec = (fab.stiffness_span, fab.stiffness_chord) if stiffness is None else _pair(stiffness)
         values = Params(
-            pressure=pressure,
-            prestrain_span=ps,
-            prestrain_chord=pc,
-            stiffness_span=es,
-            stiffness_chord=ec,
+            pressure=p.pressure,
+            prestrain_span=p.prestrain_span,
+            prestrain_chord=p.prestrain_chord,
+            stiffness_span=p.stiffness_span,
+            stiffness_chord=p.stiffness_chord,
             poisson=fab.poisson,
             areal_density=fab.areal_density,
             viscosity=fab.viscosity,
             aerodynamic_damping=self.aerodynamic_damping,
             gravity=self.gravity_acceleration,
-            rib_thickness_scale=rib_thickness_scale,
-            rib_chord_scale=rib_chord_scale,
+            rib_thickness_scale=p.rib_thickness_scale,
+            rib_chord_scale=p.rib_chord_scale,
         )
         return Params(*(jnp.asarray(v, dtype=dtype) for v in values))
-
-
-def _pair(value):
-    if isinstance(value, (tuple, list)):
-        if len(value) != 2:
-            raise ValueError(f"expected a (span, chord) pair, got {value!r}")
-        return value[0], value[1]
-    if isinstance(value, (np.ndarray, jax.Array)) and np.ndim(value) == 1:
-        if np.shape(value)[0] != 2:
-            raise ValueError(f"expected a (span, chord) pair, got shape {np.shape(value)}")
-        return value[0], value[1]
-    return value, value
-
-
-def _concrete(value) -> float | None:
-    """The float value of a concrete number, None for a JAX tracer."""
-    if isinstance(value, jax.core.Tracer):
-        return None
-    return float(np.asarray(value))
-
-
-def check_pressure(pressure) -> None:
-    """Raise a clear error for a non-physical pressure (tracers pass)."""
-    value = _concrete(pressure)
-    if value is not None and not (math.isfinite(value) and value > 0):
-        raise ValueError(
-            f"pressure must be a positive internal overpressure in Pa, got {value!r}"
-        )
-
-
-def check_prestrain(prestrain) -> None:
-    """Raise a clear error for a prestrain that cuts the fabric to nothing."""
-    for name, v in zip(("span", "chord"), _pair(prestrain)):
-        value = _concrete(v)
-        if value is not None and not (math.isfinite(value) and -0.5 < value < 1.0):
-            raise ValueError(
-                f"prestrain_{name} must lie in (-0.5, 1.0) (a fraction, 0.005 is 0.5%), got {value!r}"
-            )

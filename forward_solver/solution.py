@@ -4,10 +4,18 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from functools import partial
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE"]
+from . import forces as fk
+from .jacobian import JacobianFactor
+from .parameters import Parameters
+
+__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
+           "make_solution", "initial_nodes", "static_forces"]
 
 
 class Result(enum.IntEnum):
@@ -74,8 +82,8 @@ class Solution:
         wall_time: seconds spent in the solve (compilation included on a
             first call).
         method: the solver that produced it.
-        pressure: Pa.
-        prestrain: ``(span, chord)``.
+        parameters: the `Parameters` it was solved at, every field set
+            (stiffnesses resolved from the fabric); floats.
         rib_spacing: m, for `section`.
         history: for `simulate`, a dict of arrays (time, kinetic_energy,
             peak_displacement, pressure); None otherwise.
@@ -85,6 +93,16 @@ class Solution:
             to change (e.g. "lower the Courant coefficient"); `message` gives
             it in place of the result code's general advice
             (`RESULT_ADVICE`). Empty when there is nothing specific to say.
+        factor: the sparse LU of the Jacobian (`jacobian.JacobianFactor`)
+            when a Newton method made one, else None. A warm start from this
+            solution reuses it (chord Newton) and, when it is current, the
+            implicit derivative's adjoint solves do too.
+
+    A `Solution` is a JAX pytree whose leaves are ``nodes``, the tensions and
+    ``wrinkled`` (everything else is static), so it may be returned as the
+    auxiliary output of ``jax.value_and_grad(..., has_aux=True)``. Under a
+    JAX transformation of `solve_equilibrium` those leaves are traced and
+    differentiable; the other fields are the concrete solve's.
 
     Arrays are float64 numpy arrays whatever precision the iteration ran in,
     and ``residual`` is always evaluated in float64 at the returned ``nodes``:
@@ -100,12 +118,22 @@ class Solution:
     residual: float
     wall_time: float
     method: str
-    pressure: float
-    prestrain: tuple[float, float]
+    parameters: Parameters
     rib_spacing: float
     history: dict | None = None
     extra: dict = field(default_factory=dict)
     detail: str = ""
+    factor: JacobianFactor | None = None
+
+    @property
+    def pressure(self) -> float:
+        """Internal overpressure, Pa."""
+        return self.parameters.pressure
+
+    @property
+    def prestrain(self) -> tuple[float, float]:
+        """``(span, chord)`` prestrain."""
+        return self.parameters.prestrain
 
     @property
     def converged(self) -> bool:
@@ -143,3 +171,85 @@ class Solution:
         if not self.converged:
             raise ConvergenceError(self)
         return self
+
+
+jax.tree_util.register_dataclass(
+    Solution,
+    data_fields=["nodes", "tension_span", "tension_chord", "wrinkled"],
+    meta_fields=["result", "steps", "residual", "wall_time", "method", "parameters", "rib_spacing",
+                 "history", "extra", "detail", "factor"],
+)
+
+
+def make_solution(out, f, steps, wall, method, parameters: Parameters, bay, history=None, extra=None,
+                  nodes=None, detail="", factor=None) -> Solution:
+    """A `Solution` from a solver's loop output ``out`` and forces ``f`` at the returned nodes.
+
+    Args:
+        out: a `loop.LoopOutput` (result code, residual; its state's nodes
+            unless ``nodes`` is given).
+        f: `forces.Forces` at the returned nodes (tensions, wrinkles).
+        steps: explicit steps or iterations taken.
+        wall: seconds.
+        method: the solver's name.
+        parameters: the resolved `Parameters` of the solve.
+        bay: the `Bay` (for the rib spacing).
+        history, extra, detail, factor: as on `Solution`.
+    """
+    return Solution(
+        nodes=np.asarray(out.state.x if nodes is None else nodes, dtype=np.float64),
+        tension_span=np.asarray(f.tension_span, dtype=np.float64),
+        tension_chord=np.asarray(f.tension_chord, dtype=np.float64),
+        wrinkled=np.asarray(f.wrinkled),
+        result=Result(int(out.result)),
+        steps=int(steps),
+        residual=float(out.residual),
+        wall_time=wall,
+        method=method,
+        parameters=parameters.as_floats(),
+        rib_spacing=bay.rib_spacing,
+        history=history,
+        extra=extra or {},
+        detail=detail,
+        factor=factor,
+    )
+
+
+def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndarray:
+    """Starting shape: the mounted one, or a warm start whose held nodes are re-mounted.
+
+    Held nodes (ribs, seams) always start at this solve's mounted position, so
+    a warm start from a solution with other rib scales moves the ribs too.
+
+    Args:
+        initial: None, a `Solution` or an ``(n_span, n_contour, 3)`` array, m.
+            A `Solution` returned under a JAX transformation (traced nodes)
+            starts from its concrete nodes.
+        geometry: the bay's `forces.Geometry`.
+        params: the solve's kernel parameters (for the rib scales).
+
+    Raises:
+        ValueError: when the shape does not fit the grid.
+    """
+    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    if initial is None:
+        return mounted
+    if isinstance(initial, Solution):
+        nodes = initial.extra.get("primal_nodes", initial.nodes)
+    else:
+        nodes = initial
+    nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
+    expected = geometry.free.shape + (3,)
+    if nodes.shape != expected:
+        raise ValueError(
+            f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
+            "interpolate it to the grid or start from the mounted shape (initial=None)"
+        )
+    return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def static_forces(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> fk.Forces:
+    """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped)."""
+    physics = fk.static_physics(physics)
+    return fk.forces(x, fk.prepare(geometry, params, physics), params, physics)

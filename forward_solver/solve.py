@@ -10,11 +10,14 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from ._precision import float32_floor, precision_extra
-from .explicit import _initial_nodes, _make_solution, simulate
+from .adjoint import ADJOINTS, differentiable_solution
+from .explicit import simulate
+from .loop import LoopOutput
 from .newton import chord_newton, newton
+from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
-from .scene import PRECISIONS, Scene, check_pressure, check_prestrain, float64_scope
-from .solution import Result, Solution
+from .scene import PRECISIONS, Scene, float64_scope
+from .solution import Result, Solution, initial_nodes, make_solution, static_forces
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 
@@ -39,48 +42,67 @@ _COARSE_RTOL = 1e-5
 
 def solve_equilibrium(
     scene: Scene,
-    pressure,
-    prestrain=(0.0, 0.0),
+    parameters=None,
+    prestrain=None,
     *,
+    pressure=None,
+    stiffness=None,
+    rib_thickness_scale=None,
+    rib_chord_scale=None,
     rtol: float = 1e-8,
     max_steps: int = 200_000,
     method: str = "relax",
     initial=None,
     throw: bool = True,
-    stiffness=None,
-    rib_thickness_scale=1.0,
-    rib_chord_scale=1.0,
     sequencing: bool = True,
     symmetry: bool = True,
     precision: str = "float64",
+    adjoint: str = "implicit",
 ) -> Solution:
-    """Rest shape of the pressurised bay.
+    """Rest shape of the pressurised bay; differentiable in its `Parameters`.
 
     Equilibrium is where the static force residual ``R(x)`` of eq. (10)-(15)
     vanishes on the free nodes; it does not depend on the fabric's mass,
     viscosity or the aerodynamic damping.
 
+    Derivatives. Under ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` or
+    ``jax.vjp`` of the parameters, the returned `Solution`'s nodes and
+    tensions are differentiable: ``jax.grad(lambda q: f(solve_equilibrium(
+    scene, q).nodes))(parameters)`` returns a `Parameters` of derivatives.
+    ``adjoint="implicit"`` (default) differentiates the equilibrium by the
+    implicit function theorem (eq. 10-15 residual, `adjoint`): one sparse
+    linear solve with the Jacobian's LU, in either mode, whatever the number
+    of parameters; its error is of the order of the relative residual, so
+    solve to a tight ``rtol`` (`adjoint.GRADIENT_RTOL`) where the derivative
+    must be accurate. ``adjoint="unrolled"`` differentiates through
+    ``max_steps`` steps of a pure-JAX dynamic relaxation instead (slow; for
+    checks on small grids). The solve runs on the host, so the parameters
+    must be concrete: differentiate eagerly, not under ``jax.jit`` or
+    ``jax.vmap`` of the parameters.
+
     Args:
         scene: the bay, fabric and physics switches.
-        pressure: internal overpressure, Pa (> 0).
+        parameters: a `Parameters`, or the internal overpressure in Pa (> 0)
+            with the loose values below.
         prestrain: ``(span, chord)`` prestrain (0.005 is 0.5%), or one number.
+        pressure: Pa, when not given as ``parameters``.
+        stiffness: ``(span, chord)`` N/m overriding the fabric's.
+        rib_thickness_scale: rib thickness multiplier (about the camber line).
+        rib_chord_scale: rib chord multiplier.
         rtol: stop when ``||R_free||_2 / (p A) <= rtol`` (A the nominal skin
             area): the residual force as a fraction of the total pressure load.
         max_steps: cap on explicit steps (per grid level).
         method: "relax" (dynamic relaxation, default); "newton" (sparse
             Newton from the start shape, with load continuation);
             "relax+newton" (relaxation to `NEWTON_SWITCH_RTOL`, then Newton;
-            its factorised Jacobian is kept in ``extra["newton"]`` for
+            its factorised Jacobian is kept in `Solution.factor` for
             adjoint solves; warm-started from such a solution it first tries
-            chord Newton with that factor, see `newton.chord_newton`); or "explicit" (the paper's physical-mass scheme
-            via `simulate`; it needs the scene's viscosity or aerodynamic
-            damping to come to rest).
+            chord Newton with that factor, see `newton.chord_newton`); or
+            "explicit" (the paper's physical-mass scheme via `simulate`; it
+            needs the scene's viscosity or aerodynamic damping to come to rest).
         initial: warm start, a `Solution` (or nodes array) on the same grid.
         throw: raise `ConvergenceError` if the solve fails; else return the
             `Solution` with its failure code.
-        stiffness: ``(span, chord)`` N/m overriding the fabric's.
-        rib_thickness_scale: rib thickness multiplier (about the camber line).
-        rib_chord_scale: rib chord multiplier.
         sequencing: solve coarser grids first (relax, cold starts only).
         symmetry: solve half the bay when both ribs are identical and
             ``n_span`` is odd (relax; the answer is the same, see tests).
@@ -90,6 +112,7 @@ def solve_equilibrium(
             at the returned nodes) in float64. An ``rtol`` below
             `float32_residual_floor` of the scene is refused (see
             `_precision` for the rule and the measurements).
+        adjoint: "implicit" or "unrolled": how derivatives are taken (above).
 
     Returns:
         The `Solution`; ``extra["precision"]`` records the iteration's type.
@@ -97,10 +120,12 @@ def solve_equilibrium(
     Raises:
         ValueError: for non-physical input, or float32 asked of Newton or
             for an ``rtol`` below its floor.
+        TypeError: parameters traced by ``jax.jit`` or ``jax.vmap``.
         ConvergenceError: if ``throw`` and the solve failed.
     """
-    check_pressure(pressure)
-    check_prestrain(prestrain)
+    parameters = as_parameters(parameters, prestrain, pressure=pressure, stiffness=stiffness,
+                               rib_thickness_scale=rib_thickness_scale,
+                               rib_chord_scale=rib_chord_scale).resolved(scene.fabric).check()
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
@@ -115,11 +140,27 @@ def solve_equilibrium(
             "Newton's sparse LU, its quadratic convergence and the adjoint need float64; use "
             "precision='float64' or method='relax'"
         )
-    if method == "explicit":
-        return simulate(scene, pressure, prestrain, rtol=rtol, max_steps=max_steps, initial=initial,
-                        stiffness=stiffness, rib_thickness_scale=rib_thickness_scale,
-                        rib_chord_scale=rib_chord_scale, precision=precision, throw=throw)
+    if adjoint not in ADJOINTS:
+        raise ValueError(f"adjoint must be one of {ADJOINTS}, got {adjoint!r}")
 
+    def solve(concrete: Parameters) -> Solution:
+        if method == "explicit":
+            return simulate(scene, concrete, rtol=rtol, max_steps=max_steps, initial=initial,
+                            precision=precision, throw=False)
+        return _solve(scene, concrete, rtol, max_steps, method, initial, sequencing, symmetry, precision)
+
+    if parameters.is_traced():
+        sol = differentiable_solution(scene, parameters, solve, adjoint, rtol, max_steps)
+    else:
+        sol = solve(parameters)
+    if throw:
+        sol.raise_if_failed()
+    return sol
+
+
+def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symmetry,
+           precision) -> Solution:
+    """The concrete host solve of `solve_equilibrium` (methods relax, newton, relax+newton)."""
     bay = scene.bay
     bound = bay.chord + bay.rib_spacing
     physics = scene.physics(dynamic=False)
@@ -127,8 +168,7 @@ def solve_equilibrium(
     max_chunks = -(-max_steps // RELAX_CHUNK)
     with float64_scope():
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
-        params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale,
-                              dtype=dtype)
+        params = scene.params(parameters, dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
         extra = precision_extra(precision, rtol, geometry, params, physics)
         coarse_rtol = _COARSE_RTOL
@@ -143,45 +183,37 @@ def solve_equilibrium(
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
                                                      sequencing, symmetric, precision, coarse_rtol)
         else:
-            x_init = _initial_nodes(initial, geometry, params)
+            x_init = initial_nodes(initial, geometry, params)
         half = _use_half(geometry, symmetric)
         extra.update(levels=levels, half_bay=half)
-        previous = initial.extra.get("newton") if isinstance(initial, Solution) else None
+        previous = initial.factor if isinstance(initial, Solution) else None
         chord = None
         if method == "relax+newton" and previous is not None:
             chord = chord_newton(x_init, geometry, params, physics, previous, rtol)
+        newton_solution = partial(_newton_solution, start=start, parameters=parameters, bay=bay,
+                                  params=params, geometry=geometry, physics=physics)
         if chord is not None:
             extra["warm_start"] = "chord Newton with the initial solution's factor"
-            sol = _newton_solution(chord, steps, start, pressure, prestrain, bay, params, geometry,
-                                   physics, dict(extra, relax_steps=0))
-        elif method == "newton":
+            return newton_solution(chord, steps, extra=dict(extra, relax_steps=0))
+        if method == "newton":
             result = newton(x_init, geometry, params, physics, rtol, divergence_bound=bound)
-            sol = _newton_solution(result, steps, start, pressure, prestrain, bay, params, geometry,
-                                   physics, extra)
-        else:
-            relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
-            out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(relax_rtol, dtype),
-                                      jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                      max_chunks, half=half, precision=precision)
-            jax.block_until_ready(out)
-            steps += int(out.chunks) * RELAX_CHUNK
-            relaxed = int(out.result) == Result.converged
-            if method == "relax+newton" and relaxed:
-                extra["relax_steps"] = steps
-                result = newton(nodes, geometry, params, physics, rtol, divergence_bound=bound)
-                sol = _newton_solution(result, steps, start, pressure, prestrain, bay, params,
-                                       geometry, physics, extra)
-            else:
-                sol = _make_solution(out, f, steps, time.perf_counter() - start, method, pressure,
-                                     prestrain, bay, extra=extra, nodes=nodes,
-                                     detail=_relax_detail(int(out.result), extra))
-    if throw:
-        sol.raise_if_failed()
-    return sol
+            return newton_solution(result, steps, extra=extra)
+        relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
+        out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(relax_rtol, dtype),
+                                  jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
+                                  max_chunks, half=half, precision=precision)
+        jax.block_until_ready(out)
+        steps += int(out.chunks) * RELAX_CHUNK
+        if method == "relax+newton" and int(out.result) == Result.converged:
+            extra["relax_steps"] = steps
+            result = newton(nodes, geometry, params, physics, rtol, divergence_bound=bound)
+            return newton_solution(result, steps, extra=extra)
+        return make_solution(out, f, steps, time.perf_counter() - start, method, parameters, bay,
+                             extra=extra, nodes=nodes, detail=_relax_detail(int(out.result), extra))
 
 
-def float32_residual_floor(scene: Scene, pressure, prestrain=(0.0, 0.0), *, stiffness=None,
-                           rib_thickness_scale=1.0, rib_chord_scale=1.0) -> float:
+def float32_residual_floor(scene: Scene, parameters=None, prestrain=None, *, pressure=None,
+                           stiffness=None, rib_thickness_scale=None, rib_chord_scale=None) -> float:
     """Smallest ``rtol`` that a ``precision="float32"`` solve of this scene accepts.
 
     `forces.rounding_residual_floor` with float32's machine epsilon: the
@@ -189,18 +221,17 @@ def float32_residual_floor(scene: Scene, pressure, prestrain=(0.0, 0.0), *, stif
 
     Args:
         scene: the bay, fabric and physics switches.
-        pressure: Pa.
-        prestrain: ``(span, chord)`` or one number.
-        stiffness: ``(span, chord)`` N/m overriding the fabric's.
-        rib_thickness_scale, rib_chord_scale: rib geometry multipliers.
+        parameters, prestrain, pressure, stiffness, rib_thickness_scale,
+            rib_chord_scale: as for `solve_equilibrium`.
 
     Returns:
         The floor, dimensionless (``||R_free|| / (p A)``).
     """
-    check_pressure(pressure)
-    check_prestrain(prestrain)
+    parameters = as_parameters(parameters, prestrain, pressure=pressure, stiffness=stiffness,
+                               rib_thickness_scale=rib_thickness_scale,
+                               rib_chord_scale=rib_chord_scale).resolved(scene.fabric).check()
     with float64_scope():
-        params = scene.params(pressure, prestrain, stiffness, rib_thickness_scale, rib_chord_scale)
+        params = scene.params(parameters)
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
         return float32_floor(geometry, params, scene.physics(dynamic=False))
 
@@ -218,24 +249,17 @@ def _relax_detail(code: int, extra: dict) -> str:
     return ""
 
 
-@partial(jax.jit, static_argnames=("physics",))
-def _static_forces(x, geometry, params, physics):
-    physics = fk.static_physics(physics)
-    return fk.forces(x, fk.prepare(geometry, params, physics), params, physics)
-
-
-def _newton_solution(result, steps, start, pressure, prestrain, bay, params, geometry, physics, extra):
+def _newton_solution(result, steps, *, start, parameters, bay, params, geometry, physics, extra):
     """A `Solution` from a `newton.NewtonResult` (steps count relaxation steps plus iterations)."""
-    from .loop import LoopOutput
-
     x = jnp.asarray(result.x, dtype=geometry.contour_root.dtype)
-    f = _static_forces(x, geometry, params, physics)
+    f = static_forces(x, geometry, params, physics)
     out = LoopOutput(None, int(result.result), 0, result.residual, None)
-    extra = dict(extra, newton=result, newton_iterations=result.iterations)
-    return _make_solution(out, f, steps + result.iterations, time.perf_counter() - start, "newton"
-                          if "relax_steps" not in extra else "relax+newton", pressure, prestrain,
-                          bay, extra=extra, nodes=x,
-                          detail="" if int(result.result) == Result.converged else result.message)
+    extra = dict(extra, newton_iterations=result.iterations)
+    method = "relax+newton" if "relax_steps" in extra else "newton"
+    detail = "" if int(result.result) == Result.converged else result.message
+    return make_solution(out, f, steps + result.iterations, time.perf_counter() - start, method,
+                         parameters, bay, extra=extra, nodes=x, detail=detail,
+                         factor=result.jacobian_factor())
 
 
 def _coarsenable(shape, periodic: bool) -> bool:

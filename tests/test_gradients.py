@@ -1,4 +1,4 @@
-"""Derivatives of the equilibrium: implicit (adjoint) against finite differences and unrolled AD.
+"""Derivatives of `solve_equilibrium`: implicit (adjoint) against finite differences and unrolled AD.
 
 One 9 x 32 NACA 2412 bay is shared by every test (JAX compilation dominates).
 Tolerances: the issue's 1e-5 relative agreement with central differences in
@@ -11,14 +11,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from forward_solver import Bay, Scene
-from forward_solver.adjoint import DIFFERENTIABLE, Equilibrium, equilibrium_nodes, unrolled_equilibrium_nodes
+from forward_solver import Bay, Parameters, Scene, Solution, solve_equilibrium
+from forward_solver.adjoint import DIFFERENTIABLE, _Linearisation
 from inverse_design.objectives import objective_residuals
 from targets import naca
 
-THETA = {"pressure": 2e4, "prestrain_span": 0.004, "prestrain_chord": 0.006, "stiffness_span": 2e5,
-         "rib_thickness_scale": 0.95}
+THETA = Parameters(pressure=2e4, prestrain_span=0.004, prestrain_chord=0.006, stiffness_span=2e5,
+                   stiffness_chord=2e5, rib_thickness_scale=0.95, rib_chord_scale=1.0)
 FD_RELATIVE_STEP = 1e-4
+RTOL = 1e-12
 
 
 @pytest.fixture(scope="module")
@@ -31,109 +32,161 @@ def weights():
     return np.random.default_rng(0).normal(size=(9, 32, 3))
 
 
-@pytest.fixture(scope="module")
-def equilibrium(scene):
-    return Equilibrium(scene, rtol=1e-12)
+def _solve(scene, parameters, initial=None):
+    return solve_equilibrium(scene, parameters, rtol=RTOL, method="relax+newton", initial=initial)
 
 
 @pytest.fixture(scope="module")
-def implicit_gradient(equilibrium, weights):
+def reference(scene):
+    return _solve(scene, THETA)
+
+
+@pytest.fixture(scope="module")
+def implicit_gradient(scene, weights, reference):
+    def loss(q):
+        sol = _solve(scene, q, initial=reference)
+        return jnp.sum(weights * sol.nodes), sol
+
     with jax.enable_x64(True):
-        return jax.grad(lambda th: jnp.sum(weights * equilibrium(th)))(THETA)
+        (value, sol), grad = jax.value_and_grad(loss, has_aux=True)(THETA)
+    return grad, sol
 
 
-def _central_difference(equilibrium, weights, name):
-    h = FD_RELATIVE_STEP * abs(THETA[name])
-    plus = equilibrium.solve({**THETA, name: THETA[name] + h}).nodes
-    minus = equilibrium.solve({**THETA, name: THETA[name] - h}).nodes
+def _central_difference(scene, weights, reference, name):
+    value = getattr(THETA, name)
+    h = FD_RELATIVE_STEP * abs(value)
+    plus = _solve(scene, THETA.replace(**{name: value + h}), reference).nodes
+    minus = _solve(scene, THETA.replace(**{name: value - h}), reference).nodes
     return float(np.sum(weights * (plus - minus)) / (2 * h))
 
 
-@pytest.mark.parametrize("name", sorted(THETA))
-def test_implicit_gradient_matches_central_differences(equilibrium, weights, implicit_gradient, name):
-    fd = _central_difference(equilibrium, weights, name)
-    assert abs(float(implicit_gradient[name]) - fd) <= 1e-5 * abs(fd)
+@pytest.mark.parametrize("name", DIFFERENTIABLE)
+def test_implicit_gradient_matches_central_differences(scene, weights, reference, implicit_gradient, name):
+    grad, _ = implicit_gradient
+    fd = _central_difference(scene, weights, reference, name)
+    assert isinstance(grad, Parameters)
+    assert abs(float(getattr(grad, name)) - fd) <= 1e-5 * abs(fd)
 
 
-def test_forward_mode_matches_reverse_mode(equilibrium, weights, implicit_gradient):
+def test_gradient_comes_with_the_concrete_solution(implicit_gradient, reference):
+    _, sol = implicit_gradient
+    assert isinstance(sol, Solution) and sol.converged
+    assert sol.parameters == THETA  # recorded whole
+    np.testing.assert_allclose(np.asarray(sol.nodes), reference.nodes, atol=1e-12)
+    # Warm-started at its own parameters: chord Newton, zero iterations, the reference's LU kept.
+    assert sol.factor is not None and sol.factor.lu is reference.factor.lu
+    assert reference.factor.current  # Newton's LU at the returned nodes (the adjoint reuses it)
+
+
+def test_loose_pressure_keyword_is_differentiable(scene, weights, reference, implicit_gradient):
+    """DESIGN's form: ``jax.grad(lambda p: f(solve_equilibrium(scene, pressure=p, ...).nodes))``."""
     with jax.enable_x64(True):
-        jac = {}
-        for name in THETA:  # one jvp per parameter (jacfwd would compile vmapped kernels)
-            tangent = {k: 1.0 if k == name else 0.0 for k in THETA}
-            jac[name] = jax.jvp(lambda th: jnp.sum(weights * equilibrium(th)), (THETA,), (tangent,))[1]
-    for name in THETA:
+        grad = jax.grad(lambda p: jnp.sum(weights * solve_equilibrium(
+            scene, pressure=p, prestrain=THETA.prestrain, stiffness=THETA.stiffness,
+            rib_thickness_scale=THETA.rib_thickness_scale, rtol=RTOL, method="relax+newton",
+            initial=reference).nodes))(THETA.pressure)
+    assert float(grad) == pytest.approx(float(implicit_gradient[0].pressure), rel=1e-9)
+
+
+def test_tensions_are_differentiable(scene, reference):
+    """The returned tensions are functions of the traced nodes and parameters."""
+    def largest(p):
+        return jnp.max(_solve(scene, THETA.replace(pressure=p), reference).tension_chord)
+
+    h = FD_RELATIVE_STEP * THETA.pressure
+    with jax.enable_x64(True):
+        grad = float(jax.grad(largest)(THETA.pressure))
+        fd = float(largest(THETA.pressure + h) - largest(THETA.pressure - h)) / (2 * h)
+    assert grad == pytest.approx(fd, rel=1e-5)
+
+
+def test_forward_mode_matches_reverse_mode(scene, weights, reference, implicit_gradient):
+    with jax.enable_x64(True):
+        jac = jax.jacfwd(lambda q: jnp.sum(weights * _solve(scene, q, reference).nodes))(THETA)
+    for name in DIFFERENTIABLE:
         # Same linear algebra, two directions of the same factor: rounding only.
-        assert abs(float(jac[name]) - float(implicit_gradient[name])) <= 1e-9 * abs(float(jac[name]))
+        rev = float(getattr(implicit_gradient[0], name))
+        assert abs(float(getattr(jac, name)) - rev) <= 1e-9 * abs(rev)
 
 
-def test_implicit_gradient_matches_unrolled_relaxation(scene, weights, equilibrium):
-    theta = {"pressure": 2e4, "rib_thickness_scale": 0.95}
-    fixed = {"prestrain_span": 0.004, "prestrain_chord": 0.006}
-    eq = Equilibrium(scene, fixed)
+def test_implicit_gradient_matches_unrolled_relaxation(scene, weights):
+    q = THETA.replace(stiffness_span=None, stiffness_chord=None)
+
+    def loss(p, rib, adjoint):
+        sol = solve_equilibrium(scene, q.replace(pressure=p, rib_thickness_scale=rib), adjoint=adjoint,
+                                rtol=1e-10, max_steps=2000, method="relax+newton")
+        return jnp.sum(weights * sol.nodes), sol
+
     with jax.enable_x64(True):
-        implicit = jax.grad(lambda th: jnp.sum(weights * eq(th)))(theta)
-        x_unrolled, pullback = jax.vjp(
-            lambda th: unrolled_equilibrium_nodes(scene, th, fixed, n_steps=2000), theta)
-        (unrolled,) = pullback(jnp.asarray(weights))
-    # The unrolled loop has converged (state to 1e-12 m), so its exact
+        (_, exact), implicit = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)(2e4, 0.95, "implicit")
+        (_, unrolled_sol), unrolled = jax.value_and_grad(loss, argnums=(0, 1), has_aux=True)(
+            2e4, 0.95, "unrolled")
+    # The unrolled loop has converged (state to 1e-10 m), so its exact
     # derivative must match the implicit one to the solve tolerance.
-    assert np.max(np.abs(np.asarray(x_unrolled) - eq.solution.nodes)) < 1e-10
-    for name in theta:
-        assert abs(float(unrolled[name]) - float(implicit[name])) <= 1e-7 * abs(float(implicit[name]))
+    assert unrolled_sol.method == "unrolled" and unrolled_sol.converged
+    assert np.max(np.abs(np.asarray(unrolled_sol.nodes) - np.asarray(exact.nodes))) < 1e-10
+    for a, b in zip(unrolled, implicit):
+        assert abs(float(a) - float(b)) <= 1e-7 * abs(float(b))
 
 
-def test_objective_gradient_matches_central_differences(scene, equilibrium):
+def test_objective_gradient_matches_central_differences(scene, reference):
     target = naca("2412")
 
-    def objective(th):
-        r = objective_residuals(equilibrium(th), target, 1.0, "average")
+    def objective(p):
+        nodes = _solve(scene, THETA.replace(pressure=p), reference).nodes
+        r = objective_residuals(nodes, target, 1.0, "average")
         return jnp.sum(r * r)
 
     with jax.enable_x64(True):
-        grad = jax.grad(objective)({"pressure": 2e4})["pressure"]
+        grad = jax.grad(objective)(2e4)
         h = FD_RELATIVE_STEP * 2e4
-        fd = (objective({"pressure": 2e4 + h}) - objective({"pressure": 2e4 - h})) / (2 * h)
+        fd = (objective(2e4 + h) - objective(2e4 - h)) / (2 * h)
     assert abs(float(grad) - float(fd)) <= 1e-5 * abs(float(fd))
 
 
-def test_warm_start_counts_solves_and_steps(scene):
-    eq = Equilibrium(scene, {"prestrain_span": 0.005, "prestrain_chord": 0.005})
-    eq.solve({"pressure": 2e4})
-    eq.solve({"pressure": 2.02e4})
-    assert eq.solves == 2 and len(eq.steps) == 2
-    assert eq.steps[1] < eq.steps[0]  # the warm start skips the relaxation from the mounted shape
+def test_warm_start_reuses_the_factor(scene, reference):
+    cold = solve_equilibrium(scene, THETA.replace(pressure=2.02e4), rtol=1e-10, method="relax+newton")
+    warm = solve_equilibrium(scene, THETA.replace(pressure=2.02e4), rtol=1e-10, method="relax+newton",
+                             initial=reference)
+    assert warm.extra.get("warm_start", "").startswith("chord Newton")
+    assert warm.steps < cold.steps  # no relaxation from the mounted shape
+    np.testing.assert_allclose(warm.nodes, cold.nodes, atol=1e-9)
 
 
-def test_unknown_parameter_is_refused(scene):
-    with pytest.raises(ValueError, match="differentiable in"):
-        equilibrium_nodes(scene, {"presure": 2e4})
-    with pytest.raises(ValueError, match="pressure must be given"):
-        Equilibrium(scene).solve({"prestrain_span": 0.01})
+def test_parameters_and_loose_values_cannot_be_mixed(scene):
+    with pytest.raises(ValueError, match="either a Parameters or loose values"):
+        solve_equilibrium(scene, THETA, prestrain=0.01)
+    with pytest.raises(ValueError, match="pressure must be a positive"):
+        solve_equilibrium(scene, THETA.replace(pressure=-5.0))
+    with pytest.raises(ValueError, match="stiffness_chord must be a positive"):
+        solve_equilibrium(scene, THETA.replace(stiffness_chord=0.0))
+    with pytest.raises(ValueError, match="adjoint must be one of"):
+        solve_equilibrium(scene, THETA, adjoint="magic")
+    with pytest.raises(ValueError, match="unknown parameter"):
+        Parameters.from_mapping({"presure": 2e4})
     assert "rib_thickness_scale" in DIFFERENTIABLE
 
 
 def test_jit_is_refused_with_a_clear_error(scene):
-    eq = Equilibrium(scene)
     with jax.enable_x64(True), pytest.raises(TypeError, match="outside jax.jit"):
-        jax.jit(lambda p: eq({"pressure": p}))(2e4)
+        jax.jit(lambda p: solve_equilibrium(scene, pressure=p).nodes)(2e4)
 
 
 def test_float32_caller_gets_a_clear_error(scene):
-    eq = Equilibrium(scene)
     if jax.config.jax_enable_x64:
         pytest.skip("the session runs with float64 on globally")
     with pytest.raises(RuntimeError, match="float64"):
-        jax.grad(lambda p: jnp.sum(eq({"pressure": p})))(2e4)
+        jax.grad(lambda p: jnp.sum(solve_equilibrium(scene, pressure=p).nodes))(2e4)
 
 
-def test_host_solve_returns_float64_on_a_thread_without_float64(equilibrium):
+def test_host_solve_returns_float64_on_a_thread_without_float64(scene, reference):
     """XLA may run the LU callback on a worker thread outside the caller's float64 scope; JAX
     then canonicalises the returned array, which must stay float64 (else "Incorrect output
     dtype" aborts the gradient). Replays that on a fresh thread."""
     import threading
 
     with jax.enable_x64(True):
-        lin = equilibrium._linearised(equilibrium.values(THETA))
+        lin = _Linearisation(scene, reference, scene.params(THETA))
     out = {}
 
     def worker():

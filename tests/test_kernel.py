@@ -8,12 +8,13 @@ import pytest
 from forward_solver import Bay, Fabric, Scene
 from forward_solver import forces as fk
 from forward_solver.closed_forms import circle_contour, fabric_tensions, flat_panel_pressure_force
+from forward_solver.parameters import as_parameters
 
 
 def _setup(bay, pressure=2e4, prestrain=(0.005, 0.005), fabric=Fabric()):
     scene = Scene(bay, fabric)
     physics = scene.physics(dynamic=False)
-    params = scene.params(pressure, prestrain)
+    params = scene.params(as_parameters(pressure, prestrain))
     ref = fk.prepare(bay.geometry(), params, physics)
     return scene, physics, params, ref
 
@@ -115,7 +116,7 @@ def test_gravity_adds_the_skin_weight(x64):
     bay = Bay.flat_panel(width=0.3, length=0.7, n_span=6, n_contour=9)
     fabric = Fabric(areal_density=0.4)
     scene = Scene(bay, fabric, gravity=True, gravity_acceleration=9.81)
-    params = scene.params(2e4, (0.01, 0.02))
+    params = scene.params(as_parameters(2e4, (0.01, 0.02)))
     on = scene.physics(dynamic=False)
     off = fk.Physics(on.periodic, on.tension_only, gravity=False)
     ref = fk.prepare(bay.geometry(), params, on)

@@ -14,7 +14,9 @@ import pytest
 
 from forward_solver import Bay, Result, Scene, solve_equilibrium
 from forward_solver import forces as fk
-from forward_solver.newton import assemble_jacobian, free_dofs, jacobian_sparsity, newton
+from forward_solver.jacobian import assemble_jacobian, free_dofs, jacobian_sparsity
+from forward_solver.newton import newton
+from forward_solver.parameters import as_parameters
 
 DESIGN_PRESSURE = 2e4  # Pa
 PRESTRAIN = 0.005
@@ -48,7 +50,7 @@ def problem(bay: Bay, pressure=DESIGN_PRESSURE, prestrain=PRESTRAIN, tension_onl
     """Scene, float64 geometry and parameters, and static physics of one case."""
     scene = Scene(bay=bay, tension_only=tension_only)
     with jax.enable_x64(True):
-        params = scene.params(pressure, prestrain)
+        params = scene.params(as_parameters(pressure, prestrain))
         geometry = bay.geometry()
     return scene, geometry, params, scene.physics(dynamic=False)
 

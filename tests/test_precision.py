@@ -21,6 +21,7 @@ from forward_solver import (
     solve_equilibrium,
 )
 from forward_solver.solve import float32_residual_floor
+from forward_solver.parameters import as_parameters
 
 PRESSURE = 2e4
 PRESTRAIN = (0.005, 0.005)
@@ -44,7 +45,7 @@ def floor(scene):
 def _float64_residual(scene, nodes):
     """||R_free|| / (p A) of ``nodes``, evaluated here in float64, outside the solver."""
     with jax.enable_x64(True):
-        params = scene.params(PRESSURE, PRESTRAIN)
+        params = scene.params(as_parameters(PRESSURE, PRESTRAIN))
         physics = scene.physics(dynamic=False)
         ref = forces.prepare(scene.bay.geometry(), params, physics)
         return float(forces.relative_residual(jax.numpy.asarray(nodes), ref, params, physics))

@@ -72,14 +72,16 @@ def refinement():
 
 def test_default_wing_bay_converges_under_refinement(refinement):
     # Default bay: NACA 2412 ribs, chord 1 m, ribs 0.25 m apart, 2e5 N/m, nu 0.25, 0.5%
-    # prestrain, 20 kPa. Successive differences must shrink at a fitted order of at least
-    # one: the displacement converges at ~2, the thickness (a max over sampled nodes near a
-    # fixed trailing-edge seam) at ~1.
+    # prestrain, 20 kPa. The fitted order of the successive differences must lie in a window
+    # around the expected one: the displacement (a smooth nodal field) converges at second
+    # order (measured 2.03); the section thickness, a max over sampled nodes near a fixed
+    # trailing-edge seam, at first order (measured 1.05). +-0.3 leaves room for the
+    # pre-asymptotic 9x64 grid and catches an order lost or a spurious superconvergence.
     h = np.array([1.0 / g[1] for g in GRIDS])
-    for column in refinement.T:
+    for column, expected in zip(refinement.T, (2.0, 1.0)):
         diffs = np.abs(np.diff(column))
         order = np.polyfit(np.log(h[1:]), np.log(diffs), 1)[0]
-        assert order > 0.9, (column, order)
+        assert abs(order - expected) < 0.3, (column, order)
     # And the values are the bulge the default case is known for: ~2.4 cm at mid-bay.
     assert 0.02 < refinement[-1, 0] < 0.03
 

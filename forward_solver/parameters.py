@@ -1,0 +1,197 @@
+"""`Parameters`: the traced, differentiable inputs of one solve, as one typed pytree.
+
+Everything an engineer designs or sweeps travels from the command line to the
+force kernel as one `Parameters` value: internal pressure, the prestrain of
+both fibre directions (the cut, paper eq. 12 reference lengths), both tensile
+stiffnesses (eq. 10) and the two rib geometry multipliers. It is a JAX pytree
+(``jax.tree_util.register_dataclass``), so ``jax.grad`` of a function of
+`solve_equilibrium`'s result with respect to it returns a `Parameters` of
+derivatives, and new values never recompile.
+
+What is not a design parameter (Poisson's ratio, areal density, viscosity,
+damping, gravity) belongs to the `Fabric` and the `Scene`;
+`Scene.params` merges both into the kernel's `forces.Params` at the last
+step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import jax
+import numpy as np
+
+__all__ = ["Parameters", "PARAMETER_NAMES", "PARAMETER_UNITS", "as_parameters"]
+
+Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
+
+#: Field names of `Parameters`, in order (the names a design may vary).
+PARAMETER_NAMES = (
+    "pressure",
+    "prestrain_span",
+    "prestrain_chord",
+    "stiffness_span",
+    "stiffness_chord",
+    "rib_thickness_scale",
+    "rib_chord_scale",
+)
+
+#: Unit of each parameter, for messages and reports.
+PARAMETER_UNITS = {
+    "pressure": "Pa",
+    "prestrain_span": "",
+    "prestrain_chord": "",
+    "stiffness_span": "N/m",
+    "stiffness_chord": "N/m",
+    "rib_thickness_scale": "",
+    "rib_chord_scale": "",
+}
+
+
+@dataclass(frozen=True)
+class Parameters:
+    """Design parameters of one solve (a JAX pytree of scalars).
+
+    Args:
+        pressure: internal overpressure, Pa (> 0).
+        prestrain_span: span-fibre prestrain (0.005 is 0.5%: the fabric is
+            cut 0.5% shorter than the mounted geometry), in (-0.5, 1).
+        prestrain_chord: chord-fibre prestrain, likewise.
+        stiffness_span: tensile stiffness E11 of eq. (10), N/m; None takes the
+            scene's fabric value when the solve resolves it.
+        stiffness_chord: E22, N/m; None likewise.
+        rib_thickness_scale: multiplies the rib thickness about its camber
+            line (> 0).
+        rib_chord_scale: multiplies the rib chord (> 0).
+
+    Construction does not validate, because JAX rebuilds pytrees with
+    placeholder leaves; `check` does, and every solver calls it.
+    """
+
+    pressure: Scalar
+    prestrain_span: Scalar = 0.0
+    prestrain_chord: Scalar = 0.0
+    stiffness_span: Scalar = None
+    stiffness_chord: Scalar = None
+    rib_thickness_scale: Scalar = 1.0
+    rib_chord_scale: Scalar = 1.0
+
+    @property
+    def prestrain(self) -> tuple:
+        """``(span, chord)`` prestrain."""
+        return (self.prestrain_span, self.prestrain_chord)
+
+    @property
+    def stiffness(self) -> tuple:
+        """``(span, chord)`` tensile stiffness, N/m."""
+        return (self.stiffness_span, self.stiffness_chord)
+
+    def replace(self, **changes) -> "Parameters":
+        """A copy with some fields changed (unknown names raise TypeError)."""
+        return dataclasses.replace(self, **changes)
+
+    def resolved(self, fabric) -> "Parameters":
+        """A copy with unset stiffnesses taken from ``fabric`` (a `Fabric`)."""
+        return self.replace(
+            stiffness_span=fabric.stiffness_span if self.stiffness_span is None else self.stiffness_span,
+            stiffness_chord=fabric.stiffness_chord if self.stiffness_chord is None else self.stiffness_chord,
+        )
+
+    def as_dict(self) -> dict:
+        """``{name: value}`` for every field."""
+        return {name: getattr(self, name) for name in PARAMETER_NAMES}
+
+    def as_floats(self) -> "Parameters":
+        """A copy with every set value a Python float (for records and reports)."""
+        return Parameters(**{k: (None if v is None else float(np.asarray(v)))
+                             for k, v in self.as_dict().items()})
+
+    @classmethod
+    def from_mapping(cls, values: Mapping) -> "Parameters":
+        """From ``{name: value}``; unknown names raise a ValueError naming them."""
+        unknown = sorted(set(values) - set(PARAMETER_NAMES))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown}; the parameters are {PARAMETER_NAMES}")
+        return cls(**values)
+
+    def is_traced(self) -> bool:
+        """Whether any value is a JAX tracer (the solve is being transformed)."""
+        return any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(self))
+
+    def check(self) -> "Parameters":
+        """Raise a ValueError, saying what to change, for a non-physical concrete value.
+
+        Tracers pass: their values are checked when the solve sees them concrete.
+        """
+        for name in PARAMETER_NAMES:
+            value = _concrete(getattr(self, name))
+            if value is None:
+                continue
+            if name == "pressure" and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"pressure must be a positive internal overpressure in Pa, got {value!r}")
+            if name.startswith("prestrain") and not (math.isfinite(value) and -0.5 < value < 1.0):
+                raise ValueError(
+                    f"{name} must lie in (-0.5, 1.0) (a fraction, 0.005 is 0.5%), got {value!r}")
+            if name.startswith("stiffness") and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive tensile stiffness in N/m, got {value!r}")
+            if name.startswith("rib") and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive multiplier, got {value!r}")
+        return self
+
+
+jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES), meta_fields=[])
+
+
+def _concrete(value) -> float | None:
+    """The float of a concrete scalar; None for None or a JAX tracer."""
+    if value is None or isinstance(value, jax.core.Tracer):
+        return None
+    array = np.asarray(value)
+    if array.shape != ():
+        raise ValueError(f"parameters are scalars, got a value of shape {array.shape}")
+    return float(array)
+
+
+def _pair(value, name: str) -> tuple:
+    """``(span, chord)`` from a pair or one number for both."""
+    if isinstance(value, (tuple, list)) or (hasattr(value, "shape") and np.ndim(value) == 1):
+        if len(value) != 2:
+            raise ValueError(f"{name} must be a (span, chord) pair or one number, got {value!r}")
+        return value[0], value[1]
+    return value, value
+
+
+def as_parameters(parameters=None, prestrain=None, *, pressure=None, stiffness=None,
+                  rib_thickness_scale=None, rib_chord_scale=None) -> Parameters:
+    """The one place loose keyword values become `Parameters` (the public solvers' boundary).
+
+    Either ``parameters`` is a `Parameters` and nothing else is given, or the
+    loose values are: ``parameters`` (or ``pressure``) the pressure in Pa,
+    ``prestrain`` ``(span, chord)`` or one number, ``stiffness`` ``(span,
+    chord)`` N/m, the rib scales.
+
+    Raises:
+        ValueError: for both forms at once, or no pressure.
+    """
+    loose = {"prestrain": prestrain, "pressure": pressure, "stiffness": stiffness,
+             "rib_thickness_scale": rib_thickness_scale, "rib_chord_scale": rib_chord_scale}
+    if isinstance(parameters, Parameters):
+        given = [k for k, v in loose.items() if v is not None]
+        if given:
+            raise ValueError(f"give either a Parameters or loose values, not both (also got {given}); "
+                             "use parameters.replace(...) to change a field")
+        return parameters
+    if parameters is not None and pressure is not None:
+        raise ValueError("the pressure was given twice (positionally and as pressure=)")
+    pressure = parameters if pressure is None else pressure
+    if pressure is None:
+        raise ValueError("give the pressure (Pa) or a forward_solver.Parameters")
+    ps, pc = _pair(0.0 if prestrain is None else prestrain, "prestrain")
+    es, ec = (None, None) if stiffness is None else _pair(stiffness, "stiffness")
+    return Parameters(pressure=pressure, prestrain_span=ps, prestrain_chord=pc, stiffness_span=es,
+                      stiffness_chord=ec,
+                      rib_thickness_scale=1.0 if rib_thickness_scale is None else rib_thickness_scale,
+                      rib_chord_scale=1.0 if rib_chord_scale is None else rib_chord_scale)
