@@ -2,12 +2,12 @@
 
 Public names::
 
-    optimise_pressure, DesignResult, Constraints, section_errors,
+    optimise_pressure, refine_design, DesignResult, Constraints, section_errors,
     objective_residuals, design_errors, OBJECTIVES, VARIABLES
 
-``optimise_pressure`` wraps scipy's ``brentq`` and ``least_squares`` and optax
-around the differentiable equilibrium of
-``forward_solver.adjoint.Equilibrium`` (DESIGN sections 5-7).
+``optimise_pressure`` wraps scipy's SLSQP (default), ``least_squares`` and
+``brentq`` and optax around the differentiable
+``forward_solver.solve_equilibrium`` (DESIGN sections 5-7).
 """
 
 from .constraints import Constraints as Constraints
@@ -17,6 +17,7 @@ from .objectives import objective_residuals as objective_residuals
 from .objectives import section_errors as section_errors
 from .optimise import DesignResult as DesignResult
 from .optimise import optimise_pressure as optimise_pressure
+from .optimise import refine_design as refine_design
 from .variables import VARIABLES as VARIABLES
 
 __all__ = [
@@ -27,5 +28,6 @@ __all__ = [
     "design_errors",
     "objective_residuals",
     "optimise_pressure",
+    "refine_design",
     "section_errors",
 ]

@@ -389,7 +389,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         timings["equilibrium"] = time.perf_counter() - t
         if not result.converged:
             raise ConvergenceError(result)
-        return write_report(out, result, values=values, timings=timings, **report)
+        return write_report(out, result, timings=timings, **report)
     variables = _variables(args.variables)
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,

@@ -7,10 +7,21 @@
 * A strong enough fabric: the largest fibre tension stays at or below
   ``max_tension`` (N/m, default the fabric's ``allowable_tension``).
 
-The optimisers enforce the tension constraints by an exterior quadratic
-penalty (extra least-squares residuals ``weight * violation / scale``, zero
-while the constraint holds); the result then reports which constraints are
-active (within `ACTIVE_TOLERANCE` of their limit, or violated).
+The optimiser ``method="slsqp"`` (default) handles them as inequality
+constraints ``g(u) >= 0`` (`constraint_functions`): the cell tensions are
+aggregated smoothly by a Kreisselmeier-Steinhauser (KS) function, a smooth
+minimum (maximum) that never lies above (below) the true one, so a design
+that satisfies the aggregate satisfies every cell; its conservatism is at
+most ``log(n_cells) / KS_SHARPNESS`` tension scales, and in practice the log
+of the number of cells near the extreme. ``"least_squares"`` and
+``"optax"`` use exterior penalties instead (`penalty_residuals`).
+
+Whatever the method, the result is checked against the true extreme
+tensions (`constraint_report`): a constraint is *active* when the true
+extreme, or the smooth aggregate the optimiser saw, lies within
+`ACTIVE_TOLERANCE` of its limit, and *violated* when the true extreme is
+beyond it by more than `VIOLATION_TOLERANCE` (both fractions of the tension
+scale ``p * chord / 2``); a violated design is not a success.
 """
 
 from __future__ import annotations
@@ -23,13 +34,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from forward_solver import Parameters
 from forward_solver import forces as fk
 
-__all__ = ["Constraints", "ACTIVE_TOLERANCE", "cell_tensions", "constraint_report"]
+__all__ = ["Constraints", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS", "cell_tensions",
+           "constraint_functions", "constraint_report", "tension_scale"]
 
 #: A constraint is reported active when within this fraction of its scale of
 #: its limit (bounds: of the bound interval; tensions: of the tension scale).
 ACTIVE_TOLERANCE = 1e-3
+
+#: A tension constraint is violated when the true extreme tension is beyond
+#: its limit by more than this fraction of the tension scale (about 0.5 N/m
+#: at 1 kPa on a 1 m chord): the optimiser's own feasibility tolerance, far
+#: below what a fabric's allowable or a wrinkle test can resolve.
+VIOLATION_TOLERANCE = 1e-3
+
+#: Sharpness ``rho`` of the KS aggregate, per tension scale.
+KS_SHARPNESS = 1000.0
 
 
 @dataclass(frozen=True)
@@ -42,7 +64,7 @@ class Constraints:
         max_tension: ceiling of the fibre tensions, N/m; None takes the
             fabric's ``allowable_tension`` (``inf``: none).
         penalty: weight of the penalty residuals relative to the shape error
-            (dimensionless; larger enforces harder).
+            (dimensionless; larger enforces harder), for the penalty methods.
     """
 
     min_tension: float | None = 0.0
@@ -58,7 +80,26 @@ class Constraints:
             raise ValueError(f"penalty must be positive, got {self.penalty!r}")
 
     def ceiling(self, fabric) -> float:
+        """The maximum tension in N/m (the fabric's allowable unless set)."""
         return fabric.allowable_tension if self.max_tension is None else float(self.max_tension)
+
+    def check(self, fabric) -> "Constraints":
+        """Raise a ValueError for limits no skin can meet (floor at or above the ceiling)."""
+        ceiling = self.ceiling(fabric)
+        if self.min_tension is not None and self.min_tension >= ceiling:
+            raise ValueError(
+                f"inconsistent tension limits: the minimum tension {self.min_tension:g} N/m is not "
+                f"below the maximum {ceiling:g} N/m; lower min_tension or raise max_tension")
+        return self
+
+    def names(self, fabric) -> tuple:
+        """The tension constraints in force, in the order of `constraint_functions`."""
+        names = ()
+        if self.min_tension is not None:
+            names += ("min_tension",)
+        if math.isfinite(self.ceiling(fabric)):
+            names += ("max_tension",)
+        return names
 
 
 @partial(jax.jit, static_argnames=("physics",))
@@ -69,23 +110,47 @@ def _tensions(x, geometry, params, physics):
     return jnp.concatenate([fib.tension_span.reshape(-1), fib.tension_chord.reshape(-1)])
 
 
-def cell_tensions(scene, nodes, values: dict):
+def cell_tensions(scene, nodes, parameters: Parameters):
     """Unclamped fibre tensions of every cell (span then chord), N/m, differentiable.
 
     Args:
         scene: the `forward_solver.Scene`.
         nodes: ``(n_span, n_contour, 3)`` m (JAX value allowed).
-        values: parameter values (JAX values allowed), as for `Equilibrium`.
+        parameters: the `forward_solver.Parameters` (JAX values allowed).
     """
-    params = scene.params(values["pressure"], (values["prestrain_span"], values["prestrain_chord"]),
-                          None, values["rib_thickness_scale"], values["rib_chord_scale"])
+    params = scene.params(parameters)
     geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
     return _tensions(nodes, geometry, params, scene.physics(dynamic=False))
 
 
-def tension_scale(values: dict, chord: float) -> float:
+def tension_scale(parameters: Parameters, chord: float) -> float:
     """A natural tension, N/m: the hoop tension ``p * chord / 2`` of the pressure."""
-    return 0.5 * abs(values["pressure"]) * chord
+    return 0.5 * abs(float(parameters.pressure)) * chord
+
+
+def _ks_max(t, rho):
+    """Smooth maximum ``max(t) + log(sum(exp(rho (t - max t)))) / rho >= max(t)``."""
+    top = jax.lax.stop_gradient(jnp.max(t))
+    return top + jnp.log(jnp.sum(jnp.exp(rho * (t - top)))) / rho
+
+
+def constraint_functions(constraints: Constraints | None, tensions, fabric, scale: float):
+    """Smooth inequality constraints ``g >= 0``, one per name of `Constraints.names` (dimensionless).
+
+    ``min_tension``: ``(KS-min(T) - floor) / scale``; ``max_tension``:
+    ``(ceiling - KS-max(T)) / scale`` (module docstring; ``T`` the unclamped
+    cell tensions, N/m; ``scale`` the tension scale, N/m).
+    """
+    if constraints is None:
+        return jnp.zeros(0)
+    t = tensions / scale
+    parts = []
+    if constraints.min_tension is not None:
+        parts.append(-_ks_max(-t, KS_SHARPNESS) - constraints.min_tension / scale)
+    ceiling = constraints.ceiling(fabric)
+    if math.isfinite(ceiling):
+        parts.append(ceiling / scale - _ks_max(t, KS_SHARPNESS))
+    return jnp.stack(parts) if parts else jnp.zeros(0)
 
 
 def penalty_residuals(constraints: Constraints | None, tensions, fabric, scale: float):
@@ -102,32 +167,53 @@ def penalty_residuals(constraints: Constraints | None, tensions, fabric, scale: 
     return jnp.concatenate(parts) if parts else jnp.zeros(0)
 
 
-def constraint_report(constraints: Constraints | None, variables, values: dict, tensions: np.ndarray,
-                      fabric, scale: float) -> tuple[list[str], dict]:
-    """Active constraints at a design and their values.
+def constraint_report(constraints: Constraints | None, variables, parameters: Parameters,
+                      tensions: np.ndarray, fabric, scale: float) -> tuple[list[str], dict, dict]:
+    """Active and violated constraints at a design, and the measured extremes.
+
+    Args:
+        constraints: the tension limits, or None.
+        variables: the `DesignVariables` (bounds).
+        parameters: the design's `Parameters`.
+        tensions: unclamped cell tensions, N/m (`cell_tensions`).
+        fabric: the `Fabric` (default ceiling).
+        scale: the tension scale, N/m.
 
     Returns:
-        ``(active, values)``: names such as ``"pressure>=lower"``,
-        ``"min_tension"``, ``"max_tension"``; and a dict of the measured
-        minimum and maximum tension (N/m) and each limit.
+        ``(active, violated, values)``: names such as ``"pressure>=lower"``,
+        ``"min_tension"``, ``"max_tension"`` at their limit (module
+        docstring); ``{name: amount}`` of each tension limit broken by more
+        than `VIOLATION_TOLERANCE` (N/m beyond it); and the measured minimum
+        and maximum tension (N/m) with each limit.
     """
     active = []
     for name in variables.names:
         lo, hi = variables.bounds[name]
         width = hi - lo
-        if values[name] - lo <= ACTIVE_TOLERANCE * width:
+        value = float(getattr(parameters, name))
+        if value - lo <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}>=lower")
-        if hi - values[name] <= ACTIVE_TOLERANCE * width:
+        if hi - value <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}<=upper")
     t_min, t_max = float(np.min(tensions)), float(np.max(tensions))
     report = {"min_tension": t_min, "max_tension": t_max}
-    if constraints is not None:
-        if constraints.min_tension is not None:
-            report["min_tension_floor"] = constraints.min_tension
-            if t_min - constraints.min_tension <= ACTIVE_TOLERANCE * scale:
-                active.append("min_tension")
-        ceiling = constraints.ceiling(fabric)
-        report["max_tension_ceiling"] = ceiling
-        if math.isfinite(ceiling) and ceiling - t_max <= ACTIVE_TOLERANCE * scale:
+    violated = {}
+    if constraints is None:
+        return active, violated, report
+    smooth = dict(zip(constraints.names(fabric),
+                      np.asarray(constraint_functions(constraints, jnp.asarray(tensions), fabric, scale))))
+    if constraints.min_tension is not None:
+        floor = constraints.min_tension
+        report["min_tension_floor"] = floor
+        if min(abs(t_min - floor) / scale, abs(smooth["min_tension"])) <= ACTIVE_TOLERANCE:
+            active.append("min_tension")
+        if floor - t_min > VIOLATION_TOLERANCE * scale:
+            violated["min_tension"] = floor - t_min
+    ceiling = constraints.ceiling(fabric)
+    report["max_tension_ceiling"] = ceiling
+    if math.isfinite(ceiling):
+        if min(abs(ceiling - t_max) / scale, abs(smooth["max_tension"])) <= ACTIVE_TOLERANCE:
             active.append("max_tension")
-    return active, report
+        if t_max - ceiling > VIOLATION_TOLERANCE * scale:
+            violated["max_tension"] = t_max - ceiling
+    return active, violated, report

@@ -115,7 +115,7 @@ def write_stl(path, nodes, periodic: bool) -> Path:
     return path
 
 
-def write_npz(path, solution: Solution, target, scene, values: dict, result: DesignResult | None = None) -> Path:
+def write_npz(path, solution: Solution, target, scene, result: DesignResult | None = None) -> Path:
     """Write the equilibrium and its parameters as a compressed ``.npz`` (no pickles).
 
     Arrays: ``nodes`` (n_span, n_contour, 3) m; ``tension_span``,
@@ -125,21 +125,23 @@ def write_npz(path, solution: Solution, target, scene, values: dict, result: Des
     ``target_xz`` (n, 2) the chord-normalised target; ``mid_bay_section``
     and ``rib_section`` (n_contour, 2) x-z in m; scalars ``pressure`` (Pa),
     ``prestrain`` (span, chord), ``rib_thickness_scale``, ``rib_chord_scale``,
-    ``chord`` and ``rib_spacing`` (m); ``variables`` (names) and, after an
+    ``stiffness`` (span, chord) N/m, ``chord`` and ``rib_spacing`` (m); ``variables`` (names) and, after an
     optimisation, ``history_objective`` and ``history_values`` (iterate x
     variable).
     """
     bay = scene.bay
+    values = solution.parameters
     arrays = dict(
         nodes=np.asarray(solution.nodes), tension_span=np.asarray(solution.tension_span),
         tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled, bool),
         fixed=np.asarray(bay.fixed, bool), deviation=deviation(solution, target, bay.chord),
         target_xz=np.stack([np.asarray(target.x), np.asarray(target.z)], axis=-1),
         mid_bay_section=solution.section(0.5), rib_section=solution.section(0.0),
-        pressure=np.float64(values["pressure"]),
-        prestrain=np.array([values["prestrain_span"], values["prestrain_chord"]]),
-        rib_thickness_scale=np.float64(values["rib_thickness_scale"]),
-        rib_chord_scale=np.float64(values["rib_chord_scale"]),
+        pressure=np.float64(values.pressure),
+        prestrain=np.array(values.prestrain, dtype=np.float64),
+        rib_thickness_scale=np.float64(values.rib_thickness_scale),
+        rib_chord_scale=np.float64(values.rib_chord_scale),
+        stiffness=np.array(values.stiffness, dtype=np.float64),
         chord=np.float64(bay.chord), rib_spacing=np.float64(bay.rib_spacing),
         target_name=np.array(str(target.name)),
     )

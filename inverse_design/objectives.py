@@ -18,8 +18,8 @@ equally, as `section_errors`).
 The JAX side (`target_distance`, `objective_residuals`) is differentiable:
 the distance's derivative in the query point is the target's outward unit
 normal at the foot of the perpendicular (`Airfoil.project`), so gradients
-flow from the objective to the skin nodes and, through
-`forward_solver.adjoint.Equilibrium`, to the design variables. Like the
+flow from the objective to the skin nodes and, through the implicit
+derivative of `forward_solver.solve_equilibrium`, to the design variables. Like the
 equilibrium, the distance is computed on the host: call it eagerly (under
 ``jax.grad`` / ``jax.jvp`` but not ``jax.jit``).
 """

@@ -2,29 +2,43 @@
 
 Methods (DESIGN section 6):
 
+* ``"slsqp"`` (default): `scipy.optimize.minimize` with SLSQP on the mean
+  square distance, with the bounds and the tension limits as inequality
+  constraints (`constraints.constraint_functions`). The objective's and each
+  constraint's gradient come from reverse mode through the implicit
+  equilibrium (``jax.vjp`` of `forward_solver.solve_equilibrium`): one
+  forward solve and one adjoint solve per function per iterate, whatever the
+  number of variables.
+* ``"least_squares"``: `scipy.optimize.least_squares` (trust-region
+  reflective, with the bounds) on the vector of section distances
+  (`objectives.objective_residuals`) plus exterior tension penalties; its
+  Jacobian from forward mode (``jax.jacfwd``, one tangent solve per
+  variable). Fast on unconstrained fits (inverse crimes).
+* ``"optax"``: an optax optimiser (Adam by default) on the mean square
+  error plus penalties, gradient from reverse mode, projection onto the
+  bounds after every step; meant for many variables.
 * ``"root"``: `scipy.optimize.brentq` on the pressure alone, for a scalar
   condition at mid-bay: ``root_condition="thickness"`` (maximum thickness of
   the mid-bay section equal to the target's) or ``"mean_offset"`` (zero mean
-  normal distance). The bracket is found automatically by stepping the
-  pressure geometrically (factor 2) from its start towards both bounds; when
-  the condition does not change sign inside the bounds a ValueError says so.
-* ``"least_squares"``: `scipy.optimize.least_squares` (trust-region
-  reflective, with the bounds) on the vector of section distances
-  (`objectives.objective_residuals`), plus the tension-constraint penalties;
-  its Jacobian comes from JAX in forward mode (one ``jax.jvp`` per variable)
-  through the implicit equilibrium (`forward_solver.adjoint.Equilibrium`).
-* ``"optax"``: an optax optimiser (Adam by default) on the mean square
-  error, with the gradient from reverse mode (``jax.grad``) and a projection
-  onto the bounds after every step; meant for many variables.
+  normal distance). The bracket is found by stepping the pressure
+  geometrically (factor 2) from its start towards both bounds; when the
+  condition does not change sign inside the bounds a ValueError says so.
 
-Every forward solve warm-starts from the previous iterate's equilibrium and
-is solved to `forward_solver.adjoint.GRADIENT_RTOL`. All JAX work runs
-inside ``jax.enable_x64(True)`` (thread-local; the caller's configuration is
+Every result is checked the same way: the design is a success only if the
+method converged, the final solve converged, and no tension limit is broken
+by more than `constraints.VIOLATION_TOLERANCE` (the result names the
+constraint and the amount).
+
+Every forward solve warm-starts from the previous iterate's equilibrium
+(chord Newton with its LU factor) and is solved to
+`forward_solver.adjoint.GRADIENT_RTOL`. All JAX work runs inside
+``jax.enable_x64(True)`` (thread-local; the caller's configuration is
 untouched).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,16 +50,17 @@ import numpy as np
 import scipy.optimize
 from tqdm import tqdm
 
-from forward_solver import ConvergenceError, Scene, Solution
-from forward_solver.adjoint import GRADIENT_RTOL, Equilibrium
+from forward_solver import ConvergenceError, Parameters, Scene, Solution, solve_equilibrium
+from forward_solver.adjoint import GRADIENT_RTOL
 
-from .constraints import Constraints, cell_tensions, constraint_report, penalty_residuals, tension_scale
+from .constraints import (Constraints, cell_tensions, constraint_functions, constraint_report,
+                          penalty_residuals, tension_scale)
 from .objectives import check_objective, design_errors, objective_residuals, section_points
 from .variables import DesignVariables
 
-__all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure"]
+__all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure", "refine_design"]
 
-METHODS = ("root", "least_squares", "optax")
+METHODS = ("slsqp", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
 #: Geometric step of the automatic bracketing of ``method="root"``.
 BRACKET_FACTOR = 2.0
@@ -56,38 +71,40 @@ class DesignResult:
     """Outcome of `optimise_pressure`.
 
     Attributes:
-        pressure: Pa.
-        prestrain: ``(span, chord)``.
-        rib_thickness_scale, rib_chord_scale: rib geometry multipliers.
-        values: every parameter value at the optimum.
+        parameters: the `forward_solver.Parameters` of the design.
         variables: the optimised names.
         rms_error, max_error: normal distance from the target over the
-            objective's sections at the optimum, fractions of chord.
+            objective's sections at the design, fractions of chord.
         initial_rms_error, initial_max_error: the same at the start.
-        solution: the `Solution` at the optimum.
+        solution: the `Solution` at the design.
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2;
             for "root" the condition's value), ``gradient_norm`` (of the
-            objective in the scaled variables; NaN where not computed) and
-            ``steps`` (forward-solve steps).
-        success: whether the method reports convergence and the final
-            solve converged.
-        message: the method's message.
+            objective in the scaled variables; NaN where not computed),
+            ``constraints`` (the smooth constraint values, >= 0 feasible; slsqp
+            only) and ``steps`` (forward-solve steps).
+        success: the method converged, the final solve converged and no
+            tension limit is violated.
+        message: the method's message, and what was violated.
         active_constraints: names of bounds (``"pressure<=upper"``) and tension
-            constraints (``"min_tension"``, ``"max_tension"``) that are active
-            or violated at the optimum.
+            constraints (``"min_tension"``, ``"max_tension"``) at their limit
+            (within `constraints.ACTIVE_TOLERANCE`).
+        violated_constraints: ``{name: amount}``, N/m beyond the limit, of
+            each tension limit broken by more than
+            `constraints.VIOLATION_TOLERANCE`.
         constraint_values: the measured minimum and maximum fibre tension (N/m)
             and the limits.
         method, objective: as requested.
         solves: forward solves.
         wall_time: s, compilation included.
+        grid_change: after `refine_design`, how the design moved from the
+            coarser grid: ``{"grids": [[n_span, n_contour], ...], "values":
+            {name: [coarse, fine]}, "change": {name: relative change for the
+            pressure, absolute otherwise}, "rms_error": [coarse, fine]}``;
+            None for a design on one grid.
     """
 
-    pressure: float
-    prestrain: tuple[float, float]
-    rib_thickness_scale: float
-    rib_chord_scale: float
-    values: dict
+    parameters: Parameters
     variables: tuple
     rms_error: float
     max_error: float
@@ -98,15 +115,42 @@ class DesignResult:
     success: bool = False
     message: str = ""
     active_constraints: list = field(default_factory=list)
+    violated_constraints: dict = field(default_factory=dict)
     constraint_values: dict = field(default_factory=dict)
     method: str = ""
     objective: str = ""
     solves: int = 0
     wall_time: float = 0.0
+    grid_change: dict | None = None
+
+    @property
+    def pressure(self) -> float:
+        """Pa."""
+        return self.parameters.pressure
+
+    @property
+    def prestrain(self) -> tuple[float, float]:
+        """``(span, chord)``."""
+        return self.parameters.prestrain
+
+    @property
+    def rib_thickness_scale(self) -> float:
+        return self.parameters.rib_thickness_scale
+
+    @property
+    def rib_chord_scale(self) -> float:
+        return self.parameters.rib_chord_scale
+
+    @property
+    def values(self) -> dict:
+        """``{name: value}`` of every design parameter (`variables.VARIABLES`)."""
+        from .variables import VARIABLES
+
+        return {name: getattr(self.parameters, name) for name in VARIABLES}
 
 
 class _Problem:
-    """The objective, its derivatives and the iterate history of one optimisation."""
+    """The objective, the constraints, their derivatives and the iterate history of one design."""
 
     def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol):
         self.scene = scene
@@ -114,49 +158,104 @@ class _Problem:
         self.variables = variables
         self.objective = objective
         self.constraints = constraints
+        self.rtol = rtol
         self.chord = scene.bay.chord
-        fixed = {k: v for k, v in variables.values.items() if k not in variables.names}
         # Small design grids: one relaxation loop to compile beats grid sequencing.
-        self.equilibrium = Equilibrium(scene, fixed, rtol=rtol,
-                                       sequencing=scene.bay.n_contour > 128)
+        self.sequencing = scene.bay.n_contour > 128
+        self.previous: Solution | None = None  # warm start (and its LU factor)
+        self.solves = 0
         self.history: list[dict] = []
         self.on_record = None  # called with each new history entry (progress bar, callback)
-        self.tension_scale = tension_scale(variables.values, self.chord)
+        self.tension_scale = tension_scale(variables.start, self.chord)
+        self._cache: dict = {}
 
+    # ------------------------------------------------------------ solves
+    def _solve(self, parameters: Parameters) -> Solution:
+        sol = solve_equilibrium(self.scene, parameters, rtol=self.rtol, method="relax+newton",
+                                initial=self.previous, sequencing=self.sequencing)
+        self.solves += 1
+        return sol
+
+    def _remember(self, sol: Solution) -> Solution:
+        """Keep ``sol`` as the next warm start (as numpy arrays: the auxiliary output of a
+        JAX transformation comes back as JAX arrays)."""
+        self.previous = jax.tree_util.tree_map(np.asarray, sol)
+        return self.previous
+
+    def solve(self, u) -> Solution:
+        """The concrete `Solution` at the scaled vector ``u``."""
+        key = _key(u)
+        if key in self._cache:
+            return self._cache[key][-1]
+        return self._remember(self._solve(self.variables.parameters(np.asarray(u, np.float64))))
+
+    def _shape_and_tensions(self, u):
+        parameters = self.variables.parameters(u)
+        sol = self._solve(parameters)
+        shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
+        tensions = cell_tensions(self.scene, sol.nodes, parameters) if self.constraints else None
+        return shape, tensions, sol
+
+    # ----------------------------------------------- smooth constraints (slsqp)
+    def evaluate(self, u):
+        """``(f, grad f, g, dg/du, solution)`` at ``u``: mean square error (chord^2) and
+        the smooth constraints ``g >= 0``, gradients by reverse mode (one adjoint solve each)."""
+        key = _key(u)
+        if key not in self._cache:
+
+            def outputs(v):
+                shape, tensions, sol = self._shape_and_tensions(v)
+                f = jnp.sum(shape * shape)
+                if tensions is None:
+                    return f[None], sol
+                g = constraint_functions(self.constraints, tensions, self.scene.fabric, self.tension_scale)
+                return jnp.concatenate([f[None], g]), sol
+
+            y, pullback, sol = jax.vjp(outputs, jnp.asarray(u, jnp.float64), has_aux=True)
+            rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
+            y = np.asarray(y)
+            self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
+            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=y[1:])
+        return self._cache[key]
+
+    # ------------------------------------------------------ penalty methods
     def residuals(self, u):
-        """Shape residuals and penalties for the scaled vector ``u`` (a JAX value allowed)."""
-        v = self.variables
-        theta = {n: u[k] * v.scale(n) for k, n in enumerate(v.names)}
-        nodes = self.equilibrium(theta)
-        shape = objective_residuals(nodes, self.target, self.chord, self.objective)
-        if self.constraints is None:
-            return shape
-        values = {**self.variables.values, **theta}
-        tensions = cell_tensions(self.scene, nodes, values)
+        """Shape residuals and penalties at ``u`` (a JAX value allowed), and the solution."""
+        shape, tensions, sol = self._shape_and_tensions(u)
+        if tensions is None:
+            return shape, sol
         penalties = penalty_residuals(self.constraints, tensions, self.scene.fabric, self.tension_scale)
-        return jnp.concatenate([shape, penalties])
+        return jnp.concatenate([shape, penalties]), sol
 
-    def record(self, u, objective, gradient_norm=math.nan):
-        sol = self.equilibrium.solution
-        self.history.append({
-            "values": {n: float(x) * self.variables.scale(n) for n, x in zip(self.variables.names, u)},
+    def residuals_and_jacobian(self, u):
+        """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
+        key = _key(u)
+        if key not in self._cache:
+            u = jnp.asarray(u, jnp.float64)
+            jac, (r, sol) = jax.jacfwd(lambda v: (lambda r, s: (r, (r, s)))(*self.residuals(v)),
+                                       has_aux=True)(u)
+            r, jac = np.asarray(r), np.asarray(jac)
+            self._cache = {key: (r, jac, self._remember(sol))}
+            self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
+        return self._cache[key]
+
+    def record(self, u, objective, gradient_norm=math.nan, *, solution: Solution,
+               constraints=None):
+        entry = {
+            "values": self.variables.values(np.asarray(u, dtype=np.float64)),
             "objective": float(objective),
             "gradient_norm": float(gradient_norm),
-            "steps": int(sol.steps) if sol is not None else 0,
-        })
+            "steps": int(solution.steps),
+        }
+        if constraints is not None:
+            entry["constraints"] = [float(c) for c in constraints]
+        self.history.append(entry)
         if self.on_record is not None:
-            self.on_record(self.history[-1])
+            self.on_record(entry)
 
-    def value_and_jacobian(self, u):
-        """Residuals and their Jacobian in ``u`` (forward mode, one ``jax.jvp`` per variable)."""
-        u = jnp.asarray(u, jnp.float64)
-        columns = []
-        r = None
-        for k in range(u.size):
-            r, col = jax.jvp(self.residuals, (u,), (jnp.zeros_like(u).at[k].set(1.0),))
-            columns.append(np.asarray(col))
-        r = np.asarray(r)
-        return r, np.stack(columns, axis=1)
+
+def _key(u) -> tuple:
+    return tuple(float(x) for x in np.asarray(u, dtype=np.float64).reshape(-1))
 
 
 def optimise_pressure(
@@ -164,14 +263,14 @@ def optimise_pressure(
     target,
     variables=("pressure",),
     *,
-    initial: Mapping | None = None,
+    initial: Parameters | Mapping | None = None,
     bounds: Mapping | None = None,
     objective: str = "mid_bay",
     constraints: Constraints | None = Constraints(),
-    method: str = "least_squares",
+    method: str = "slsqp",
     root_condition: str = "thickness",
     max_iterations: int = 50,
-    tolerance: float = 1e-8,
+    tolerance: float | None = None,
     optimiser=None,
     rtol: float = GRADIENT_RTOL,
     progress: bool = False,
@@ -183,22 +282,24 @@ def optimise_pressure(
         scene: bay, fabric and physics switches (`forward_solver.Scene`).
         target: the target section, a chord-normalised `targets.Airfoil`.
         variables: names to optimise, from `variables.VARIABLES`.
-        initial: starting values (Pa, fractions); names that are not
-            optimised stay at these values (defaults:
-            `variables.DEFAULT_VALUES`).
+        initial: the starting `forward_solver.Parameters`, or ``{name:
+            value}`` (Pa, fractions) over `variables.DEFAULT_START`; names that
+            are not optimised stay at these values.
         bounds: ``{name: (lower, upper)}`` for optimised names (defaults:
             `variables.DEFAULT_BOUNDS`).
         objective: "mid_bay", "average" or "worst" (`objectives`).
-        constraints: tension constraints (`Constraints`; default a
-            wrinkle-free skin below the fabric's allowable), or None.
-        method: "root", "least_squares" or "optax".
+        constraints: tension limits (`Constraints`; default a wrinkle-free
+            skin below the fabric's allowable), or None.
+        method: "slsqp" (default), "least_squares", "optax" or "root".
         root_condition: "thickness" or "mean_offset" (``method="root"``).
-        max_iterations: cap on iterations (least-squares Jacobian
-            evaluations; optax steps; brentq iterations).
-        tolerance: convergence tolerance: ``ftol``/``xtol``/``gtol`` of
-            least_squares (scipy's own default, 1e-8: tighter only walks
-            along the flat valley of a constrained optimum), the relative
-            pressure tolerance of brentq, the scaled gradient norm of optax.
+        max_iterations: cap on iterations (SLSQP iterations; least-squares
+            Jacobian evaluations; optax steps; brentq iterations).
+        tolerance: convergence tolerance: SLSQP's ``ftol`` on the objective
+            relative to its starting value (default 1e-6: a change of one
+            part in a million of the mean square error, far below what the
+            grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
+            the relative pressure tolerance of brentq (1e-8), the scaled
+            gradient norm of optax (1e-8).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
             default ``optax.adam(0.02)`` on the scaled variables).
         rtol: relative residual of the forward solves.
@@ -213,8 +314,8 @@ def optimise_pressure(
 
     Raises:
         ValueError: for an unknown method, objective, variable or condition,
-            bad bounds, or (``method="root"``) no sign change inside the
-            pressure bounds.
+            bad bounds, inconsistent tension limits, or (``method="root"``)
+            no sign change inside the pressure bounds.
         forward_solver.ConvergenceError: if the forward solve at the starting
             values fails. A solve that fails later stops the optimisation
             instead: the `DesignResult` holds the best iterate whose solve
@@ -226,25 +327,38 @@ def optimise_pressure(
     check_objective(objective)
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
-    if constraints is not None and not isinstance(constraints, Constraints):
-        raise ValueError(f"constraints must be an inverse_design.Constraints or None, got {constraints!r}")
+    if tolerance is not None and not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
+        raise ValueError(f"tolerance must lie in (0, 1), got {tolerance!r}")
+    if constraints is not None:
+        if not isinstance(constraints, Constraints):
+            raise ValueError(f"constraints must be an inverse_design.Constraints or None, got {constraints!r}")
+        constraints.check(scene.fabric)
     design = DesignVariables.build(variables, initial, bounds)
     if method == "root":
         if design.names != ("pressure",):
             raise ValueError(f"method='root' solves for the pressure alone; got variables {design.names}")
         if root_condition not in ROOT_CONDITIONS:
             raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
+    if tolerance is None:
+        tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
     with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
         problem = _Problem(scene, target, design, objective, constraints, rtol)
         problem.on_record = _notify(bar, callback, method)
         bar.set_postfix_str("initial equilibrium")
-        u0 = design.to_vector(design.values)
-        sol0 = problem.equilibrium.solve(design.from_vector(u0))
+        u0 = design.to_vector(design.start)
+        if method == "slsqp":
+            sol0 = problem.evaluate(u0)[-1]  # the first iterate's solve, with its gradients
+        elif method == "least_squares":
+            sol0 = problem.residuals_and_jacobian(u0)[-1]
+        else:
+            sol0 = problem.solve(u0)
         initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
         try:
             if method == "root":
                 u, success, message = _root(problem, root_condition, max_iterations, tolerance)
+            elif method == "slsqp":
+                u, success, message = _slsqp(problem, u0, max_iterations, tolerance)
             elif method == "least_squares":
                 u, success, message = _least_squares(problem, u0, max_iterations, tolerance)
             else:
@@ -253,23 +367,23 @@ def optimise_pressure(
             # Stop at the best iterate whose forward solve converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
             best = min(problem.history, key=lambda h: abs(h["objective"]), default=None)
-            u = design.to_vector(best["values"]) if best is not None else u0
+            u = u0 if best is None else np.array([best["values"][n] / design.scale(n) for n in design.names])
             success, message = False, _failed_solve_message(failure)
-        values = design.from_vector(u)
-        sol = problem.equilibrium.solve(values)
+        u = np.clip(np.asarray(u, dtype=np.float64), design.lower, design.upper)
+        parameters = design.parameters(u).as_floats()
+        sol = problem.solve(u)
         rms, max_error = design_errors(sol.nodes, target, problem.chord, objective)
         if not (np.isfinite([rms, max_error]).all() and np.isfinite(sol.nodes).all()):
             success = False
             message = f"{message}; the shape errors at the result are not finite"
-        tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), values))
-        active, report = constraint_report(constraints, design, values, tensions, scene.fabric,
-                                           problem.tension_scale)
+        tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), parameters))
+        active, violated, report = constraint_report(constraints, design, parameters, tensions,
+                                                     scene.fabric, problem.tension_scale)
+        if violated:
+            success = False
+            message = f"{message}; {_violation_message(violated, report)}"
     return DesignResult(
-        pressure=values["pressure"],
-        prestrain=(values["prestrain_span"], values["prestrain_chord"]),
-        rib_thickness_scale=values["rib_thickness_scale"],
-        rib_chord_scale=values["rib_chord_scale"],
-        values=values,
+        parameters=parameters,
         variables=design.names,
         rms_error=rms,
         max_error=max_error,
@@ -280,12 +394,59 @@ def optimise_pressure(
         success=bool(success and sol.converged),
         message=message,
         active_constraints=active,
+        violated_constraints=violated,
         constraint_values=report,
         method=method,
         objective=objective,
-        solves=problem.equilibrium.solves,
+        solves=problem.solves,
         wall_time=time.perf_counter() - start,
     )
+
+
+def refine_design(result: DesignResult, scene: Scene, target, **options) -> DesignResult:
+    """Confirm and polish a design on a finer grid, and record how far it moved.
+
+    Runs `optimise_pressure` on ``scene`` (the same case on a finer grid)
+    from ``result``'s design, with its variables, objective and method. A
+    design that is converged in the grid moves little (and SLSQP, starting at
+    the optimum, stops in a few iterates); the move is the design's
+    discretisation error, recorded in `DesignResult.grid_change`.
+
+    Args:
+        result: the design on the coarser grid.
+        scene: the finer scene.
+        target: the target, as for the coarse design.
+        **options: further `optimise_pressure` arguments (bounds,
+            constraints, max_iterations, ...), as for the coarse design.
+
+    Returns:
+        The fine grid's `DesignResult` with ``grid_change`` filled in; its
+        ``solves`` and ``wall_time`` count both grids.
+    """
+    fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
+                             objective=result.objective, method=result.method, **options)
+    coarse_grid = list(result.solution.nodes.shape[:2])
+    values = {n: [float(getattr(result.parameters, n)), float(getattr(fine.parameters, n))]
+              for n in result.variables}
+    change = {n: (b - a) / a if n == "pressure" else b - a for n, (a, b) in values.items()}
+    grid_change = {"grids": [coarse_grid, [scene.bay.n_span, scene.bay.n_contour]], "values": values,
+                   "change": change, "rms_error": [result.rms_error, fine.rms_error]}
+    return dataclasses.replace(fine, grid_change=grid_change, solves=result.solves + fine.solves,
+                               wall_time=result.wall_time + fine.wall_time)
+
+
+def _violation_message(violated: dict, report: dict) -> str:
+    parts = []
+    if "min_tension" in violated:
+        parts.append(f"min_tension violated: the smallest fibre tension is {report['min_tension']:.4g} "
+                     f"N/m, {violated['min_tension']:.4g} N/m below the floor "
+                     f"{report['min_tension_floor']:.4g} N/m (the skin wrinkles)")
+    if "max_tension" in violated:
+        parts.append(f"max_tension violated: the largest fibre tension is {report['max_tension']:.4g} "
+                     f"N/m, {violated['max_tension']:.4g} N/m above the ceiling "
+                     f"{report['max_tension_ceiling']:.4g} N/m")
+    return "; ".join(parts) + " (no design within the bounds meets the limits, or the optimiser " \
+        "stopped early: widen the bounds or relax the limits)"
 
 
 def _failed_solve_message(failure: ConvergenceError) -> str:
@@ -297,20 +458,24 @@ def _failed_solve_message(failure: ConvergenceError) -> str:
 
 
 # ------------------------------------------------------------------ methods
+def _slsqp(problem: _Problem, u0, max_iterations, tolerance):
+    f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)  # objective scaled to 1 at the start
+    constraints = []
+    if problem.constraints is not None and problem.evaluate(u0)[2].size:
+        constraints.append({"type": "ineq", "fun": lambda u: problem.evaluate(u)[2],
+                            "jac": lambda u: problem.evaluate(u)[3]})
+    design = problem.variables
+    result = scipy.optimize.minimize(
+        lambda u: problem.evaluate(u)[0] / f0, u0, jac=lambda u: problem.evaluate(u)[1] / f0,
+        method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
+        constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
+    return result.x, bool(result.success), str(result.message)
+
+
 def _least_squares(problem: _Problem, u0, max_iterations, tolerance):
-    cache = {}
-
-    def evaluate(u):
-        key = tuple(np.asarray(u, dtype=np.float64))
-        if key not in cache:
-            r, jac = problem.value_and_jacobian(np.asarray(u, dtype=np.float64))
-            cache.clear()
-            cache[key] = (r, jac)
-            problem.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r))
-        return cache[key]
-
     result = scipy.optimize.least_squares(
-        lambda u: evaluate(u)[0], u0, jac=lambda u: evaluate(u)[1],
+        lambda u: problem.residuals_and_jacobian(u)[0], u0,
+        jac=lambda u: problem.residuals_and_jacobian(u)[1],
         bounds=(problem.variables.lower, problem.variables.upper), method="trf",
         ftol=tolerance, xtol=tolerance, gtol=None, max_nfev=max_iterations, x_scale=1.0)
     return result.x, result.status > 0, result.message
@@ -322,8 +487,8 @@ def _optax(problem: _Problem, u0, max_iterations, tolerance, optimiser):
     optimiser = optax.adam(0.02) if optimiser is None else optimiser
 
     def loss(u):
-        r = problem.residuals(u)
-        return jnp.sum(r * r)
+        r, sol = problem.residuals(u)
+        return jnp.sum(r * r), sol
 
     lower, upper = problem.variables.lower, problem.variables.upper
     u = jnp.asarray(u0, jnp.float64)
@@ -331,13 +496,14 @@ def _optax(problem: _Problem, u0, max_iterations, tolerance, optimiser):
     message = f"the iteration cap ({max_iterations} steps) was hit"
     success = False
     for _ in range(max_iterations):
-        value, grad = jax.value_and_grad(loss)(u)
+        (value, sol), grad = jax.value_and_grad(loss, has_aux=True)(u)
+        problem._remember(sol)
         grad_np = np.asarray(grad)
         # The projected gradient: components pushing into an active bound do not count.
         at_lower = (np.asarray(u) <= lower) & (grad_np > 0)
         at_upper = (np.asarray(u) >= upper) & (grad_np < 0)
         projected = np.where(at_lower | at_upper, 0.0, grad_np)
-        problem.record(np.asarray(u), value, np.linalg.norm(projected))
+        problem.record(np.asarray(u), value, np.linalg.norm(projected), solution=sol)
         if np.linalg.norm(projected) <= tolerance:
             message, success = "the projected gradient norm fell below the tolerance", True
             break
@@ -369,13 +535,13 @@ def _root(problem: _Problem, condition, max_iterations, tolerance):
         key = float(pressure_scaled)
         if key not in memo:
             u = np.array([key])
-            sol = problem.equilibrium.solve(design.from_vector(u))
+            sol = problem.solve(u)
             memo[key] = measure(sol.nodes)
-            problem.record(u, memo[key])
+            problem.record(u, memo[key], solution=sol)
         return memo[key]
 
     lo, hi = design.lower[0], design.upper[0]
-    u0 = design.to_vector(design.values)[0]
+    u0 = design.to_vector(design.start)[0]
     bracket = _bracket(f, u0, lo, hi)
     if bracket is None:
         raise ValueError(

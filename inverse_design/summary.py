@@ -51,17 +51,6 @@ def _unpack(result) -> tuple[Solution, DesignResult | None]:
                     f"got {type(result).__name__}")
 
 
-def _parameter_values(solution: Solution, result: DesignResult | None, values: dict | None) -> dict:
-    """Pressure, prestrain and rib scales of the reported equilibrium."""
-    merged = {"pressure": float(solution.pressure), "prestrain_span": float(solution.prestrain[0]),
-              "prestrain_chord": float(solution.prestrain[1]), "rib_thickness_scale": 1.0,
-              "rib_chord_scale": 1.0}
-    if result is not None:
-        merged.update({k: float(v) for k, v in result.values.items()})
-    merged.update({k: float(v) for k, v in (values or {}).items()})
-    return merged
-
-
 # ------------------------------------------------------------------ summary
 def _version(distribution: str) -> str:
     from importlib.metadata import PackageNotFoundError, version
@@ -91,7 +80,7 @@ def _jsonable(value):
     return value
 
 
-def summarise(result, target, scene, *, objective: str | None = None, values: dict | None = None,
+def summarise(result, target, scene, *, objective: str | None = None,
               inputs: dict | None = None, timings: dict | None = None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
@@ -101,7 +90,6 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
         scene: the `forward_solver.Scene`.
         objective: the sections the errors are measured on (default the
             result's objective, or "mid_bay" for a `Solution`).
-        values: parameter values to report for a `Solution` (rib scales).
         inputs: the caller's options (stored as given).
         timings: seconds, e.g. ``{"setup": ..., "optimisation": ...}``.
 
@@ -112,7 +100,7 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
     """
     solution, design = _unpack(result)
     objective = objective or (design.objective if design is not None else "mid_bay")
-    params = _parameter_values(solution, design, values)
+    params = solution.parameters.as_dict()
     chord = scene.bay.chord
     rms, largest = design_errors(solution.nodes, target, chord, objective)
     mid = section_errors(solution, target, chord)
@@ -135,7 +123,9 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
             "values": {"pressure_pa": params["pressure"], "prestrain_span": params["prestrain_span"],
                        "prestrain_chord": params["prestrain_chord"],
                        "rib_thickness_scale": params["rib_thickness_scale"],
-                       "rib_chord_scale": params["rib_chord_scale"]},
+                       "rib_chord_scale": params["rib_chord_scale"],
+                       "stiffness_span_n_per_m": params["stiffness_span"],
+                       "stiffness_chord_n_per_m": params["stiffness_chord"]},
             "variables": list(design.variables) if design is not None else [],
             "method": design.method if design is not None else None,
             "iterations": len(design.history) if design is not None else 0,
@@ -155,6 +145,7 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
         },
         "constraints": {
             "active": list(design.active_constraints) if design is not None else None,
+            "violated": dict(design.violated_constraints) if design is not None else None,
             "values": (dict(design.constraint_values) if design is not None else
                        {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
                         "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),
@@ -171,7 +162,7 @@ def summarise(result, target, scene, *, objective: str | None = None, values: di
 
 # ------------------------------------------------------------------ the folder
 def write_report(out_dir, result, target, *, scene, objective: str | None = None,
-                 values: dict | None = None, bounds: dict | None = None, inputs: dict | None = None,
+                 bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
@@ -180,7 +171,7 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
         result: a `DesignResult` from `optimise_pressure`, or a `Solution`.
         target: the target `targets.Airfoil` (chord-normalised).
         scene: the `forward_solver.Scene` it was solved on.
-        objective, values, inputs: as `summarise`.
+        objective, inputs: as `summarise`.
         bounds: variable bounds to draw in the history plot.
         timings: seconds spent before the report (e.g. ``setup``,
             ``optimisation``); ``report`` and, unless given, ``total`` (their
@@ -199,12 +190,10 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
-    params = _parameter_values(solution, design, values)
-    summary = summarise(result, target, scene, objective=objective, values=values, inputs=inputs,
-                        timings=timings)
+    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings)
     files, skipped = [], {}
     with staged_folder(out) as staging:
-        write_npz(staging / "equilibrium.npz", solution, target, scene, params, design)
+        write_npz(staging / "equilibrium.npz", solution, target, scene, design)
         write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
         write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
         files += ["equilibrium.npz", "skin.obj", "skin.stl"]

@@ -1,8 +1,10 @@
-"""Design variables: names, starting values, bounds and the scaling the optimisers see.
+"""Design variables: names, starting `Parameters`, bounds and the scaling the optimisers see.
 
 The optimisers work on scaled variables ``u = value / scale`` so that a unit
 step means the same to every variable (pressure in units of its starting
-value, prestrain in percent, rib scales as they are).
+value, prestrain in percent, rib scales as they are). `DesignVariables`
+maps ``u`` to a `forward_solver.Parameters` and back; ``u`` may be a JAX
+value, so derivatives flow from the parameters' to the scaled variables.
 """
 
 from __future__ import annotations
@@ -13,19 +15,17 @@ from typing import Mapping
 
 import numpy as np
 
-__all__ = ["VARIABLES", "DEFAULT_VALUES", "DEFAULT_BOUNDS", "DesignVariables"]
+from forward_solver import Parameters
 
-#: Names an engineer may optimise.
+__all__ = ["VARIABLES", "DEFAULT_START", "DEFAULT_BOUNDS", "DesignVariables"]
+
+#: Names an engineer may optimise (fields of `Parameters`; the fabric's
+#: stiffnesses are material data, not manufacturing choices).
 VARIABLES = ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale", "rib_chord_scale")
 
-#: Values of parameters that are neither optimised nor given in ``initial``.
-DEFAULT_VALUES = {
-    "pressure": 1e4,  # Pa
-    "prestrain_span": 0.005,
-    "prestrain_chord": 0.005,
-    "rib_thickness_scale": 1.0,
-    "rib_chord_scale": 1.0,
-}
+#: Start of every parameter that is neither optimised nor given in ``initial``
+#: (stiffnesses unset: the scene's fabric).
+DEFAULT_START = Parameters(pressure=1e4, prestrain_span=0.005, prestrain_chord=0.005)
 
 #: Bounds used when the caller gives none: pressure in Pa; prestrain from a
 #: fabric cut to its mounted size (0) to 5% short; rib scales within +-50%.
@@ -47,18 +47,25 @@ class DesignVariables:
 
     Attributes:
         names: optimised parameter names, in the order of the vector.
-        values: starting value of every parameter in `VARIABLES` (the
-            non-optimised ones stay there).
+        start: the starting `Parameters` (the non-optimised ones stay there).
         bounds: ``(lower, upper)`` of each optimised name.
     """
 
     names: tuple
-    values: dict
+    start: Parameters
     bounds: dict
 
     @classmethod
-    def build(cls, variables, initial: Mapping | None, bounds: Mapping | None) -> "DesignVariables":
+    def build(cls, variables, initial: Parameters | Mapping | None,
+              bounds: Mapping | None) -> "DesignVariables":
         """Validate the caller's choices.
+
+        Args:
+            variables: names from `VARIABLES` (or one name).
+            initial: a `Parameters`, or ``{name: value}`` over
+                `DEFAULT_START`, or None.
+            bounds: ``{name: (lower, upper)}`` for optimised names; others
+                take `DEFAULT_BOUNDS`.
 
         Raises:
             ValueError: for an unknown or repeated name, a bound that is not an
@@ -74,15 +81,22 @@ class DesignVariables:
                 raise ValueError(f"unknown design variable {name!r}; choose from {VARIABLES}")
         if len(set(names)) != len(names):
             raise ValueError(f"variables must not repeat a name, got {names}")
-        initial = dict(initial or {})
+        if isinstance(initial, Parameters):
+            start = initial
+        else:
+            initial = dict(initial or {})
+            for name in initial:
+                if name not in VARIABLES:
+                    raise ValueError(f"unknown parameter {name!r} in initial; choose from {VARIABLES}")
+            start = DEFAULT_START.replace(**{k: float(v) for k, v in initial.items()})
+        start = start.as_floats().check()
         bounds = dict(bounds or {})
-        for name in list(initial) + list(bounds):
-            if name not in VARIABLES:
-                raise ValueError(f"unknown parameter {name!r} in initial/bounds; choose from {VARIABLES}")
         for name in bounds:
+            if name not in VARIABLES:
+                raise ValueError(f"unknown parameter {name!r} in bounds; choose from {VARIABLES}")
             if name not in names:
                 raise ValueError(f"bounds given for {name!r}, which is not among the variables {names}")
-        values = {**DEFAULT_VALUES, **{k: float(v) for k, v in initial.items()}}
+        values = start.as_dict()
         chosen = {}
         for name in names:
             lo, hi = (float(b) for b in bounds.get(name, DEFAULT_BOUNDS[name]))
@@ -98,25 +112,25 @@ class DesignVariables:
             if not lo <= values[name] <= hi:
                 raise ValueError(f"the start of {name}, {values[name]!r}, lies outside its bounds {(lo, hi)}")
             chosen[name] = (lo, hi)
-        return cls(names, values, chosen)
+        return cls(names, start, chosen)
 
     def scale(self, name: str) -> float:
         """Unit of the scaled variable."""
         if name == "pressure":
-            return abs(self.values["pressure"])
+            return abs(self.start.pressure)
         return _SCALES[name]
 
-    @property
-    def scales(self) -> np.ndarray:
-        return np.array([self.scale(n) for n in self.names])
-
-    def to_vector(self, values: Mapping) -> np.ndarray:
+    def to_vector(self, parameters: Parameters) -> np.ndarray:
         """Scaled vector of the optimised names."""
-        return np.array([values[n] / self.scale(n) for n in self.names])
+        return np.array([float(getattr(parameters, n)) / self.scale(n) for n in self.names])
 
-    def from_vector(self, u) -> dict:
-        """All parameter values for the scaled vector ``u``."""
-        return {**self.values, **{n: float(v) * self.scale(n) for n, v in zip(self.names, u)}}
+    def parameters(self, u) -> Parameters:
+        """The `Parameters` of the scaled vector ``u`` (a JAX value keeps them traced)."""
+        return self.start.replace(**{n: u[k] * self.scale(n) for k, n in enumerate(self.names)})
+
+    def values(self, u) -> dict:
+        """``{name: float}`` of the optimised names at the scaled vector ``u``."""
+        return {n: float(u[k]) * self.scale(n) for k, n in enumerate(self.names)}
 
     @property
     def lower(self) -> np.ndarray:

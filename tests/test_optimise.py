@@ -11,7 +11,7 @@ import optax
 import pytest
 
 from forward_solver import Bay, Scene, solve_equilibrium
-from inverse_design import Constraints, optimise_pressure
+from inverse_design import Constraints, optimise_pressure, refine_design
 from targets import Airfoil, naca
 
 TRUE = {"pressure": 2e4, "prestrain_span": 0.004, "prestrain_chord": 0.006}
@@ -71,19 +71,62 @@ def test_ribs_equal_to_target_put_the_best_pressure_on_its_lower_bound(scene):
     assert res.rms_error < res.initial_rms_error
 
 
-def test_allowable_tension_is_reported_active(scene, generated):
-    # A ceiling below the tension the inverse crime needs: the penalty holds
-    # the maximum tension near it and the result reports it.
+def test_slsqp_recovers_pressure_and_both_prestrains(scene, generated):
+    start = {name: 1.5 * TRUE[name] for name in NAMES}  # 50% away
+    # An inverse crime drives the objective to zero: ask SLSQP for a tight ftol.
+    res = optimise_pressure(scene, generated, NAMES, initial=start, objective="mid_bay", method="slsqp",
+                            tolerance=1e-14)
+    assert res.success, res.message
+    for name in NAMES:
+        assert abs(res.values[name] / TRUE[name] - 1.0) < 1e-4, (name, res.values[name])
+    assert res.rms_error < 1e-6 < res.initial_rms_error
+    assert res.violated_constraints == {}
+    assert all(len(h["constraints"]) == 1 for h in res.history)  # min_tension (no finite ceiling)
+    assert res.solves <= 40
+
+
+@pytest.fixture(scope="module")
+def true_peak_tension(scene):
     sol = solve_equilibrium(scene, TRUE["pressure"], (TRUE["prestrain_span"], TRUE["prestrain_chord"]))
-    ceiling = 0.9 * float(max(sol.tension_span.max(), sol.tension_chord.max()))
+    return float(max(sol.tension_span.max(), sol.tension_chord.max()))
+
+
+def test_allowable_tension_is_a_constraint_that_holds(scene, generated, true_peak_tension):
+    # A ceiling below the tension the inverse crime needs: SLSQP stops on it, it is active and
+    # not violated, and the design is a success.
+    ceiling = 0.9 * true_peak_tension
     start = {"pressure": 1.5e4, "prestrain_span": TRUE["prestrain_span"],
              "prestrain_chord": TRUE["prestrain_chord"]}
     res = optimise_pressure(scene, generated, ("pressure",), initial=start,
-                            constraints=Constraints(max_tension=ceiling, penalty=1e4),
-                            method="least_squares", max_iterations=30)
-    assert "max_tension" in res.active_constraints
-    assert res.constraint_values["max_tension"] < 1.02 * ceiling
+                            constraints=Constraints(max_tension=ceiling), method="slsqp")
+    assert res.success, res.message
+    assert "max_tension" in res.active_constraints and res.violated_constraints == {}
+    assert res.constraint_values["max_tension"] <= ceiling * (1 + 1e-3)
+    assert res.constraint_values["max_tension"] >= ceiling * 0.99  # KS keeps it close, not far
     assert res.pressure < TRUE["pressure"]
+
+
+@pytest.mark.parametrize("method", ["slsqp", "least_squares"])
+def test_a_ceiling_no_design_can_meet_is_a_failure_with_the_amount(scene, generated, true_peak_tension,
+                                                                   method):
+    # Pressure held in [1.5e4, 3e4] Pa: the skin's peak tension cannot fall to 30% of the
+    # tension at 2e4 Pa anywhere inside the bounds.
+    ceiling = 0.3 * true_peak_tension
+    start = {"pressure": 2e4, "prestrain_span": TRUE["prestrain_span"],
+             "prestrain_chord": TRUE["prestrain_chord"]}
+    res = optimise_pressure(scene, generated, ("pressure",), initial=start, bounds={"pressure": (1.5e4, 3e4)},
+                            constraints=Constraints(max_tension=ceiling, min_tension=None), method=method,
+                            max_iterations=20)
+    assert not res.success
+    over = res.constraint_values["max_tension"] - ceiling
+    assert res.violated_constraints["max_tension"] == pytest.approx(over) and over > 0
+    assert "max_tension violated" in res.message and f"{over:.4g} N/m above" in res.message
+
+
+def test_contradictory_tension_limits_are_bad_input(scene, generated):
+    with pytest.raises(ValueError, match="inconsistent tension limits"):
+        optimise_pressure(scene, generated, ("pressure",),
+                          constraints=Constraints(min_tension=5000.0, max_tension=100.0))
 
 
 def test_optax_reduces_the_error(scene, generated):
@@ -107,6 +150,7 @@ def test_optax_reduces_the_error(scene, generated):
         (dict(variables=("pressure",), bounds={"pressure": (2e4, 3e4)}), "outside its bounds"),
         (dict(variables=("pressure",), bounds={"prestrain_span": (0, 0.1)}), "not among the variables"),
         (dict(variables=("pressure", "prestrain_span"), method="root"), "pressure alone"),
+        (dict(variables=("pressure",), tolerance=0.0), "tolerance must lie"),
     ],
 )
 def test_bad_input_raises_a_clear_error(scene, kwargs, match):
@@ -132,3 +176,27 @@ def test_design_errors_are_float64_whatever_the_callers_jax_setting(scene, gener
         rms0, _ = design_errors(nodes, generated, 1.0)
     assert rms0 < 1e-12
     assert 0.1 * offset < rms < 10 * offset and largest < 10 * offset
+
+
+def test_refine_design_reports_the_move_between_grids(scene):
+    # Target generated on the finer 17 x 32 grid: the 9 x 32 design is off by the coarse
+    # grid's discretisation error, the refined one recovers the true pressure.
+    fine = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=17, n_contour=32))
+    sol = solve_equilibrium(fine, TRUE["pressure"], (TRUE["prestrain_span"], TRUE["prestrain_chord"]),
+                            method="relax+newton", rtol=1e-12)
+    section = sol.section(0.5)
+    target = Airfoil(*np.concatenate([section, section[:1]]).T, name="generated on 17x32")
+    start = {"pressure": 1.5e4, "prestrain_span": TRUE["prestrain_span"],
+             "prestrain_chord": TRUE["prestrain_chord"]}
+    coarse = optimise_pressure(scene, target, ("pressure",), initial=start, constraints=None,
+                               tolerance=1e-14)
+    refined = refine_design(coarse, fine, target, constraints=None, tolerance=1e-14)
+    assert coarse.success and refined.success, (coarse.message, refined.message)
+    change = refined.grid_change
+    assert change["grids"] == [[9, 32], [17, 32]]
+    assert change["values"]["pressure"] == [coarse.pressure, refined.pressure]
+    assert refined.pressure == pytest.approx(TRUE["pressure"], rel=1e-4)
+    assert change["change"]["pressure"] == pytest.approx(refined.pressure / coarse.pressure - 1.0)
+    assert abs(change["change"]["pressure"]) > 1e-4  # the coarse grid really is off
+    assert refined.solves > coarse.solves  # both grids counted
+    assert refined.rms_error < 1e-6
