@@ -64,6 +64,8 @@ METHODS = ("slsqp", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
 #: Geometric step of the automatic bracketing of ``method="root"``.
 BRACKET_FACTOR = 2.0
+#: Forward solves SLSQP may spend per allowed iteration (its line searches included).
+SLSQP_EVALUATIONS_PER_ITERATION = 2
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,6 +197,19 @@ class _Problem:
         shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
         tensions = cell_tensions(self.scene, sol.nodes, parameters) if self.constraints else None
         return shape, tensions, sol
+
+    def cached(self, key):
+        """The cached evaluation at ``key`` (`_key` of a vector), or None."""
+        return self._cache.get(key)
+
+    def best_iterate(self) -> np.ndarray:
+        """Scaled vector of the best recorded iterate: the feasible one (every smooth constraint
+        >= 0) with the least objective, else the one with the least violation."""
+        def violation(entry):
+            return max([0.0] + [-c for c in entry.get("constraints", [])])
+
+        best = min(self.history, key=lambda h: (violation(h), h["objective"]))
+        return np.array([best["values"][n] / self.variables.scale(n) for n in self.variables.names])
 
     # ----------------------------------------------- smooth constraints (slsqp)
     def evaluate(self, u):
@@ -458,17 +473,44 @@ def _failed_solve_message(failure: ConvergenceError) -> str:
 
 
 # ------------------------------------------------------------------ methods
+class _EvaluationCap(Exception):
+    """Raised inside SLSQP's callbacks when the forward-solve budget is spent."""
+
+
 def _slsqp(problem: _Problem, u0, max_iterations, tolerance):
-    f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)  # objective scaled to 1 at the start
+    """SLSQP on the objective scaled to 1 at the start, with the smooth tension constraints.
+
+    SLSQP caps its iterations but not its line-search evaluations, which an
+    infeasible problem can spend by the hundred; each costs a forward solve,
+    so they are capped too (`SLSQP_EVALUATIONS_PER_ITERATION` per allowed
+    iteration). Stopped there, the result is the best iterate: the feasible
+    one with the least error, else the least violating one.
+    """
+    cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations
+    f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)
+    visited = []
+
+    def evaluate(u):
+        key = _key(u)
+        if problem.cached(key) is None:
+            if len(visited) >= cap:
+                raise _EvaluationCap()
+            visited.append(np.array(u, dtype=np.float64))
+        return problem.evaluate(u)
+
     constraints = []
     if problem.constraints is not None and problem.evaluate(u0)[2].size:
-        constraints.append({"type": "ineq", "fun": lambda u: problem.evaluate(u)[2],
-                            "jac": lambda u: problem.evaluate(u)[3]})
+        constraints.append({"type": "ineq", "fun": lambda u: evaluate(u)[2], "jac": lambda u: evaluate(u)[3]})
     design = problem.variables
-    result = scipy.optimize.minimize(
-        lambda u: problem.evaluate(u)[0] / f0, u0, jac=lambda u: problem.evaluate(u)[1] / f0,
-        method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
-        constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
+    try:
+        result = scipy.optimize.minimize(
+            lambda u: evaluate(u)[0] / f0, u0, jac=lambda u: evaluate(u)[1] / f0,
+            method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
+            constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
+    except _EvaluationCap:
+        return (problem.best_iterate(), False,
+                f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
+                f"{max_iterations}) without converging; the result is the best iterate")
     return result.x, bool(result.success), str(result.message)
 
 
