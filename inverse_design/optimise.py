@@ -436,7 +436,9 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
 
     Returns:
         The fine grid's `DesignResult` with ``grid_change`` filled in; its
-        ``solves`` and ``wall_time`` count both grids.
+        ``solves``, ``wall_time`` and ``history`` cover both grids, and its
+        initial errors are those of the start of the design (measured on the
+        coarser grid).
     """
     fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
                              objective=result.objective, method=result.method, **options)
@@ -447,7 +449,10 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
     grid_change = {"grids": [coarse_grid, [scene.bay.n_span, scene.bay.n_contour]], "values": values,
                    "change": change, "rms_error": [result.rms_error, fine.rms_error]}
     return dataclasses.replace(fine, grid_change=grid_change, solves=result.solves + fine.solves,
-                               wall_time=result.wall_time + fine.wall_time)
+                               wall_time=result.wall_time + fine.wall_time,
+                               history=[*result.history, *fine.history],
+                               initial_rms_error=result.initial_rms_error,
+                               initial_max_error=result.initial_max_error)
 
 
 def _violation_message(violated: dict, report: dict) -> str:
