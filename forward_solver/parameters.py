@@ -24,7 +24,7 @@ from typing import Any, Mapping
 import jax
 import numpy as np
 
-__all__ = ["Parameters", "PARAMETER_NAMES", "PARAMETER_UNITS", "as_parameters"]
+__all__ = ["Parameters", "PARAMETER_NAMES", "PARAMETER_UNITS", "as_parameters", "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
 
@@ -143,6 +143,30 @@ class Parameters:
 
 
 jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES), meta_fields=[])
+
+
+class ParameterViews:
+    """Read-only shortcuts to the ``parameters`` (a `Parameters`) of a record that carries one."""
+
+    parameters: Parameters
+
+    @property
+    def pressure(self):
+        """Internal overpressure, Pa."""
+        return self.parameters.pressure
+
+    @property
+    def prestrain(self) -> tuple:
+        """``(span, chord)`` prestrain."""
+        return self.parameters.prestrain
+
+    @property
+    def rib_thickness_scale(self):
+        return self.parameters.rib_thickness_scale
+
+    @property
+    def rib_chord_scale(self):
+        return self.parameters.rib_chord_scale
 
 
 def _concrete(value) -> float | None:

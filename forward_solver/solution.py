@@ -12,7 +12,7 @@ import numpy as np
 
 from . import forces as fk
 from .jacobian import JacobianFactor
-from .parameters import Parameters
+from .parameters import Parameters, ParameterViews
 
 __all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
            "make_solution", "initial_nodes", "static_forces"]
@@ -65,7 +65,7 @@ class ConvergenceError(RuntimeError):
 
 
 @dataclass(frozen=True, eq=False)
-class Solution:
+class Solution(ParameterViews):
     """The rest state (or where a solve stopped).
 
     Attributes:
@@ -124,16 +124,6 @@ class Solution:
     extra: dict = field(default_factory=dict)
     detail: str = ""
     factor: JacobianFactor | None = None
-
-    @property
-    def pressure(self) -> float:
-        """Internal overpressure, Pa."""
-        return self.parameters.pressure
-
-    @property
-    def prestrain(self) -> tuple[float, float]:
-        """``(span, chord)`` prestrain."""
-        return self.parameters.prestrain
 
     @property
     def converged(self) -> bool:

@@ -52,6 +52,7 @@ from tqdm import tqdm
 
 from forward_solver import ConvergenceError, Parameters, Scene, Solution, solve_equilibrium
 from forward_solver.adjoint import GRADIENT_RTOL
+from forward_solver.parameters import ParameterViews
 
 from .constraints import (Constraints, cell_tensions, constraint_functions, constraint_report,
                           penalty_residuals, tension_scale)
@@ -69,7 +70,7 @@ SLSQP_EVALUATIONS_PER_ITERATION = 2
 
 
 @dataclass(frozen=True, eq=False)
-class DesignResult:
+class DesignResult(ParameterViews):
     """Outcome of `optimise_pressure`.
 
     Attributes:
@@ -124,24 +125,6 @@ class DesignResult:
     solves: int = 0
     wall_time: float = 0.0
     grid_change: dict | None = None
-
-    @property
-    def pressure(self) -> float:
-        """Pa."""
-        return self.parameters.pressure
-
-    @property
-    def prestrain(self) -> tuple[float, float]:
-        """``(span, chord)``."""
-        return self.parameters.prestrain
-
-    @property
-    def rib_thickness_scale(self) -> float:
-        return self.parameters.rib_thickness_scale
-
-    @property
-    def rib_chord_scale(self) -> float:
-        return self.parameters.rib_chord_scale
 
     @property
     def values(self) -> dict:
