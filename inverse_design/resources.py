@@ -35,7 +35,6 @@ takes 14 forward solves (`TYPICAL_SOLVES`).
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
