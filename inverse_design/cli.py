@@ -90,6 +90,7 @@ _GROUPS = {
     "design": "design variables and bounds",
     "constraints": "tension constraints",
     "optimiser": "optimiser",
+    "aero": "aerodynamics",
     "output": "input and output",
 }
 OPTIONS = (
@@ -179,6 +180,16 @@ OPTIONS = (
                                      "(no optimisation, no history plot)")),
     ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
                                       help="step cap of the equilibrium solve with --evaluate (default 200000)")),
+    ("aero", "--aero", dict(action="store_true",
+                            help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
+                            "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
+                            "writes aero.png and summary.json's aero entry")),
+    ("aero", "--reynolds", dict(type=_number(positive=True), default=1e6, metavar="RE",
+                                help="chord Reynolds number of --aero (default 1e6)")),
+    ("aero", "--alpha-range", dict(type=_number("deg"), nargs=3, default=(-4.0, 10.0, 1.0),
+                                   metavar=("START", "STOP", "STEP"),
+                                   help="angles of attack of --aero, deg, stop included, within +-20 "
+                                   "(default -4 10 1)")),
     ("output", "--config", dict(default=None, metavar="CASE.TOML",
                                 help="read options from a TOML file (keys: the long option names); "
                                 "command-line options override it")),
@@ -220,6 +231,7 @@ such temporary folders left by a killed run are removed by the next run to DIR):
   deviation.png         deviation from the target over the whole bay
   tensions.png          fibre tensions with the wrinkled cells marked
   history.png           the optimiser's iterates (not with --evaluate)
+  aero.png              lift, drag and moment against the target (with --aero)
 
 case file (--config case.toml; keys are the long option names, with - or _; paths in it
 are relative to the current folder; options on the command line override it):
@@ -280,6 +292,10 @@ def _toml_value(path: str, key: str, value):
     if spec.get("nargs") == 2:
         if not (isinstance(value, list) and len(value) == 2):
             raise InputError(f"{path}: {key} must be a pair [low, high], got {value!r}")
+        return tuple(one(v) for v in value)
+    if spec.get("nargs") == 3:
+        if not (isinstance(value, list) and len(value) == 3):
+            raise InputError(f"{path}: {key} must be a list [start, stop, step], got {value!r}")
         return tuple(one(v) for v in value)
     if dest == "variables" and isinstance(value, list):
         if not all(isinstance(v, str) for v in value):
@@ -375,6 +391,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     """
     start = time.perf_counter() if started is None else started
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
+    alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
     from forward_solver import Bay, ConvergenceError, Fabric, Parameters, Scene, solve_equilibrium
@@ -404,7 +421,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         timings["equilibrium"] = time.perf_counter() - t
         if not result.converged:
             raise ConvergenceError(result)
-        return write_report(out, result, scene=scene, timings=timings, **report)
+        aero = _aero(args, result, target, alphas, timings)
+        return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
     variables = _variables(args.variables)
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
@@ -421,7 +439,34 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         scene = scene_on(2 * args.n_span - 1)
         result = refine_design(result, scene, target, **options)
     timings["optimisation"] = time.perf_counter() - t
-    return write_report(out, result, scene=scene, bounds=bounds, timings=timings, **report)
+    aero = _aero(args, result.solution, target, alphas, timings)
+    return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
+
+
+def _aero_angles(args: argparse.Namespace):
+    """The angles of ``--aero``, after checking that NeuralFoil is installed (`InputError` if not)."""
+    from .aero import AeroUnavailable, alpha_range, require_neuralfoil
+
+    try:
+        require_neuralfoil()
+    except AeroUnavailable as exc:
+        raise InputError(f"--aero: {exc}") from None
+    try:
+        return alpha_range(*args.alpha_range)
+    except ValueError as exc:
+        raise InputError(f"--alpha-range: {exc}") from None
+
+
+def _aero(args: argparse.Namespace, solution, target, alphas, timings: dict):
+    """The `inverse_design.aero.AeroComparison` of ``--aero`` (None without it); times it."""
+    if not args.aero:
+        return None
+    from .aero import aerodynamic_cost
+
+    t = time.perf_counter()
+    comparison = aerodynamic_cost(solution, target, args.chord, reynolds=args.reynolds, alphas=alphas)
+    timings["aero"] = time.perf_counter() - t
+    return comparison
 
 
 def _describe(summary: dict) -> list[str]:
@@ -450,6 +495,12 @@ def _describe(summary: dict) -> list[str]:
                               for n, c in grid["change"].items())
             lines.append(f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> "
                          f"{grid['grids'][1][0]}x{grid['grids'][1][1]}: {moves}")
+    aero = summary.get("aero")
+    if aero:
+        worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
+        lines.append(f"  aerodynamics at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: mid-bay "
+                     f"max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
+                     f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
     wrinkled = res["equilibrium"]["wrinkled_fraction"]
     if wrinkled:
         lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")

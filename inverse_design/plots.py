@@ -24,6 +24,7 @@ from .optimise import DesignResult
 __all__ = [
     "MAGNIFIED_DEVIATION",
     "auto_magnification",
+    "plot_aero",
     "plot_deviation",
     "plot_history",
     "plot_section",
@@ -357,4 +358,55 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
     status = "converged" if result.success else "did not converge"
     fig.suptitle(f"optimiser history: {result.method}, {result.objective} objective, "
                  f"{len(history)} iterates, {status}")
+    return fig
+
+
+def plot_aero(comparison):
+    """Lift, drag and moment against angle of attack: target, mid-bay and bay-average sections.
+
+    Top row: CL, CD and CM (quarter chord) of the three sections; bottom row:
+    section minus target. Angles where NeuralFoil's analysis confidence is
+    below 0.5 are marked with open circles.
+
+    Args:
+        comparison: an `inverse_design.aero.AeroComparison`.
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    alphas = np.asarray(comparison.alphas)
+    styles = {"target": dict(label=f"target {comparison.target_name}", **_TARGET_STYLE),
+              "bay_average": dict(label="bay-average section", ls="--", **_RIB_STYLE),
+              "mid_bay": dict(label="mid-bay section", **_SKIN_STYLE)}
+    differences = {"mid_bay": comparison.mid_bay_difference, "bay_average": comparison.bay_average_difference}
+    fig = _figure(12.0, 7.0)
+    axes = fig.subplots(2, 3, sharex=True)
+    for column, (key, name) in enumerate((("cl", "CL"), ("cd", "CD"), ("cm", "CM (c/4)"))):
+        top, bottom = axes[0, column], axes[1, column]
+        for section, style in styles.items():
+            polar = getattr(comparison, section)
+            values = getattr(polar, key)
+            top.plot(alphas, values, marker=".", ms=4, **style)
+            doubtful = polar.confidence < 0.5
+            if doubtful.any():
+                top.plot(alphas[doubtful], values[doubtful], ls="none", marker="o", mfc="none",
+                         color=style["color"], ms=8)
+            if section in differences:
+                bottom.plot(alphas, getattr(differences[section], key), marker=".", ms=4,
+                            label=f"{style['label']} \u2212 target", color=style["color"], ls=style.get("ls", "-"))
+        bottom.axhline(0.0, color="black", lw=1.0)
+        top.set_ylabel(name)
+        bottom.set_ylabel(f"\u0394{name.split()[0]}")
+        bottom.set_xlabel("angle of attack, deg")
+        for ax in (top, bottom):
+            ax.grid(alpha=0.3)
+        if key == "cd":
+            bottom.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
+    axes[0, 0].legend(fontsize="small", loc="best")
+    axes[1, 0].legend(fontsize="small", loc="best")
+    worst = differences["mid_bay"].largest()
+    fig.suptitle(f"{comparison.target_name} at Re = {comparison.reynolds:.3g} (NeuralFoil, "
+                 f"{comparison.model_size}): mid-bay max |\u0394CL| {worst['cl']:.3g}, "
+                 f"|\u0394CD| {worst['cd']:.3g}, |\u0394CM| {worst['cm']:.3g}; open circles: "
+                 f"confidence < 0.5", fontsize="medium")
     return fig

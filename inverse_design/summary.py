@@ -14,6 +14,8 @@ into a folder::
     tensions.png          fibre tensions with the wrinkled cells marked (`plot_tensions`)
     history.png           the optimiser's iterates (`plot_history`; skipped for a
                           single equilibrium)
+    aero.png              lift, drag and moment against the target (`plot_aero`; only
+                          with an `inverse_design.aero.AeroComparison`)
 
 The folder is written atomically (`inverse_design.export.staged_folder`).
 """
@@ -33,7 +35,7 @@ from forward_solver import Solution
 from .export import check_output_folder, staged_folder, write_npz, write_obj, write_stl
 from .objectives import design_errors, section_errors
 from .optimise import DesignResult
-from .plots import plot_deviation, plot_history, plot_section, plot_tensions
+from .plots import plot_aero, plot_deviation, plot_history, plot_section, plot_tensions
 
 __all__ = ["summarise", "write_report"]
 
@@ -81,7 +83,7 @@ def _jsonable(value):
 
 
 def summarise(result, target, scene, *, objective: str | None = None,
-              inputs: dict | None = None, timings: dict | None = None) -> dict:
+              inputs: dict | None = None, timings: dict | None = None, aero=None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
     Args:
@@ -92,6 +94,8 @@ def summarise(result, target, scene, *, objective: str | None = None,
             result's objective, or "mid_bay" for a `Solution`).
         inputs: the caller's options (stored as given).
         timings: seconds, e.g. ``{"setup": ..., "optimisation": ...}``.
+        aero: an `inverse_design.aero.AeroComparison` of the result, stored as
+            ``summary["aero"]`` (`AeroComparison.as_dict`); None leaves the key out.
 
     Returns:
         A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
@@ -158,13 +162,15 @@ def summarise(result, target, scene, *, objective: str | None = None,
     if design is None:
         summary["constraints"]["note"] = ("a single equilibrium: constraints are not enforced; "
                                           "tensions are the solver's (compression clamped to zero)")
+    if aero is not None:
+        summary["aero"] = aero.as_dict()
     return _jsonable(summary)
 
 
 # ------------------------------------------------------------------ the folder
 def write_report(out_dir, result, target, *, scene, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
-                 timings: dict | None = None, magnification: float | None = None) -> dict:
+                 timings: dict | None = None, magnification: float | None = None, aero=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -178,6 +184,8 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
             ``optimisation``); ``report`` and, unless given, ``total`` (their
             sum) are added.
         magnification: deviation factor of the section plot (default automatic).
+        aero: an `inverse_design.aero.AeroComparison`: stored in the summary
+            and drawn as ``aero.png`` (default none).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -191,7 +199,7 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
-    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings)
+    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero)
     files, skipped = [], {}
     with staged_folder(out) as staging:
         write_npz(staging / "equilibrium.npz", solution, target, scene, design)
@@ -206,6 +214,8 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
             figures.append(("history.png", lambda: plot_history(design, bounds)))
         else:
             skipped["history.png"] = "a single equilibrium has no optimiser history"
+        if aero is not None:
+            figures.append(("aero.png", lambda: plot_aero(aero)))
         for name, make in figures:
             make().savefig(staging / name, dpi=_DPI)
             files.append(name)
