@@ -16,13 +16,18 @@ over the whole `Parameters` pytree:
   dtheta`` is one ``jax.jvp`` of `forces.residual` (through
   `forces.prepare`, so the cut lengths see the prestrain, and through the
   mounted rib nodes, which move with the rib scales), then ``dx = -J^-1
-  (...)`` with the sparse LU of J: the solution's own factor
+  (...)`` by one of two linear solvers (``linear_solver``):
+  "lu", the sparse LU of J on the host: the solution's own factor
   (`Solution.factor`) when it was factorised at the returned state, else a
-  fresh one from `jacobian.assemble_jacobian`;
+  fresh one from `jacobian.assemble_jacobian`, reached through
+  ``jax.pure_callback``; or "iterative", the matrix-free block-Jacobi
+  BiCGStab of `krylov` in JAX (no callback). `default_linear_solver` picks
+  "lu" on a CPU backend and "iterative" elsewhere, since a host callback
+  fails where JAX sees only a GPU (``JAX_PLATFORMS=cuda``);
 * cotangent (reverse mode, ``jax.grad`` / ``jax.vjp``): JAX transposes the
   tangent rule. The linear solve is a `jax.lax.custom_linear_solve` whose
   transpose solves the adjoint system ``J^T lambda = xbar`` with the same
-  factor (``lu.solve(b, trans="T")``), and the transpose of the ``jax.jvp``
+  factor (``lu.solve(b, trans="T")``) or the same BiCGStab on ``J^T``, and the transpose of the ``jax.jvp``
   above is ``thetabar = -(dR/dtheta)^T lambda``: one adjoint solve per
   gradient, whatever the number of parameters. The two modes cannot
   disagree: one is derived from the other.
@@ -39,10 +44,16 @@ Precision: everything runs in float64; under the caller's own ``jax.grad``
 float64 must be on already (wrap the call in ``with jax.enable_x64(True):``),
 else a RuntimeError says so.
 
-Limits: the primal is host code (scipy, Python control flow), so the
-parameters must be concrete when the solve runs: use ``jax.grad``,
-``jax.jacfwd``, ``jax.jvp`` and ``jax.vjp`` eagerly, not under ``jax.jit``
-or ``jax.vmap`` of the parameters (a clear TypeError says so).
+Two paths. This module's primal is host code (scipy, Python control flow),
+so it serves eager ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` and
+``jax.vjp``, where the parameters are traced but concrete. Under ``jax.jit``
+or ``jax.vmap`` of the parameters they are abstract and `solve_equilibrium`
+takes the pure-JAX path of `traced` instead: the relaxation alone, under
+``stop_gradient``, its fixed point differentiated by `krylov.implicit_nodes`
+(the same implicit rule with the iterative solver). The two agree to 1e-10
+relative on the 9x32 bay (tests/test_transforms.py). The host methods
+(newton, relax+newton, explicit) refuse jit and vmap with a TypeError that
+names "relax".
 
 Unrolled differentiation (``adjoint="unrolled"``). `unrolled_equilibrium_nodes`
 is a pure JAX dynamic relaxation (the loop of `relax`, kinetic damping,
@@ -68,6 +79,7 @@ import scipy.sparse.linalg as spla
 from . import forces as fk
 from ._precision import float64_scope
 from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
+from .krylov import implicit_tangent
 from .loop import LoopOutput
 from .parameters import PARAMETER_NAMES, Parameters
 from .relax import MASS_SAFETY, kinetic_damping_step
@@ -76,6 +88,8 @@ from .solution import Result, Solution, make_solution, static_forces
 
 __all__ = [
     "ADJOINTS",
+    "LINEAR_SOLVERS",
+    "default_linear_solver",
     "DIFFERENTIABLE",
     "GRADIENT_RTOL",
     "differentiable_solution",
@@ -85,12 +99,25 @@ __all__ = [
 #: How `solve_equilibrium` is differentiated.
 ADJOINTS = ("implicit", "unrolled")
 
+#: Linear solvers of the implicit derivative: the host sparse LU, or matrix-free BiCGStab in JAX.
+LINEAR_SOLVERS = ("lu", "iterative")
+
 #: Parameters the equilibrium can be differentiated in (the `Parameters` fields).
 DIFFERENTIABLE = PARAMETER_NAMES
 
 #: Relative residual ``||R_free||_2 / (p A)`` of solves whose derivative must
 #: be accurate (see the module docstring for why).
 GRADIENT_RTOL = 1e-11
+
+
+def default_linear_solver() -> str:
+    """"lu" when JAX's default backend is the CPU, else "iterative".
+
+    The LU lives on the host and is reached through ``jax.pure_callback``,
+    which fails when JAX sees only an accelerator (``JAX_PLATFORMS=cuda``);
+    the iterative solve (`krylov`) is pure JAX and runs where the rest does.
+    """
+    return "lu" if jax.default_backend() == "cpu" else "iterative"
 
 
 # ------------------------------------------------------------ linearisation
@@ -159,18 +186,21 @@ def _float64_on_this_thread() -> None:
 class _Linearisation:
     """What the tangent rule needs at one equilibrium: state, parameters and the LU of J."""
 
-    def __init__(self, scene: Scene, solution: Solution, params: fk.Params):
+    def __init__(self, scene: Scene, solution: Solution, params: fk.Params, linear_solver: str = "lu"):
         physics = fk.static_physics(scene.physics(dynamic=False))
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
         x = jnp.asarray(solution.nodes)
-        if solution.factor is not None and solution.factor.current:
+        self.linear_solver = linear_solver
+        if linear_solver == "iterative":
+            factor, free = None, None  # matrix-free (`krylov`): nothing to assemble
+        elif solution.factor is not None and solution.factor.current:
             factor, free = solution.factor.lu, np.asarray(solution.factor.free_dofs)
         else:
             ref = _prepare(geometry, params, physics)
             factor = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
             free = free_dofs(ref)
         self.factor = factor
-        self.free = jnp.asarray(free)
+        self.free = None if free is None else jnp.asarray(free)
         self.x = x
         self.geometry = geometry
         self.params = params
@@ -192,6 +222,8 @@ class _Linearisation:
 
     def tangent(self, dparams: fk.Params):
         """``dx*`` for a parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
+        if self.linear_solver == "iterative":
+            return implicit_tangent(self.x, self.geometry, self.params, dparams, self.physics)
         rhs, dheld = _parameter_tangent(self.x, self.geometry, self.params, dparams, self.free,
                                         self.physics)
 
@@ -223,12 +255,13 @@ def _concrete(parameters: Parameters) -> Parameters:
         raise TypeError(
             "solve_equilibrium solves on the host, so its parameters must be concrete: "
             "differentiate it with jax.grad / jax.jacfwd / jax.jvp / jax.vjp outside jax.jit and "
-            "jax.vmap (a pure-JAX path under jit and vmap is not available yet)"
+            "jax.vmap, or use method='relax', which runs as pure JAX under jit and vmap"
         ) from None
 
 
 def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callable[[Parameters], Solution],
-                            adjoint: str, rtol: float, max_steps: int) -> Solution:
+                            adjoint: str, rtol: float, max_steps: int,
+                            linear_solver: str = "lu") -> Solution:
     """The `Solution` at traced ``parameters``, its nodes and tensions differentiable.
 
     Args:
@@ -241,6 +274,8 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
         rtol: the solve's tolerance (the unrolled result is "converged" when
             its relative residual is below it).
         max_steps: the unrolled run's length.
+        linear_solver: "lu" (host sparse LU) or "iterative" (`krylov`): the
+            implicit tangent's linear solve.
 
     Returns:
         The concrete solve's `Solution` with ``nodes``, ``tension_span``,
@@ -271,7 +306,7 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
             # gets the failed solution, whose tangent is undefined.
             nan = jnp.full(sol.nodes.shape, jnp.nan)
             return jnp.asarray(sol.nodes), nan
-        lin = _Linearisation(scene, sol, scene.params(concrete))
+        lin = _Linearisation(scene, sol, scene.params(concrete), linear_solver)
         return lin.x, lin.tangent(_kernel_tangent(dp, lin.params))
 
     with float64_scope(parameters):
@@ -283,7 +318,8 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
                     wrinkled=sol.wrinkled, result=sol.result, steps=sol.steps, residual=sol.residual,
                     wall_time=sol.wall_time, method=sol.method, parameters=sol.parameters,
                     rib_spacing=sol.rib_spacing, history=sol.history,
-                    extra={**sol.extra, "primal_nodes": sol.nodes, "adjoint": adjoint},
+                    extra={**sol.extra, "primal_nodes": sol.nodes, "adjoint": adjoint,
+                           "linear_solver": linear_solver},
                     detail=sol.detail, factor=sol.factor)
 
 

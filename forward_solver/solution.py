@@ -58,9 +58,13 @@ RESULT_ADVICE = {
 class ConvergenceError(RuntimeError):
     """A solve did not converge; ``.solution`` holds what it reached."""
 
-    def __init__(self, solution: "Solution"):
-        super().__init__(f"{solution.method} solve failed after {solution.steps} steps: "
-                         f"{solution.message} (relative residual {solution.residual:.3e})")
+    def __init__(self, solution: "Solution", batch: tuple | None = None):
+        where = ""
+        if batch is not None:
+            index, failed, total = batch
+            where = f"{failed} of {total} solves of the batch failed; the first, at index {index}, "
+        super().__init__(f"{where}{solution.method} solve failed after {int(solution.steps)} steps: "
+                         f"{solution.message} (relative residual {float(solution.residual):.3e})")
         self.solution = solution
 
 
@@ -80,7 +84,7 @@ class Solution(ParameterViews):
             residual on the free nodes over the pressure times the nominal
             skin area (the total pressure load), dimensionless.
         wall_time: seconds spent in the solve (compilation included on a
-            first call).
+            first call); None under ``jax.jit`` / ``jax.vmap``.
         method: the solver that produced it.
         parameters: the `Parameters` it was solved at, every field set
             (stiffnesses resolved from the fabric); floats.
@@ -100,9 +104,16 @@ class Solution(ParameterViews):
 
     A `Solution` is a JAX pytree whose leaves are ``nodes``, the tensions and
     ``wrinkled`` (everything else is static), so it may be returned as the
-    auxiliary output of ``jax.value_and_grad(..., has_aux=True)``. Under a
-    JAX transformation of `solve_equilibrium` those leaves are traced and
-    differentiable; the other fields are the concrete solve's.
+    auxiliary output of ``jax.value_and_grad(..., has_aux=True)``. Under an
+    eager ``jax.grad`` / ``jax.jacfwd`` of `solve_equilibrium` those leaves
+    are traced and differentiable; the other fields are the concrete solve's.
+
+    Under ``jax.jit`` or ``jax.vmap`` of the parameters (the pure-JAX path,
+    `traced`), ``result``, ``steps``, ``residual`` and ``parameters`` are
+    arrays and leaves of the pytree too (a batch has a leading axis on every
+    leaf): ``result`` is then an int32 array of `Result` codes, `converged`
+    an array, ``wall_time`` None (not measured inside a compiled call), and
+    ``jax.tree_util.tree_map(lambda a: a[i], batch)`` is member ``i``.
 
     Arrays are float64 numpy arrays whatever precision the iteration ran in,
     and ``residual`` is always evaluated in float64 at the returned ``nodes``:
@@ -126,13 +137,20 @@ class Solution(ParameterViews):
     factor: JacobianFactor | None = None
 
     @property
-    def converged(self) -> bool:
-        return self.result == Result.converged
+    def converged(self):
+        """Whether the solve converged: a bool (an array of them for a `jax.vmap` batch).
+
+        Under ``jax.jit`` it is a traced boolean array.
+        """
+        if isinstance(self.result, jax.core.Tracer):
+            return self.result == Result.converged
+        codes = np.asarray(self.result)
+        return bool(codes == Result.converged) if codes.ndim == 0 else codes == Result.converged
 
     @property
     def message(self) -> str:
-        """Why the solve stopped, and for a failure what to change."""
-        code = Result(self.result)
+        """Why the solve stopped, and for a failure what to change (one solve, not a batch)."""
+        code = Result(int(np.asarray(self.result)))
         advice = self.detail or RESULT_ADVICE[code]
         return f"{RESULT_MESSAGES[code]}; {advice}" if advice else RESULT_MESSAGES[code]
 
@@ -157,17 +175,49 @@ class Solution(ParameterViews):
         return np.stack([row[:, 0], row[:, 2]], axis=-1)
 
     def raise_if_failed(self) -> "Solution":
-        """Return self if converged, else raise `ConvergenceError`."""
-        if not self.converged:
-            raise ConvergenceError(self)
+        """Return self if converged, else raise `ConvergenceError`.
+
+        For a batch (a `jax.vmap` of `solve_equilibrium`), raises if any
+        member failed, naming the first; its ``solution`` is that member.
+        """
+        converged = np.asarray(self.converged)
+        if converged.ndim == 0:
+            if not converged:
+                raise ConvergenceError(self)
+            return self
+        if not converged.all():
+            index = np.unravel_index(int(np.argmin(converged.reshape(-1))), converged.shape)
+            member = jax.tree_util.tree_map(lambda a: np.asarray(a)[index], self)
+            raise ConvergenceError(member, batch=(index, int((~converged).sum()), converged.size))
         return self
 
 
-jax.tree_util.register_dataclass(
-    Solution,
-    data_fields=["nodes", "tension_span", "tension_chord", "wrinkled"],
-    meta_fields=["result", "steps", "residual", "wall_time", "method", "parameters", "rib_spacing",
-                 "history", "extra", "detail", "factor"],
+#: `Solution` fields that are always pytree leaves.
+_ARRAY_FIELDS = ("nodes", "tension_span", "tension_chord", "wrinkled")
+#: Fields that are leaves when the solve ran under ``jax.jit`` / ``jax.vmap`` (arrays then),
+#: and static Python values (`Result`, int, float, float `Parameters`) otherwise.
+_STATUS_FIELDS = ("result", "steps", "residual", "parameters")
+_STATIC_FIELDS = ("wall_time", "method", "rib_spacing", "history", "extra", "detail", "factor")
+
+
+def _flatten(sol: Solution):
+    traced = not isinstance(sol.result, Result)
+    data = _ARRAY_FIELDS + (_STATUS_FIELDS if traced else ())
+    static = _STATIC_FIELDS + (() if traced else _STATUS_FIELDS)
+    children = [(jax.tree_util.GetAttrKey(name), getattr(sol, name)) for name in data]
+    return children, (traced, tuple(getattr(sol, name) for name in static))
+
+
+def _unflatten(aux, children) -> Solution:
+    traced, static_values = aux
+    data = _ARRAY_FIELDS + (_STATUS_FIELDS if traced else ())
+    static = _STATIC_FIELDS + (() if traced else _STATUS_FIELDS)
+    return Solution(**dict(zip(data, children)), **dict(zip(static, static_values)))
+
+
+jax.tree_util.register_pytree_with_keys(
+    Solution, _flatten, _unflatten,
+    flatten_func=lambda sol: ([c for _, c in _flatten(sol)[0]], _flatten(sol)[1]),
 )
 
 

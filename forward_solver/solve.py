@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from ._precision import float32_floor, precision_extra
-from .adjoint import ADJOINTS, differentiable_solution
+from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .explicit import simulate
 from .loop import LoopOutput
 from .newton import chord_newton, newton
@@ -18,6 +18,7 @@ from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, static_forces
+from .traced import has_abstract_values, traced_solution
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 
@@ -58,6 +59,7 @@ def solve_equilibrium(
     symmetry: bool = True,
     precision: str = "float64",
     adjoint: str = "implicit",
+    linear_solver: str | None = None,
 ) -> Solution:
     """Rest shape of the pressurised bay; differentiable in its `Parameters`.
 
@@ -70,15 +72,33 @@ def solve_equilibrium(
     tensions are differentiable: ``jax.grad(lambda q: f(solve_equilibrium(
     scene, q).nodes))(parameters)`` returns a `Parameters` of derivatives.
     ``adjoint="implicit"`` (default) differentiates the equilibrium by the
-    implicit function theorem (eq. 10-15 residual, `adjoint`): one sparse
-    linear solve with the Jacobian's LU, in either mode, whatever the number
-    of parameters; its error is of the order of the relative residual, so
-    solve to a tight ``rtol`` (`adjoint.GRADIENT_RTOL`) where the derivative
-    must be accurate. ``adjoint="unrolled"`` differentiates through
-    ``max_steps`` steps of a pure-JAX dynamic relaxation instead (slow; for
-    checks on small grids). The solve runs on the host, so the parameters
-    must be concrete: differentiate eagerly, not under ``jax.jit`` or
-    ``jax.vmap`` of the parameters.
+    implicit function theorem (eq. 10-15 residual, `adjoint`): one linear
+    solve with the Jacobian ``J`` per tangent or gradient, whatever the
+    number of parameters, by one of two solvers (``linear_solver``):
+    "lu", the sparse LU of ``J`` on the host (scipy, through
+    ``jax.pure_callback``; the factor of a Newton solve is reused), or
+    "iterative", a matrix-free block-Jacobi BiCGStab in JAX (`krylov`; no
+    host callback, so it runs on any backend). None picks "lu" when JAX's
+    default backend is the CPU and "iterative" otherwise (a host callback
+    fails where JAX sees only a GPU). Either way the derivative's error is
+    of the order of the relative residual, so solve to a tight ``rtol``
+    (`adjoint.GRADIENT_RTOL`) where it must be accurate.
+    ``adjoint="unrolled"`` differentiates through ``max_steps`` steps of a
+    pure-JAX dynamic relaxation instead (slow; for checks on small grids).
+
+    Under ``jax.jit`` and ``jax.vmap``. When the parameters are abstract
+    (traced by ``jax.jit``, or batched by ``jax.vmap``), the solve cannot
+    run on the host: method "relax" then runs as one pure-JAX program
+    (`traced`): the relaxation from the mounted shape or ``initial``, no
+    grid sequencing, at most ``max_steps`` steps, the result code, steps and
+    residual returned as arrays in the `Solution`; derivatives by the
+    implicit function theorem with the iterative solver. A failure cannot
+    raise inside a compiled call, so ``throw=False`` is required there:
+    check ``solution.converged`` (or call ``raise_if_failed()`` on the
+    result outside the transformation). The other methods (Newton's sparse
+    LU, the paper's scheme with its history) are host code and raise a
+    TypeError naming "relax". A `jax.vmap` batch runs until its slowest
+    member stops. Both ways need float64 on (``jax.enable_x64``).
 
     Args:
         scene: the bay, fabric and physics switches.
@@ -113,6 +133,9 @@ def solve_equilibrium(
             `float32_residual_floor` of the scene is refused (see
             `_precision` for the rule and the measurements).
         adjoint: "implicit" or "unrolled": how derivatives are taken (above).
+        linear_solver: "lu", "iterative" or None (the backend's default):
+            the implicit derivative's linear solver (above). Under
+            ``jax.jit`` / ``jax.vmap`` only "iterative" (or None) applies.
 
     Returns:
         The `Solution`; ``extra["precision"]`` records the iteration's type.
@@ -120,7 +143,9 @@ def solve_equilibrium(
     Raises:
         ValueError: for non-physical input, or float32 asked of Newton or
             for an ``rtol`` below its floor.
-        TypeError: parameters traced by ``jax.jit`` or ``jax.vmap``.
+        TypeError: parameters traced by ``jax.jit`` or ``jax.vmap`` with a
+            method other than "relax", ``throw=True``, ``adjoint="unrolled"``,
+            ``linear_solver="lu"`` or ``precision="float32"``.
         ConvergenceError: if ``throw`` and the solve failed.
     """
     parameters = as_parameters(parameters, prestrain, pressure=pressure, stiffness=stiffness,
@@ -142,6 +167,14 @@ def solve_equilibrium(
         )
     if adjoint not in ADJOINTS:
         raise ValueError(f"adjoint must be one of {ADJOINTS}, got {adjoint!r}")
+    if linear_solver is not None and linear_solver not in LINEAR_SOLVERS:
+        raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS} or None, got {linear_solver!r}")
+    if has_abstract_values(parameters):
+        _check_transformable(method, throw, adjoint, linear_solver, precision)
+        return traced_solution(scene, parameters, rtol=rtol, initial=initial,
+                               half=_use_half_bay(scene.bay, symmetry), chunk=RELAX_CHUNK,
+                               max_chunks=-(-max_steps // RELAX_CHUNK))
+    linear_solver = linear_solver or default_linear_solver()
 
     def solve(concrete: Parameters) -> Solution:
         if method == "explicit":
@@ -150,12 +183,39 @@ def solve_equilibrium(
         return _solve(scene, concrete, rtol, max_steps, method, initial, sequencing, symmetry, precision)
 
     if parameters.is_traced():
-        sol = differentiable_solution(scene, parameters, solve, adjoint, rtol, max_steps)
+        sol = differentiable_solution(scene, parameters, solve, adjoint, rtol, max_steps,
+                                      linear_solver=linear_solver)
     else:
         sol = solve(parameters)
     if throw:
         sol.raise_if_failed()
     return sol
+
+
+def _check_transformable(method, throw, adjoint, linear_solver, precision) -> None:
+    """Refuse, with what to change, the options the pure-JAX (jit / vmap) path cannot honour."""
+    where = "under jax.jit or jax.vmap of the parameters"
+    if method != "relax":
+        raise TypeError(
+            f"method={method!r} runs on the host and cannot be traced {where}; use method='relax' "
+            "(the pure-JAX relaxation), or call solve_equilibrium eagerly")
+    if throw:
+        raise TypeError(
+            f"a solve {where} cannot raise on failure: pass throw=False and check "
+            "solution.converged (or call solution.raise_if_failed() outside the transformation)")
+    if adjoint != "implicit":
+        raise TypeError(f"adjoint={adjoint!r} is for eager checks; {where} use adjoint='implicit'")
+    if linear_solver == "lu":
+        raise TypeError(
+            f"linear_solver='lu' needs concrete values (a host sparse LU); {where} use "
+            "linear_solver='iterative' or None")
+    if precision != "float64":
+        raise TypeError(f"precision={precision!r} is available eagerly only; {where} use 'float64'")
+
+
+def _use_half_bay(bay, symmetry: bool) -> bool:
+    """Whether the relaxation solves half the bay (both ribs alike, odd ``n_span``)."""
+    return _use_half(bay.geometry(), symmetry and bay.symmetric)
 
 
 def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symmetry,
