@@ -229,9 +229,13 @@ class _Problem:
         """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
         key = _key(u)
         if key not in self._cache:
+
+            def residuals_twice(v):  # the value comes back as the auxiliary output
+                r, sol = self.residuals(v)
+                return r, (r, sol)
+
             u = jnp.asarray(u, jnp.float64)
-            jac, (r, sol) = jax.jacfwd(lambda v: (lambda r, s: (r, (r, s)))(*self.residuals(v)),
-                                       has_aux=True)(u)
+            jac, (r, sol) = jax.jacfwd(residuals_twice, has_aux=True)(u)
             r, jac = np.asarray(r), np.asarray(jac)
             self._cache = {key: (r, jac, self._remember(sol))}
             self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
