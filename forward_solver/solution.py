@@ -259,12 +259,17 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
     """Starting shape: the mounted one, or a warm start whose held nodes are re-mounted.
 
     Held nodes (ribs, seams) always start at this solve's mounted position, so
-    a warm start from a solution with other rib scales moves the ribs too.
+    a warm start from a solution with other rib scales moves the ribs too. A
+    `Solution` passes on its displacement from its own mounted shape, added to
+    this solve's mounted shape: after a change of rib scales the free nodes
+    move with the ribs (keeping the old positions over ribs half as long
+    stretched the skin so far that the relaxation diverged).
 
     Args:
-        initial: None, a `Solution` or an ``(n_span, n_contour, 3)`` array, m.
-            A `Solution` returned under a JAX transformation (traced nodes)
-            starts from its concrete nodes.
+        initial: None, a `Solution` or an ``(n_span, n_contour, 3)`` array, m
+            (an array is taken as positions, not displacements). A `Solution`
+            returned under a JAX transformation (traced nodes) starts from its
+            concrete nodes.
         geometry: the bay's `forces.Geometry`.
         params: the solve's kernel parameters (for the rib scales).
 
@@ -274,10 +279,8 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
     mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
     if initial is None:
         return mounted
-    if isinstance(initial, Solution):
-        nodes = initial.extra.get("primal_nodes", initial.nodes)
-    else:
-        nodes = initial
+    solution = initial if isinstance(initial, Solution) else None
+    nodes = initial if solution is None else solution.extra.get("primal_nodes", solution.nodes)
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
     expected = geometry.free.shape + (3,)
     if nodes.shape != expected:
@@ -285,6 +288,9 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
             f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
             "interpolate it to the grid or start from the mounted shape (initial=None)"
         )
+    if solution is not None:
+        own = solution.parameters
+        nodes = mounted + (nodes - fk.nominal_nodes(geometry, own.rib_thickness_scale, own.rib_chord_scale))
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "target_distance",
     "section_distances",
     "objective_residuals",
+    "objective_value",
     "design_errors",
 ]
 
@@ -156,6 +157,30 @@ def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay")
         worst = jnp.argmax(jnp.mean(jax.lax.stop_gradient(d) ** 2, axis=1))
         d = d[worst]
     return d.reshape(-1) / np.sqrt(d.size)
+
+
+#: Sharpness of the smooth maximum over rows of the "worst" objective in `objective_value`:
+#: it exceeds the true worst row's mean square by at most ``log(n_rows) / WORST_SHARPNESS``
+#: of it (2.8% on 17 rows; 0.7% when two rows tie), and is smooth where rows swap places.
+WORST_SHARPNESS = 100.0
+
+
+def objective_value(nodes, target, chord: float, objective: str = "mid_bay"):
+    """The objective as one smooth scalar, chord^2 (what SLSQP minimises).
+
+    "mid_bay" and "average": the mean square distance, ``sum(objective_residuals**2)``.
+    "worst": a smooth (Kreisselmeier-Steinhauser) maximum of the rows' mean
+    square distances, so that its gradient does not jump when another row
+    becomes the worst (the plain maximum made SLSQP spend its budget where the
+    rib and mid-bay rows tie).
+    """
+    if objective != "worst":
+        r = objective_residuals(nodes, target, chord, objective)
+        return jnp.sum(r * r)
+    d = section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0]))
+    rows = jnp.mean(d * d, axis=1)
+    top = jnp.maximum(jax.lax.stop_gradient(jnp.max(rows)), np.finfo(np.float64).tiny)  # a perfect fit
+    return top * (1.0 + jnp.log(jnp.sum(jnp.exp(WORST_SHARPNESS * (rows / top - 1.0)))) / WORST_SHARPNESS)
 
 
 def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:

@@ -3,7 +3,8 @@
 Methods (DESIGN section 6):
 
 * ``"slsqp"`` (default): `scipy.optimize.minimize` with SLSQP on the mean
-  square distance, with the bounds and the tension limits as inequality
+  square distance (`objectives.objective_value`: for "worst" a smooth maximum
+  over the rows), with the bounds and the tension limits as inequality
   constraints (`constraints.constraint_functions`). The objective's and each
   constraint's gradient come from reverse mode through the implicit
   equilibrium (``jax.vjp`` of `forward_solver.solve_equilibrium`): one
@@ -54,9 +55,9 @@ from forward_solver import ConvergenceError, Parameters, Scene, Solution, solve_
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 
-from .constraints import (Constraints, cell_tensions, constraint_functions, constraint_report,
-                          penalty_residuals, tension_scale)
-from .objectives import check_objective, design_errors, objective_residuals, section_points
+from .constraints import (VIOLATION_TOLERANCE, Constraints, cell_tensions, constraint_functions,
+                          constraint_report, penalty_residuals, tension_scale)
+from .objectives import check_objective, design_errors, objective_residuals, objective_value, section_points
 from .variables import DesignVariables
 
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure", "refine_design"]
@@ -67,6 +68,10 @@ ROOT_CONDITIONS = ("thickness", "mean_offset")
 BRACKET_FACTOR = 2.0
 #: Forward solves SLSQP may spend per allowed iteration (its line searches included).
 SLSQP_EVALUATIONS_PER_ITERATION = 2
+#: Two SLSQP trial points closer than this (scaled variables, max norm) are one point ...
+SLSQP_SAME_POINT = 1e-9
+#: ... and this many returns to an evaluated point end the run as stalled.
+SLSQP_STALL_REPEATS = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,8 +86,9 @@ class DesignResult(ParameterViews):
         initial_rms_error, initial_max_error: the same at the start.
         solution: the `Solution` at the design.
         history: one dict per iterate (forward solve): ``values`` (the
-            optimised variables), ``objective`` (mean square distance, chord^2;
-            for "root" the condition's value), ``gradient_norm`` (of the
+            optimised variables), ``objective`` (mean square distance, chord^2,
+            as `objectives.objective_value` for slsqp; for "root" the
+            condition's value), ``gradient_norm`` (of the
             objective in the scaled variables; NaN where not computed),
             ``constraints`` (the smooth constraint values, >= 0 feasible; slsqp
             only) and ``steps`` (forward-solve steps).
@@ -152,46 +158,60 @@ class _Problem:
         self.history: list[dict] = []
         self.on_record = None  # called with each new history entry (progress bar, callback)
         self.tension_scale = tension_scale(variables.start, self.chord)
-        self._cache: dict = {}
+        self._cache: dict = {}  # the last evaluation with its derivatives
+        self._solved: dict = {}  # every converged solve by `_key`, without its LU factor
 
     # ------------------------------------------------------------ solves
     def _solve(self, parameters: Parameters) -> Solution:
-        sol = solve_equilibrium(self.scene, parameters, rtol=self.rtol, method="relax+newton",
-                                initial=self.previous, sequencing=self.sequencing)
+        options = dict(rtol=self.rtol, method="relax+newton", sequencing=self.sequencing)
         self.solves += 1
-        return sol
+        try:
+            return solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
+        except ConvergenceError:
+            if self.previous is None:
+                raise
+        # A warm start far from this iterate (a long trial step) may fail where a cold start
+        # converges: only a cold failure means the skin has no equilibrium here.
+        self.solves += 1
+        return solve_equilibrium(self.scene, parameters, initial=None, **options)
 
     def _remember(self, sol: Solution) -> Solution:
         """Keep ``sol`` as the next warm start (as numpy arrays: the auxiliary output of a
-        JAX transformation comes back as JAX arrays)."""
+        JAX transformation comes back as JAX arrays) and in the archive of solves."""
         self.previous = jax.tree_util.tree_map(np.asarray, sol)
+        key = _key(self.variables.to_vector(sol.parameters))
+        self._solved[key] = dataclasses.replace(self.previous, factor=None)
         return self.previous
 
     def solve(self, u) -> Solution:
-        """The concrete `Solution` at the scaled vector ``u``."""
-        key = _key(u)
-        if key in self._cache:
-            return self._cache[key][-1]
+        """The concrete `Solution` at the scaled vector ``u`` (from the archive if solved before)."""
+        key = _key(self.variables.to_vector(self.variables.parameters(np.asarray(u, np.float64))))
+        if key in self._solved:
+            return self._solved[key]
         return self._remember(self._solve(self.variables.parameters(np.asarray(u, np.float64))))
 
-    def _shape_and_tensions(self, u):
+    def _solve_with_tensions(self, u):
+        """The solution at ``u`` (a JAX value allowed) and its unclamped cell tensions (None
+        without tension constraints)."""
         parameters = self.variables.parameters(u)
         sol = self._solve(parameters)
-        shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
         tensions = cell_tensions(self.scene, sol.nodes, parameters) if self.constraints else None
-        return shape, tensions, sol
+        return sol, tensions
 
     def cached(self, key):
         """The cached evaluation at ``key`` (`_key` of a vector), or None."""
         return self._cache.get(key)
 
-    def best_iterate(self) -> np.ndarray:
-        """Scaled vector of the best recorded iterate: the feasible one (every smooth constraint
-        >= 0) with the least objective, else the one with the least violation."""
+    def best_iterate(self) -> np.ndarray | None:
+        """Scaled vector of the best recorded iterate (None before any): the feasible one (every
+        smooth constraint >= 0) with the least objective in size, else the least violating one."""
+
         def violation(entry):
             return max([0.0] + [-c for c in entry.get("constraints", [])])
 
-        best = min(self.history, key=lambda h: (violation(h), h["objective"]))
+        if not self.history:
+            return None
+        best = min(self.history, key=lambda h: (violation(h), abs(h["objective"])))
         return np.array([best["values"][n] / self.variables.scale(n) for n in self.variables.names])
 
     # ----------------------------------------------- smooth constraints (slsqp)
@@ -202,8 +222,8 @@ class _Problem:
         if key not in self._cache:
 
             def outputs(v):
-                shape, tensions, sol = self._shape_and_tensions(v)
-                f = jnp.sum(shape * shape)
+                sol, tensions = self._solve_with_tensions(v)
+                f = objective_value(sol.nodes, self.target, self.chord, self.objective)
                 if tensions is None:
                     return f[None], sol
                 g = constraint_functions(self.constraints, tensions, self.scene.fabric, self.tension_scale)
@@ -219,7 +239,8 @@ class _Problem:
     # ------------------------------------------------------ penalty methods
     def residuals(self, u):
         """Shape residuals and penalties at ``u`` (a JAX value allowed), and the solution."""
-        shape, tensions, sol = self._shape_and_tensions(u)
+        sol, tensions = self._solve_with_tensions(u)
+        shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
         if tensions is None:
             return shape, sol
         penalties = penalty_residuals(self.constraints, tensions, self.scene.fabric, self.tension_scale)
@@ -368,8 +389,8 @@ def optimise_pressure(
         except ConvergenceError as failure:
             # Stop at the best iterate whose forward solve converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
-            best = min(problem.history, key=lambda h: abs(h["objective"]), default=None)
-            u = u0 if best is None else np.array([best["values"][n] / design.scale(n) for n in design.names])
+            best = problem.best_iterate()
+            u = u0 if best is None else best
             success, message = False, _failed_solve_message(failure)
         u = np.clip(np.asarray(u, dtype=np.float64), design.lower, design.upper)
         parameters = design.parameters(u).as_floats()
@@ -469,26 +490,40 @@ class _EvaluationCap(Exception):
     """Raised inside SLSQP's callbacks when the forward-solve budget is spent."""
 
 
+class _Stalled(Exception):
+    """Raised inside SLSQP's callbacks when its line search keeps returning to one point."""
+
+
 def _slsqp(problem: _Problem, u0, max_iterations, tolerance):
     """SLSQP on the objective scaled to 1 at the start, with the smooth tension constraints.
 
     SLSQP caps its iterations but not its line-search evaluations, which an
     infeasible problem can spend by the hundred; each costs a forward solve,
     so they are capped too (`SLSQP_EVALUATIONS_PER_ITERATION` per allowed
-    iteration). Stopped there, the result is the best iterate: the feasible
-    one with the least error, else the least violating one.
+    iteration), and on an infeasible problem its line search returns again
+    and again to one point (differing in the last bits), which ends the run
+    after `SLSQP_STALL_REPEATS` such returns to an infeasible point. Stopped either way, the result
+    is the best iterate: the feasible one with the least error, else the
+    least violating one.
     """
     cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations
     f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)
-    visited = []
+    visited = [np.asarray(u0, dtype=np.float64)]
+    repeats = 0
 
     def evaluate(u):
-        key = _key(u)
-        if problem.cached(key) is None:
+        nonlocal repeats
+        u = np.asarray(u, dtype=np.float64)
+        if problem.cached(_key(u)) is None:
             if len(visited) >= cap:
                 raise _EvaluationCap()
-            visited.append(np.array(u, dtype=np.float64))
-        return problem.evaluate(u)
+            if min(np.max(np.abs(u - v)) for v in visited) <= SLSQP_SAME_POINT:
+                repeats += 1
+            visited.append(u)
+        result = problem.evaluate(u)
+        if repeats >= SLSQP_STALL_REPEATS and np.min(result[2], initial=0.0) < -VIOLATION_TOLERANCE:
+            raise _Stalled(u)  # only where infeasible: a feasible point may be a slow optimum
+        return result
 
     constraints = []
     if problem.constraints is not None and problem.evaluate(u0)[2].size:
@@ -503,6 +538,13 @@ def _slsqp(problem: _Problem, u0, max_iterations, tolerance):
         return (problem.best_iterate(), False,
                 f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
                 f"{max_iterations}) without converging; the result is the best iterate")
+    except _Stalled as stall:
+        values = ", ".join(f"{n} {v:.6g}" for n, v in design.values(stall.args[0]).items())
+        return (problem.best_iterate(), False,
+                f"SLSQP's line search kept returning to one point ({values}) after {len(visited)} "
+                "evaluations: no step improves the objective while meeting the constraints there "
+                "(typically no design within the bounds meets the limits); the result is the best "
+                "iterate")
     return result.x, bool(result.success), str(result.message)
 
 
