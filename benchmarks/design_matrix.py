@@ -58,7 +58,7 @@ import numpy as np
 from forward_solver import Bay, Fabric, Parameters, Scene
 from inverse_design import Constraints, optimise_pressure
 from inverse_design.cli import parse_arguments
-from inverse_design.optimise import SLSQP_EVALUATIONS_PER_ITERATION
+from inverse_design.methods import SLSQP_EVALUATIONS_PER_ITERATION
 from targets import naca
 
 GRIDS = ((7, 64), (9, 64), (17, 128))

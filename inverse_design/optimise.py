@@ -1,6 +1,7 @@
 """`optimise_pressure`: manufacturing parameters that make the inflated skin match a target.
 
-Methods (DESIGN section 6):
+Methods (DESIGN section 6; the loops are in `methods`, the objective,
+constraints and their derivatives in `problem.DesignProblem`):
 
 * ``"slsqp"`` (default): `scipy.optimize.minimize` with SLSQP on the mean
   square distance (`objectives.objective_value`: for "worst" a smooth maximum
@@ -48,31 +49,22 @@ from typing import Mapping
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.optimize
 from tqdm import tqdm
 
-from forward_solver import ConvergenceError, Parameters, Scene, Solution, solve_equilibrium
+from forward_solver import ConvergenceError, Parameters, Scene, Solution
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 
-from .constraints import (VIOLATION_TOLERANCE, Constraints, cell_tensions, constraint_functions,
-                          constraint_report, penalty_residuals, tension_scale)
-from .objectives import check_objective, design_errors, objective_residuals, objective_value, section_points
+from .constraints import Constraints, cell_tensions, constraint_report
+from .methods import least_squares, optax_descent, root, slsqp
+from .objectives import check_objective, design_errors
+from .problem import DesignProblem
 from .variables import DesignVariables
 
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure", "refine_design"]
 
 METHODS = ("slsqp", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
-#: Geometric step of the automatic bracketing of ``method="root"``.
-BRACKET_FACTOR = 2.0
-#: Forward solves SLSQP may spend per allowed iteration (its line searches included).
-SLSQP_EVALUATIONS_PER_ITERATION = 2
-#: Two SLSQP trial points closer than this (scaled variables, max norm) are one point ...
-SLSQP_SAME_POINT = 1e-9
-#: ... and this many returns to an evaluated point end the run as stalled.
-SLSQP_STALL_REPEATS = 3
-
 
 @dataclass(frozen=True, eq=False)
 class DesignResult(ParameterViews):
@@ -138,147 +130,6 @@ class DesignResult(ParameterViews):
         from .variables import VARIABLES
 
         return {name: getattr(self.parameters, name) for name in VARIABLES}
-
-
-class _Problem:
-    """The objective, the constraints, their derivatives and the iterate history of one design."""
-
-    def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol):
-        self.scene = scene
-        self.target = target
-        self.variables = variables
-        self.objective = objective
-        self.constraints = constraints
-        self.rtol = rtol
-        self.chord = scene.bay.chord
-        # Small design grids: one relaxation loop to compile beats grid sequencing.
-        self.sequencing = scene.bay.n_contour > 128
-        self.previous: Solution | None = None  # warm start (and its LU factor)
-        self.solves = 0
-        self.history: list[dict] = []
-        self.on_record = None  # called with each new history entry (progress bar, callback)
-        self.tension_scale = tension_scale(variables.start, self.chord)
-        self._cache: dict = {}  # the last evaluation with its derivatives
-        self._solved: dict = {}  # every converged solve by `_key`, without its LU factor
-
-    # ------------------------------------------------------------ solves
-    def _solve(self, parameters: Parameters) -> Solution:
-        options = dict(rtol=self.rtol, method="relax+newton", sequencing=self.sequencing)
-        self.solves += 1
-        try:
-            return solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
-        except ConvergenceError:
-            if self.previous is None:
-                raise
-        # A warm start far from this iterate (a long trial step) may fail where a cold start
-        # converges: only a cold failure means the skin has no equilibrium here.
-        self.solves += 1
-        return solve_equilibrium(self.scene, parameters, initial=None, **options)
-
-    def _remember(self, sol: Solution) -> Solution:
-        """Keep ``sol`` as the next warm start (as numpy arrays: the auxiliary output of a
-        JAX transformation comes back as JAX arrays) and in the archive of solves."""
-        self.previous = jax.tree_util.tree_map(np.asarray, sol)
-        key = _key(self.variables.to_vector(sol.parameters))
-        self._solved[key] = dataclasses.replace(self.previous, factor=None)
-        return self.previous
-
-    def solve(self, u) -> Solution:
-        """The concrete `Solution` at the scaled vector ``u`` (from the archive if solved before)."""
-        key = _key(self.variables.to_vector(self.variables.parameters(np.asarray(u, np.float64))))
-        if key in self._solved:
-            return self._solved[key]
-        return self._remember(self._solve(self.variables.parameters(np.asarray(u, np.float64))))
-
-    def _solve_with_tensions(self, u):
-        """The solution at ``u`` (a JAX value allowed) and its unclamped cell tensions (None
-        without tension constraints)."""
-        parameters = self.variables.parameters(u)
-        sol = self._solve(parameters)
-        tensions = cell_tensions(self.scene, sol.nodes, parameters) if self.constraints else None
-        return sol, tensions
-
-    def cached(self, key):
-        """The cached evaluation at ``key`` (`_key` of a vector), or None."""
-        return self._cache.get(key)
-
-    def best_iterate(self) -> np.ndarray | None:
-        """Scaled vector of the best recorded iterate (None before any): the feasible one (every
-        smooth constraint >= 0) with the least objective in size, else the least violating one."""
-
-        def violation(entry):
-            return max([0.0] + [-c for c in entry.get("constraints", [])])
-
-        if not self.history:
-            return None
-        best = min(self.history, key=lambda h: (violation(h), abs(h["objective"])))
-        return np.array([best["values"][n] / self.variables.scale(n) for n in self.variables.names])
-
-    # ----------------------------------------------- smooth constraints (slsqp)
-    def evaluate(self, u):
-        """``(f, grad f, g, dg/du, solution)`` at ``u``: mean square error (chord^2) and
-        the smooth constraints ``g >= 0``, gradients by reverse mode (one adjoint solve each)."""
-        key = _key(u)
-        if key not in self._cache:
-
-            def outputs(v):
-                sol, tensions = self._solve_with_tensions(v)
-                f = objective_value(sol.nodes, self.target, self.chord, self.objective)
-                if tensions is None:
-                    return f[None], sol
-                g = constraint_functions(self.constraints, tensions, self.scene.fabric, self.tension_scale)
-                return jnp.concatenate([f[None], g]), sol
-
-            y, pullback, sol = jax.vjp(outputs, jnp.asarray(u, jnp.float64), has_aux=True)
-            rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
-            y = np.asarray(y)
-            self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
-            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=y[1:])
-        return self._cache[key]
-
-    # ------------------------------------------------------ penalty methods
-    def residuals(self, u):
-        """Shape residuals and penalties at ``u`` (a JAX value allowed), and the solution."""
-        sol, tensions = self._solve_with_tensions(u)
-        shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
-        if tensions is None:
-            return shape, sol
-        penalties = penalty_residuals(self.constraints, tensions, self.scene.fabric, self.tension_scale)
-        return jnp.concatenate([shape, penalties]), sol
-
-    def residuals_and_jacobian(self, u):
-        """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
-        key = _key(u)
-        if key not in self._cache:
-
-            def residuals_twice(v):  # the value comes back as the auxiliary output
-                r, sol = self.residuals(v)
-                return r, (r, sol)
-
-            u = jnp.asarray(u, jnp.float64)
-            jac, (r, sol) = jax.jacfwd(residuals_twice, has_aux=True)(u)
-            r, jac = np.asarray(r), np.asarray(jac)
-            self._cache = {key: (r, jac, self._remember(sol))}
-            self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
-        return self._cache[key]
-
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: Solution,
-               constraints=None):
-        entry = {
-            "values": self.variables.values(np.asarray(u, dtype=np.float64)),
-            "objective": float(objective),
-            "gradient_norm": float(gradient_norm),
-            "steps": int(solution.steps),
-        }
-        if constraints is not None:
-            entry["constraints"] = [float(c) for c in constraints]
-        self.history.append(entry)
-        if self.on_record is not None:
-            self.on_record(entry)
-
-
-def _key(u) -> tuple:
-    return tuple(float(x) for x in np.asarray(u, dtype=np.float64).reshape(-1))
 
 
 def optimise_pressure(
@@ -366,7 +217,7 @@ def optimise_pressure(
         tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
     with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
-        problem = _Problem(scene, target, design, objective, constraints, rtol)
+        problem = DesignProblem(scene, target, design, objective, constraints, rtol)
         problem.on_record = _notify(bar, callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.to_vector(design.start)
@@ -379,13 +230,13 @@ def optimise_pressure(
         initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
         try:
             if method == "root":
-                u, success, message = _root(problem, root_condition, max_iterations, tolerance)
+                u, success, message = root(problem, root_condition, max_iterations, tolerance)
             elif method == "slsqp":
-                u, success, message = _slsqp(problem, u0, max_iterations, tolerance)
+                u, success, message = slsqp(problem, u0, max_iterations, tolerance)
             elif method == "least_squares":
-                u, success, message = _least_squares(problem, u0, max_iterations, tolerance)
+                u, success, message = least_squares(problem, u0, max_iterations, tolerance)
             else:
-                u, success, message = _optax(problem, u0, max_iterations, tolerance, optimiser)
+                u, success, message = optax_descent(problem, u0, max_iterations, tolerance, optimiser)
         except ConvergenceError as failure:
             # Stop at the best iterate whose forward solve converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
@@ -483,182 +334,6 @@ def _failed_solve_message(failure: ConvergenceError) -> str:
             f"({sol.prestrain[0]:.6g}, {sol.prestrain[1]:.6g}) failed ({sol.message}); the "
             "result is the best iterate whose solve converged; narrow the bounds to where the "
             "skin has an equilibrium")
-
-
-# ------------------------------------------------------------------ methods
-class _EvaluationCap(Exception):
-    """Raised inside SLSQP's callbacks when the forward-solve budget is spent."""
-
-
-class _Stalled(Exception):
-    """Raised inside SLSQP's callbacks when its line search keeps returning to one point."""
-
-
-def _slsqp(problem: _Problem, u0, max_iterations, tolerance):
-    """SLSQP on the objective scaled to 1 at the start, with the smooth tension constraints.
-
-    SLSQP caps its iterations but not its line-search evaluations, which an
-    infeasible problem can spend by the hundred; each costs a forward solve,
-    so they are capped too (`SLSQP_EVALUATIONS_PER_ITERATION` per allowed
-    iteration), and on an infeasible problem its line search returns again
-    and again to one point (differing in the last bits), which ends the run
-    after `SLSQP_STALL_REPEATS` such returns to an infeasible point. Stopped either way, the result
-    is the best iterate: the feasible one with the least error, else the
-    least violating one.
-    """
-    cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations
-    f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)
-    visited = [np.asarray(u0, dtype=np.float64)]
-    repeats = 0
-
-    def evaluate(u):
-        nonlocal repeats
-        u = np.asarray(u, dtype=np.float64)
-        if problem.cached(_key(u)) is None:
-            if len(visited) >= cap:
-                raise _EvaluationCap()
-            if min(np.max(np.abs(u - v)) for v in visited) <= SLSQP_SAME_POINT:
-                repeats += 1
-            visited.append(u)
-        result = problem.evaluate(u)
-        if repeats >= SLSQP_STALL_REPEATS and np.min(result[2], initial=0.0) < -VIOLATION_TOLERANCE:
-            raise _Stalled(u)  # only where infeasible: a feasible point may be a slow optimum
-        return result
-
-    constraints = []
-    if problem.constraints is not None and problem.evaluate(u0)[2].size:
-        constraints.append({"type": "ineq", "fun": lambda u: evaluate(u)[2], "jac": lambda u: evaluate(u)[3]})
-    design = problem.variables
-    try:
-        result = scipy.optimize.minimize(
-            lambda u: evaluate(u)[0] / f0, u0, jac=lambda u: evaluate(u)[1] / f0,
-            method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
-            constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
-    except _EvaluationCap:
-        return (problem.best_iterate(), False,
-                f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
-                f"{max_iterations}) without converging; the result is the best iterate")
-    except _Stalled as stall:
-        values = ", ".join(f"{n} {v:.6g}" for n, v in design.values(stall.args[0]).items())
-        return (problem.best_iterate(), False,
-                f"SLSQP's line search kept returning to one point ({values}) after {len(visited)} "
-                "evaluations: no step improves the objective while meeting the constraints there "
-                "(typically no design within the bounds meets the limits); the result is the best "
-                "iterate")
-    return result.x, bool(result.success), str(result.message)
-
-
-def _least_squares(problem: _Problem, u0, max_iterations, tolerance):
-    result = scipy.optimize.least_squares(
-        lambda u: problem.residuals_and_jacobian(u)[0], u0,
-        jac=lambda u: problem.residuals_and_jacobian(u)[1],
-        bounds=(problem.variables.lower, problem.variables.upper), method="trf",
-        ftol=tolerance, xtol=tolerance, gtol=None, max_nfev=max_iterations, x_scale=1.0)
-    return result.x, result.status > 0, result.message
-
-
-def _optax(problem: _Problem, u0, max_iterations, tolerance, optimiser):
-    import optax
-
-    optimiser = optax.adam(0.02) if optimiser is None else optimiser
-
-    def loss(u):
-        r, sol = problem.residuals(u)
-        return jnp.sum(r * r), sol
-
-    lower, upper = problem.variables.lower, problem.variables.upper
-    u = jnp.asarray(u0, jnp.float64)
-    state = optimiser.init(u)
-    message = f"the iteration cap ({max_iterations} steps) was hit"
-    success = False
-    for _ in range(max_iterations):
-        (value, sol), grad = jax.value_and_grad(loss, has_aux=True)(u)
-        problem._remember(sol)
-        grad_np = np.asarray(grad)
-        # The projected gradient: components pushing into an active bound do not count.
-        at_lower = (np.asarray(u) <= lower) & (grad_np > 0)
-        at_upper = (np.asarray(u) >= upper) & (grad_np < 0)
-        projected = np.where(at_lower | at_upper, 0.0, grad_np)
-        problem.record(np.asarray(u), value, np.linalg.norm(projected), solution=sol)
-        if np.linalg.norm(projected) <= tolerance:
-            message, success = "the projected gradient norm fell below the tolerance", True
-            break
-        updates, state = optimiser.update(grad, state, u)
-        u = jnp.clip(optax.apply_updates(u, updates), lower, upper)
-    return np.asarray(u), success, message
-
-
-def _root(problem: _Problem, condition, max_iterations, tolerance):
-    design, target, chord = problem.variables, problem.target, problem.chord
-    if condition == "thickness":
-        goal = float(target.max_thickness)
-
-        def measure(nodes):
-            from targets import Airfoil
-
-            section = np.asarray(section_points(np.asarray(nodes), 0.5, chord))
-            closed = np.concatenate([section, section[:1]], axis=0)
-            return Airfoil(closed[:, 0], closed[:, 1], name="mid-bay").max_thickness - goal
-    else:
-
-        def measure(nodes):
-            section = np.asarray(section_points(np.asarray(nodes), 0.5, chord))
-            return float(np.mean(target.distance(section)))
-
-    memo = {}  # brentq re-evaluates the bracket ends: keep one value per pressure
-
-    def f(pressure_scaled):
-        key = float(pressure_scaled)
-        if key not in memo:
-            u = np.array([key])
-            sol = problem.solve(u)
-            memo[key] = measure(sol.nodes)
-            problem.record(u, memo[key], solution=sol)
-        return memo[key]
-
-    lo, hi = design.lower[0], design.upper[0]
-    u0 = design.to_vector(design.start)[0]
-    bracket = _bracket(f, u0, lo, hi)
-    if bracket is None:
-        raise ValueError(
-            f"no pressure in the bounds {design.bounds['pressure']} Pa makes the mid-bay "
-            f"{'maximum thickness equal to the target' if condition == 'thickness' else 'mean offset zero'}"
-            ": the condition keeps one sign over the whole range (with ribs equal to the target the "
-            "bulge only adds thickness; make the ribs thinner or widen the bounds)"
-        )
-    a, b = bracket
-    if a == b:  # the condition vanished exactly at a trial pressure
-        return np.array([a]), True, "the condition vanished exactly while bracketing"
-    u, info = scipy.optimize.brentq(f, a, b, xtol=1e-14, rtol=max(tolerance, 4 * np.finfo(float).eps),
-                                    maxiter=max_iterations, full_output=True, disp=False)
-    return np.array([u]), bool(info.converged), info.flag
-
-
-def _bracket(f, u0, lo, hi):
-    """A sign change of ``f`` in ``[lo, hi]`` by geometric steps from ``u0``, or None."""
-    f0 = f(u0)
-    if f0 == 0.0:
-        return u0, u0
-    points = [u0]
-    up, down = u0, u0
-    while up < hi or down > lo:
-        if up < hi:
-            up = min(up * BRACKET_FACTOR, hi)
-            fu = f(up)
-            if fu == 0.0:
-                return up, up
-            if np.sign(fu) != np.sign(f0):
-                return max(x for x in points if x < up), up
-            points.append(up)
-        if down > lo:
-            down = max(down / BRACKET_FACTOR, lo)
-            fd = f(down)
-            if fd == 0.0:
-                return down, down
-            if np.sign(fd) != np.sign(f0):
-                return down, min(x for x in points if x > down)
-            points.append(down)
-    return None
 
 
 # ------------------------------------------------------------------ progress

@@ -33,7 +33,7 @@ import pytest
 from forward_solver import Bay, Fabric, Parameters, Scene
 from inverse_design import Constraints, optimise_pressure
 from inverse_design.cli import parse_arguments
-from inverse_design.optimise import SLSQP_EVALUATIONS_PER_ITERATION
+from inverse_design.methods import SLSQP_EVALUATIONS_PER_ITERATION
 from targets import naca
 
 VARIABLE_SETS = {

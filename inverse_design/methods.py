@@ -1,0 +1,204 @@
+"""The optimisers behind `optimise_pressure`: SLSQP, least squares, optax and brentq.
+
+Each takes a `problem.DesignProblem` and returns ``(u, success, message)``:
+the scaled design vector it ends at, whether the method reports convergence,
+and its message (the common checks of the result are `optimise_pressure`'s).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+
+from .constraints import VIOLATION_TOLERANCE
+from .objectives import section_points
+from .problem import DesignProblem, key_of
+
+__all__ = ["slsqp", "least_squares", "optax_descent", "root", "BRACKET_FACTOR",
+           "SLSQP_EVALUATIONS_PER_ITERATION", "SLSQP_SAME_POINT", "SLSQP_STALL_REPEATS"]
+
+#: Geometric step of the automatic bracketing of ``method="root"``.
+BRACKET_FACTOR = 2.0
+#: Forward solves SLSQP may spend per allowed iteration (its line searches included).
+SLSQP_EVALUATIONS_PER_ITERATION = 2
+#: Two SLSQP trial points closer than this (scaled variables, max norm) are one point ...
+SLSQP_SAME_POINT = 1e-9
+#: ... and this many returns to an evaluated point end the run as stalled.
+SLSQP_STALL_REPEATS = 3
+
+
+class _EvaluationCap(Exception):
+    """Raised inside SLSQP's callbacks when the forward-solve budget is spent."""
+
+
+class _Stalled(Exception):
+    """Raised inside SLSQP's callbacks when its line search keeps returning to one point."""
+
+
+def slsqp(problem: DesignProblem, u0, max_iterations, tolerance):
+    """SLSQP on the objective scaled to 1 at the start, with the smooth tension constraints.
+
+    SLSQP caps its iterations but not its line-search evaluations, which an
+    infeasible problem can spend by the hundred; each costs a forward solve,
+    so they are capped too (`SLSQP_EVALUATIONS_PER_ITERATION` per allowed
+    iteration), and on an infeasible problem its line search returns again
+    and again to one point (differing in the last bits), which ends the run
+    after `SLSQP_STALL_REPEATS` such returns to an infeasible point. Stopped either way, the result
+    is the best iterate: the feasible one with the least error, else the
+    least violating one.
+    """
+    cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations
+    f0 = max(problem.evaluate(u0)[0], np.finfo(float).tiny)
+    visited = [np.asarray(u0, dtype=np.float64)]
+    repeats = 0
+
+    def evaluate(u):
+        nonlocal repeats
+        u = np.asarray(u, dtype=np.float64)
+        if problem.cached(key_of(u)) is None:
+            if len(visited) >= cap:
+                raise _EvaluationCap()
+            if min(np.max(np.abs(u - v)) for v in visited) <= SLSQP_SAME_POINT:
+                repeats += 1
+            visited.append(u)
+        result = problem.evaluate(u)
+        if repeats >= SLSQP_STALL_REPEATS and np.min(result[2], initial=0.0) < -VIOLATION_TOLERANCE:
+            raise _Stalled(u)  # only where infeasible: a feasible point may be a slow optimum
+        return result
+
+    constraints = []
+    if problem.constraints is not None and problem.evaluate(u0)[2].size:
+        constraints.append({"type": "ineq", "fun": lambda u: evaluate(u)[2], "jac": lambda u: evaluate(u)[3]})
+    design = problem.variables
+    try:
+        result = scipy.optimize.minimize(
+            lambda u: evaluate(u)[0] / f0, u0, jac=lambda u: evaluate(u)[1] / f0,
+            method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
+            constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
+    except _EvaluationCap:
+        return (problem.best_iterate(), False,
+                f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
+                f"{max_iterations}) without converging; the result is the best iterate")
+    except _Stalled as stall:
+        values = ", ".join(f"{n} {v:.6g}" for n, v in design.values(stall.args[0]).items())
+        return (problem.best_iterate(), False,
+                f"SLSQP's line search kept returning to one point ({values}) after {len(visited)} "
+                "evaluations: no step improves the objective while meeting the constraints there "
+                "(typically no design within the bounds meets the limits); the result is the best "
+                "iterate")
+    return result.x, bool(result.success), str(result.message)
+
+
+def least_squares(problem: DesignProblem, u0, max_iterations, tolerance):
+    result = scipy.optimize.least_squares(
+        lambda u: problem.residuals_and_jacobian(u)[0], u0,
+        jac=lambda u: problem.residuals_and_jacobian(u)[1],
+        bounds=(problem.variables.lower, problem.variables.upper), method="trf",
+        ftol=tolerance, xtol=tolerance, gtol=None, max_nfev=max_iterations, x_scale=1.0)
+    return result.x, result.status > 0, result.message
+
+
+def optax_descent(problem: DesignProblem, u0, max_iterations, tolerance, optimiser):
+    import optax
+
+    optimiser = optax.adam(0.02) if optimiser is None else optimiser
+
+    def loss(u):
+        r, sol = problem.residuals(u)
+        return jnp.sum(r * r), sol
+
+    lower, upper = problem.variables.lower, problem.variables.upper
+    u = jnp.asarray(u0, jnp.float64)
+    state = optimiser.init(u)
+    message = f"the iteration cap ({max_iterations} steps) was hit"
+    success = False
+    for _ in range(max_iterations):
+        (value, sol), grad = jax.value_and_grad(loss, has_aux=True)(u)
+        problem._remember(sol)
+        grad_np = np.asarray(grad)
+        # The projected gradient: components pushing into an active bound do not count.
+        at_lower = (np.asarray(u) <= lower) & (grad_np > 0)
+        at_upper = (np.asarray(u) >= upper) & (grad_np < 0)
+        projected = np.where(at_lower | at_upper, 0.0, grad_np)
+        problem.record(np.asarray(u), value, np.linalg.norm(projected), solution=sol)
+        if np.linalg.norm(projected) <= tolerance:
+            message, success = "the projected gradient norm fell below the tolerance", True
+            break
+        updates, state = optimiser.update(grad, state, u)
+        u = jnp.clip(optax.apply_updates(u, updates), lower, upper)
+    return np.asarray(u), success, message
+
+
+def root(problem: DesignProblem, condition, max_iterations, tolerance):
+    design, target, chord = problem.variables, problem.target, problem.chord
+    if condition == "thickness":
+        goal = float(target.max_thickness)
+
+        def measure(nodes):
+            from targets import Airfoil
+
+            section = np.asarray(section_points(np.asarray(nodes), 0.5, chord))
+            closed = np.concatenate([section, section[:1]], axis=0)
+            return Airfoil(closed[:, 0], closed[:, 1], name="mid-bay").max_thickness - goal
+    else:
+
+        def measure(nodes):
+            section = np.asarray(section_points(np.asarray(nodes), 0.5, chord))
+            return float(np.mean(target.distance(section)))
+
+    memo = {}  # brentq re-evaluates the bracket ends: keep one value per pressure
+
+    def f(pressure_scaled):
+        key = float(pressure_scaled)
+        if key not in memo:
+            u = np.array([key])
+            sol = problem.solve(u)
+            memo[key] = measure(sol.nodes)
+            problem.record(u, memo[key], solution=sol)
+        return memo[key]
+
+    lo, hi = design.lower[0], design.upper[0]
+    u0 = design.to_vector(design.start)[0]
+    bracket = _bracket(f, u0, lo, hi)
+    if bracket is None:
+        raise ValueError(
+            f"no pressure in the bounds {design.bounds['pressure']} Pa makes the mid-bay "
+            f"{'maximum thickness equal to the target' if condition == 'thickness' else 'mean offset zero'}"
+            ": the condition keeps one sign over the whole range (with ribs equal to the target the "
+            "bulge only adds thickness; make the ribs thinner or widen the bounds)"
+        )
+    a, b = bracket
+    if a == b:  # the condition vanished exactly at a trial pressure
+        return np.array([a]), True, "the condition vanished exactly while bracketing"
+    u, info = scipy.optimize.brentq(f, a, b, xtol=1e-14, rtol=max(tolerance, 4 * np.finfo(float).eps),
+                                    maxiter=max_iterations, full_output=True, disp=False)
+    return np.array([u]), bool(info.converged), info.flag
+
+
+def _bracket(f, u0, lo, hi):
+    """A sign change of ``f`` in ``[lo, hi]`` by geometric steps from ``u0``, or None."""
+    f0 = f(u0)
+    if f0 == 0.0:
+        return u0, u0
+    points = [u0]
+    up, down = u0, u0
+    while up < hi or down > lo:
+        if up < hi:
+            up = min(up * BRACKET_FACTOR, hi)
+            fu = f(up)
+            if fu == 0.0:
+                return up, up
+            if np.sign(fu) != np.sign(f0):
+                return max(x for x in points if x < up), up
+            points.append(up)
+        if down > lo:
+            down = max(down / BRACKET_FACTOR, lo)
+            fd = f(down)
+            if fd == 0.0:
+                return down, down
+            if np.sign(fd) != np.sign(f0):
+                return down, min(x for x in points if x > down)
+            points.append(down)
+    return None
