@@ -109,7 +109,21 @@ def test_inverse_design_study(monkeypatch):
     for k, name in enumerate(("prestrain_span", "prestrain_chord")):
         assert bounds[name][0] <= ref["prestrain"][k] <= bounds[name][1]
     assert ref["rms_error"] < 0.5 * ref["initial_rms_error"]
-    # The optimum spanwise prestrain follows the membrane estimate (sag = rib gap) within 20 %.
-    for key, sweep in s["sweeps"].items():
-        if sweep["success"] and "min_tension" not in sweep["active"]:
-            assert math.isclose(sweep["prestrain"][0], sweep["rule_prestrain"], rel_tol=0.2), key
+    # SLSQP with adjoint gradients converges in 6 to 13 forward solves on these bays (full study
+    # too); the penalty method it replaced crept along the constraint up to its 50-iteration cap.
+    assert ref["solves"] < 30
+    sweeps = s["sweeps"]
+    for key, sweep in sweeps.items():
+        assert sweep["success"], key
+        assert sweep["solves"] < 30, key
+        # The optimum spanwise prestrain follows the membrane estimate (sag = rib gap): within 12 %
+        # in small mode, within 8 % for bays up to 0.3 m in the full study, constrained runs
+        # included; 20 % leaves room for the coarse grid without admitting a wrong power of b or E.
+        assert math.isclose(sweep["prestrain"][0], sweep["rule_prestrain"], rel_tol=0.2), key
+        if key.endswith("wrinkle-free"):
+            # A real constraint: no fibre compression beyond the optimiser's feasibility tolerance
+            # (VIOLATION_TOLERANCE, about 0.5 N/m at 1 kPa on the 1 m chord; twice that here).
+            assert sweep["min_tension"] > -1e-3 * sweep["pressure"], key
+            # The constraint can only cost accuracy (0.1 %: SLSQP's stopping tolerance).
+            free = sweeps[key.replace("wrinkle-free", "shape only")]
+            assert sweep["rms_error"] > free["rms_error"] * (1 - 1e-3), key
