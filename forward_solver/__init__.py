@@ -3,7 +3,7 @@
 Public names::
 
     Fabric, Bay, Scene, Parameters, Solution, Result, ConvergenceError,
-    PressureRamp, solve_equilibrium, simulate
+    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing
 
 ``solve_equilibrium`` is differentiable in its `Parameters` (``jax.grad``,
 ``jax.jacfwd``; implicit adjoint by default, see `adjoint`).
@@ -28,6 +28,8 @@ from .solution import ConvergenceError as ConvergenceError
 from .solution import Result as Result
 from .solution import Solution as Solution
 from .solve import solve_equilibrium as solve_equilibrium
+from .wing import Wing as Wing
+from .wing import solve_wing as solve_wing
 
 __all__ = [
     "Bay",
@@ -41,4 +43,6 @@ __all__ = [
     "Solution",
     "simulate",
     "solve_equilibrium",
+    "solve_wing",
+    "Wing",
 ]

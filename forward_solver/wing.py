@@ -1,0 +1,167 @@
+"""A whole wing: N bays between N + 1 rigid ribs, solved as one batch (issue 12, item 2, first part).
+
+Given rigid ribs, the bays of a wing are independent: each is a `Bay`
+between its two ribs (with their sections and chords: taper), and all share
+one inflation pressure and one fabric. On a common grid shape their
+`forces.Geometry` arrays stack along a leading axis, so the relaxation of
+every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
+`relax`, as `traced` runs it under ``jax.vmap``) instead of a Python loop,
+and the result is differentiable in the shared `Parameters` by the implicit
+function theorem (`krylov.implicit_nodes`, per bay).
+
+Not here yet: the design loop over a wing (one pressure for all bays,
+per-rib shapes) and the command-line / TOML form of a wing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import forces as fk
+from ._precision import float64_scope
+from .bay import Bay
+from .fabric import Fabric
+from .krylov import implicit_nodes
+from .parameters import Parameters, as_parameters
+from .relax import MASS_SAFETY, relax_jit
+from .scene import Scene
+from .solution import Result
+
+__all__ = ["Wing", "WingSolution", "solve_wing"]
+
+#: Steps per chunk of the batched relaxation (as `solve.RELAX_CHUNK`).
+_CHUNK = 100
+
+
+@dataclass(frozen=True)
+class Wing:
+    """Ribs along the span: sections, chords and span stations.
+
+    Args:
+        airfoils: the rib sections (`targets.Airfoil`), root to tip, N + 1 >= 2.
+        chords: the rib chords, m, one per rib.
+        stations: the ribs' span positions y, m, strictly increasing.
+
+    Raises:
+        ValueError: for fewer than two ribs, lists of different lengths,
+            stations that do not increase or a non-positive chord.
+    """
+
+    airfoils: tuple
+    chords: tuple
+    stations: tuple
+
+    def __post_init__(self):
+        n = len(self.airfoils)
+        if n < 2:
+            raise ValueError(f"a wing needs at least two ribs, got {n}")
+        if not (len(self.chords) == len(self.stations) == n):
+            raise ValueError(f"give one chord and one station per rib: {n} airfoils, "
+                             f"{len(self.chords)} chords, {len(self.stations)} stations")
+        if not all(np.isfinite(c) and c > 0 for c in self.chords):
+            raise ValueError(f"rib chords must be positive lengths in m, got {self.chords}")
+        if not (np.all(np.isfinite(self.stations)) and np.all(np.diff(self.stations) > 0)):
+            raise ValueError(f"rib stations must increase strictly from root to tip (m), got {self.stations}")
+
+    @property
+    def n_bays(self) -> int:
+        return len(self.airfoils) - 1
+
+    def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
+        """The bays, root to tip, each between ribs k and k + 1, all on one grid shape."""
+        return [Bay.from_airfoil(self.airfoils[k], chord=self.chords[k],
+                                 rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
+                                 n_contour=n_contour, tip_airfoil=self.airfoils[k + 1],
+                                 tip_chord=self.chords[k + 1])
+                for k in range(self.n_bays)]
+
+
+@dataclass(frozen=True)
+class WingSolution:
+    """The equilibrium of every bay of a wing.
+
+    Attributes:
+        nodes: ``(n_bays, n_span, n_contour, 3)`` m, each bay in its own frame
+            (its root rib at y = 0); differentiable in the parameters.
+        result: ``(n_bays,)`` `Result` codes.
+        residual: ``(n_bays,)`` relative residuals ``||R_free|| / (p A)``.
+        steps: ``(n_bays,)`` relaxation steps (the batch runs until its
+            slowest bay stops).
+        bays: the `Bay` of each.
+        parameters: the shared `Parameters`.
+    """
+
+    nodes: jnp.ndarray
+    result: jnp.ndarray
+    residual: jnp.ndarray
+    steps: jnp.ndarray
+    bays: list
+    parameters: Parameters
+
+    @property
+    def converged(self) -> bool:
+        """Whether every bay converged."""
+        return bool(np.all(np.asarray(self.result) == Result.converged))
+
+
+def _stack(trees):
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
+
+
+def _bay_equilibrium(geometry, bound, params, rtol, physics, max_chunks):
+    fixed = jax.lax.stop_gradient(params)
+    x_init = fk.nominal_nodes(geometry, fixed.rib_thickness_scale, fixed.rib_chord_scale)
+    out, _, x_star = relax_jit(x_init, geometry, fixed, rtol, bound, MASS_SAFETY, physics, _CHUNK,
+                               max_chunks, half=False)
+    nodes = implicit_nodes(physics, x_star, geometry, params, out.result == Result.converged)
+    return nodes, out.result, out.residual, out.chunks * _CHUNK
+
+
+@partial(jax.jit, static_argnames=("physics", "max_chunks"))
+def _wing_equilibrium(geometries, bounds, params, rtol, physics, max_chunks):
+    solve = partial(_bay_equilibrium, physics=physics, max_chunks=max_chunks)
+    return jax.vmap(solve, in_axes=(0, 0, None, None))(geometries, bounds, params, rtol)
+
+
+def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
+               n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
+               tension_only: bool = True, **loose) -> WingSolution:
+    """Every bay of ``wing`` at one pressure, as one batched relaxation.
+
+    Args:
+        wing: the ribs.
+        fabric: the skin's material (one for the whole wing).
+        parameters: a `Parameters` (or the pressure in Pa with ``prestrain``
+            and the other loose values of `solve_equilibrium`), shared by all
+            bays; JAX values allowed (``jax.grad`` of a function of the nodes
+            differentiates every bay implicitly).
+        n_span, n_contour: the grid of every bay.
+        rtol: relative residual each bay is solved to.
+        max_steps: step cap (the batch runs until its slowest bay stops).
+        tension_only: the scene switch (no compression, wrinkles).
+
+    Returns:
+        A `WingSolution`. A failed bay is reported by its result code, not
+        raised.
+    """
+    parameters = as_parameters(parameters, prestrain, **loose).resolved(fabric).check()
+    if not (isinstance(rtol, float | int) and 0 < rtol < 1):
+        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    bays = wing.bays(n_span, n_contour)
+    scene = Scene(bays[0], fabric, tension_only=tension_only)
+    physics = fk.static_physics(scene.physics(dynamic=False))
+    with float64_scope(parameters):
+        params = scene.params(parameters)  # the fabric's constants: the same for every bay
+        geometries = _stack([bay.geometry() for bay in bays])
+        bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
+        nodes, result, residual, steps = _wing_equilibrium(
+            geometries, bounds, params, jnp.asarray(rtol, jnp.float64), physics, -(-max_steps // _CHUNK))
+    return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
+                        parameters=parameters)
