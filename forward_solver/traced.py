@@ -36,7 +36,7 @@ from .relax import MASS_SAFETY, relax_jit
 from .scene import Scene
 from .solution import Result, Solution, initial_nodes, static_forces
 
-__all__ = ["has_abstract_values", "traced_solution"]
+__all__ = ["has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
     from jax.extend.core import concrete_or_error as _concrete_or_error
@@ -64,6 +64,24 @@ def has_abstract_values(parameters: Parameters) -> bool:
     return any(_is_abstract(v) for v in jax.tree_util.tree_leaves(parameters))
 
 
+def relaxed_nodes(x_init, geometry, params, rtol, bound, physics, chunk: int, max_chunks: int,
+                  half: bool):
+    """The relaxation from ``x_init`` as pure JAX, its fixed point differentiable in ``params``.
+
+    The loop runs on ``stop_gradient`` values; only its fixed point carries a
+    tangent, by the implicit function theorem (`krylov.implicit_nodes`; NaN
+    where the loop did not converge). Vmappable over ``geometry`` and
+    ``bound`` too (`wing.solve_wing`).
+
+    Returns:
+        ``(nodes, out)``: the nodes and the loop's `loop.LoopOutput`.
+    """
+    fixed = jax.lax.stop_gradient(params)
+    out, _, x_star = relax_jit(jax.lax.stop_gradient(x_init), geometry, fixed, rtol, bound, MASS_SAFETY,
+                               physics, chunk, max_chunks, half=half)
+    return implicit_nodes(physics, x_star, geometry, params, out.result == Result.converged), out
+
+
 def traced_solution(scene: Scene, parameters: Parameters, *, rtol: float, initial, half: bool,
                     chunk: int, max_chunks: int) -> Solution:
     """The relaxation's `Solution` at abstract ``parameters`` (see the module docstring).
@@ -88,12 +106,10 @@ def traced_solution(scene: Scene, parameters: Parameters, *, rtol: float, initia
     with float64_scope(parameters):
         params = scene.params(parameters)
         geometry = jax.tree_util.tree_map(jnp.asarray, bay.geometry())
-        fixed = jax.lax.stop_gradient(params)
-        x_init = jax.lax.stop_gradient(initial_nodes(initial, geometry, fixed))
+        x_init = initial_nodes(initial, geometry, jax.lax.stop_gradient(params))
         bound = jnp.asarray(bay.chord + bay.rib_spacing, jnp.float64)
-        out, _, x_star = relax_jit(x_init, geometry, fixed, jnp.asarray(rtol, jnp.float64), bound,
-                                   MASS_SAFETY, physics, chunk, max_chunks, half=half)
-        nodes = implicit_nodes(physics, x_star, geometry, params, out.result == Result.converged)
+        nodes, out = relaxed_nodes(x_init, geometry, params, jnp.asarray(rtol, jnp.float64), bound,
+                                   physics, chunk, max_chunks, half)
         f = static_forces(nodes, geometry, params, physics)
     return Solution(nodes=nodes, tension_span=f.tension_span, tension_chord=f.tension_chord,
                     wrinkled=f.wrinkled, result=out.result, steps=out.chunks * chunk,

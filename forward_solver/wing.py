@@ -26,11 +26,10 @@ from . import forces as fk
 from ._precision import float64_scope
 from .bay import Bay
 from .fabric import Fabric
-from .krylov import implicit_nodes
 from .parameters import Parameters, as_parameters
-from .relax import MASS_SAFETY, relax_jit
 from .scene import Scene
 from .solution import Result
+from .traced import relaxed_nodes
 
 __all__ = ["Wing", "WingSolution", "solve_wing"]
 
@@ -114,11 +113,9 @@ def _stack(trees):
 
 
 def _bay_equilibrium(geometry, bound, params, rtol, physics, max_chunks):
-    fixed = jax.lax.stop_gradient(params)
-    x_init = fk.nominal_nodes(geometry, fixed.rib_thickness_scale, fixed.rib_chord_scale)
-    out, _, x_star = relax_jit(x_init, geometry, fixed, rtol, bound, MASS_SAFETY, physics, _CHUNK,
-                               max_chunks, half=False)
-    nodes = implicit_nodes(physics, x_star, geometry, params, out.result == Result.converged)
+    x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,
+                               half=False)
     return nodes, out.result, out.residual, out.chunks * _CHUNK
 
 
