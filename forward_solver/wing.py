@@ -113,7 +113,7 @@ def _stack(trees):
 
 
 def _bay_equilibrium(geometry, bound, params, rtol, physics, max_chunks):
-    x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    x_init = fk.mounted_nodes(geometry, params)
     nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,
                                half=False)
     return nodes, out.result, out.residual, out.chunks * _CHUNK
