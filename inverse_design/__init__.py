@@ -3,7 +3,7 @@
 Public names::
 
     optimise_pressure, refine_design, DesignResult, Constraints, section_errors,
-    objective_residuals, design_errors, OBJECTIVES, VARIABLES
+    objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits
 
 ``optimise_pressure`` wraps scipy's SLSQP (default), ``least_squares`` and
 ``brentq`` and optax around the differentiable
@@ -18,12 +18,14 @@ from .objectives import section_errors as section_errors
 from .optimise import DesignResult as DesignResult
 from .optimise import optimise_pressure as optimise_pressure
 from .optimise import refine_design as refine_design
+from .rib_design import RibLimits as RibLimits
 from .variables import VARIABLES as VARIABLES
 
 __all__ = [
     "Constraints",
     "DesignResult",
     "OBJECTIVES",
+    "RibLimits",
     "VARIABLES",
     "design_errors",
     "objective_residuals",
