@@ -134,7 +134,10 @@ class DesignVariables:
                 raise ValueError("a single bay's rib_shape design gives both ribs one shape; the start "
                                  "must not set rib_shape_tip")
             if not np.all((lo <= np.asarray(values[name])) & (np.asarray(values[name]) <= hi)):
-                raise ValueError(f"the start of {name}, {values[name]!r}, lies outside its bounds {(lo, hi)}")
+                shown = np.asarray(values[name]).tolist() if name in VECTOR_VARIABLES else repr(values[name])
+                hint = ("; a rib shape starts from the unchanged rib (every coefficient 0) unless given, "
+                        "so its bounds must include 0" if name in VECTOR_VARIABLES else "")
+                raise ValueError(f"the start of {name}, {shown}, lies outside its bounds {(lo, hi)}{hint}")
             chosen[name] = (lo, hi)
         sizes = {n: int(np.size(values[n])) for n in names}
         return cls(names, start, chosen, sizes)

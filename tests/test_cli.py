@@ -244,6 +244,9 @@ def test_a_bad_case_file_exits_2_with_one_line(run_cli, tmp_path, text, message)
         (["--config", "absent.toml"], "absent.toml"),
         (["--target", "."], "--target: . is a directory; give a NACA code such as naca2412 or a .dat file"),
         (["--rib", ".."], "--rib: .. is a directory"),
+        (["--variables", "pressure,rib_shape", "--rib-shape-terms", "0"], "--rib-shape-terms must be at least 1"),
+        (["--variables", "pressure,rib_shape", "--min-rib-thickness", "1.5"], "--min-rib-thickness"),
+        (["--variables", "pressure,rib_shape", "--rib-shape-bounds", "0.01", "0.05"], "outside its bounds"),
     ],
 )
 def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
