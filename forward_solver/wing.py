@@ -9,8 +9,12 @@ every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
 and the result is differentiable in the shared `Parameters` by the implicit
 function theorem (`krylov.implicit_nodes`, per bay).
 
-Not here yet: the design loop over a wing (one pressure for all bays,
-per-rib shapes) and the command-line / TOML form of a wing.
+A warm start (``initial``: an earlier `WingSolution`) starts every bay from
+its earlier displacement added to this solve's mounted shape (as
+`solution.initial_nodes` does for one bay), so the design loop
+(`inverse_design.wing_design`) re-solves a nearby design in fewer steps.
+`WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
+wrinkles), for reports and for comparison with `solve_equilibrium`.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from .bay import Bay
 from .fabric import Fabric
 from .parameters import Parameters, as_parameters
 from .scene import Scene
-from .solution import Result
+from .solution import Result, Solution, static_forces
 from .traced import relaxed_nodes
 
 __all__ = ["Wing", "WingSolution", "solve_wing"]
@@ -93,6 +97,8 @@ class WingSolution:
             slowest bay stops).
         bays: the `Bay` of each.
         parameters: the shared `Parameters`.
+        fabric: the skin's `Fabric` (for `bay_solution`).
+        tension_only: the scene switch it was solved with.
     """
 
     nodes: jnp.ndarray
@@ -101,33 +107,74 @@ class WingSolution:
     steps: jnp.ndarray
     bays: list
     parameters: Parameters
+    fabric: Fabric | None = None
+    tension_only: bool = True
 
     @property
     def converged(self) -> bool:
         """Whether every bay converged."""
         return bool(np.all(np.asarray(self.result) == Result.converged))
 
+    def failed_bays(self) -> list[int]:
+        """Indices of the bays whose solve did not converge (root to tip)."""
+        return [int(k) for k in np.flatnonzero(np.asarray(self.result) != Result.converged)]
+
+    def scene(self, bay: int) -> Scene:
+        """The `Scene` of bay ``bay`` (its `Bay`, the wing's fabric and switches)."""
+        return Scene(self.bays[bay], self.fabric, tension_only=self.tension_only)
+
+    def bay_solution(self, bay: int) -> Solution:
+        """Bay ``bay`` as a concrete `Solution` (float64 numpy arrays; tensions of eq. 10 at its nodes).
+
+        Its ``nodes`` are NaN where the bay did not converge (the implicit
+        fixed point is undefined there); ``result``, ``steps`` and
+        ``residual`` say why.
+        """
+        if self.fabric is None:
+            raise ValueError("this WingSolution carries no fabric; solve it with solve_wing")
+        scene = self.scene(bay)
+        parameters = jax.tree_util.tree_map(lambda v: float(np.asarray(v)), self.parameters)
+        with float64_scope():
+            nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
+            f = static_forces(nodes, jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry()),
+                              scene.params(parameters), scene.physics(dynamic=False))
+            return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
+                            tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
+                            result=Result(int(np.asarray(self.result[bay]))), steps=int(self.steps[bay]),
+                            residual=float(self.residual[bay]), wall_time=None, method="relax",
+                            parameters=parameters, rib_spacing=scene.bay.rib_spacing,
+                            extra={"precision": "float64", "wing_bay": bay})
+
+    def displacements(self) -> np.ndarray:
+        """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""
+        scales = (float(np.asarray(self.parameters.rib_thickness_scale)),
+                  float(np.asarray(self.parameters.rib_chord_scale)))
+        return np.stack([np.asarray(self.nodes[k]) - np.asarray(bay.nominal_nodes(*scales))
+                         for k, bay in enumerate(self.bays)])
+
 
 def _stack(trees):
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
 
 
-def _bay_equilibrium(geometry, bound, params, rtol, physics, max_chunks):
-    x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+def _bay_equilibrium(geometry, bound, displacement, params, rtol, physics, max_chunks):
+    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
+    x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
     nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,
                                half=False)
     return nodes, out.result, out.residual, out.chunks * _CHUNK
 
 
 @partial(jax.jit, static_argnames=("physics", "max_chunks"))
-def _wing_equilibrium(geometries, bounds, params, rtol, physics, max_chunks):
+def _wing_equilibrium(geometries, bounds, displacements, params, rtol, physics, max_chunks):
     solve = partial(_bay_equilibrium, physics=physics, max_chunks=max_chunks)
-    return jax.vmap(solve, in_axes=(0, 0, None, None))(geometries, bounds, params, rtol)
+    return jax.vmap(solve, in_axes=(0, 0, 0, None, None))(geometries, bounds, displacements, params, rtol)
 
 
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
-               tension_only: bool = True, **loose) -> WingSolution:
+               tension_only: bool = True, initial: WingSolution | None = None, **loose) -> WingSolution:
     """Every bay of ``wing`` at one pressure, as one batched relaxation.
 
     Args:
@@ -141,10 +188,18 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         rtol: relative residual each bay is solved to.
         max_steps: step cap (the batch runs until its slowest bay stops).
         tension_only: the scene switch (no compression, wrinkles).
+        initial: None (every bay from its mounted shape) or an earlier
+            `WingSolution` of this wing on this grid: each bay starts from its
+            displacement there, added to this solve's mounted shape (held
+            nodes stay mounted). Not differentiated.
 
     Returns:
         A `WingSolution`. A failed bay is reported by its result code, not
-        raised.
+        raised; its nodes are NaN (the implicit fixed point is undefined).
+
+    Raises:
+        ValueError: for a bad ``rtol`` or ``max_steps``, or an ``initial``
+            of another wing or grid.
     """
     parameters = as_parameters(parameters, prestrain, **loose).resolved(fabric).check()
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
@@ -158,7 +213,21 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         params = scene.params(parameters)  # the fabric's constants: the same for every bay
         geometries = _stack([bay.geometry() for bay in bays])
         bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
+        shape = (len(bays), n_span, n_contour, 3)
+        if initial is None:
+            displacements = jnp.zeros(shape, jnp.float64)
+        else:
+            if not isinstance(initial, WingSolution) or tuple(initial.nodes.shape) != shape:
+                raise ValueError(f"initial must be a WingSolution of this wing on its {n_span}x{n_contour} "
+                                 f"grid ({shape[0]} bays), got {type(initial).__name__}"
+                                 + (f" of shape {tuple(initial.nodes.shape)}" if hasattr(initial, "nodes") else ""))
+            moved = initial.displacements()
+            if not np.all(np.isfinite(moved)):
+                raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
+                                 "solve from the mounted shape (initial=None)")
+            displacements = jnp.asarray(moved, jnp.float64)
         nodes, result, residual, steps = _wing_equilibrium(
-            geometries, bounds, params, jnp.asarray(rtol, jnp.float64), physics, -(-max_steps // _CHUNK))
+            geometries, bounds, displacements, params, jnp.asarray(rtol, jnp.float64), physics,
+            -(-max_steps // _CHUNK))
     return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
-                        parameters=parameters)
+                        parameters=parameters, fabric=fabric, tension_only=tension_only)
