@@ -105,7 +105,7 @@ from .objectives import WORST_SHARPNESS, check_objective, section_points, statio
 from .problem import DesignProblem, key_of
 from .variables import DEFAULT_START, VARIABLES, DesignVariables
 
-__all__ = ["BLEND_POINTS", "WING_VARIABLES", "PER_RIB_VARIABLES", "WingConvergenceError",
+__all__ = ["BLEND_POINTS", "WING_VARIABLES", "PER_RIB_VARIABLES", "WingConvergenceError", "WingProblem",
            "WingDesignResult", "WingVariables", "bay_weights", "row_targets", "optimise_wing"]
 
 #: Shared design variables of a wing (fields of `Parameters`, one value for every bay).
