@@ -443,6 +443,7 @@ class WingDesignResult(ParameterViews):
         solves: forward wing solves (each relaxes every bay once).
         wall_time: s, compilation included.
         method: "slsqp".
+        wing: the `forward_solver.wing.Wing` designed.
     """
 
     parameters: Parameters
@@ -469,6 +470,7 @@ class WingDesignResult(ParameterViews):
     solves: int = 0
     wall_time: float = 0.0
     method: str = "slsqp"
+    wing: Wing | None = None
 
     @property
     def values(self) -> dict:
@@ -606,7 +608,7 @@ def optimise_wing(
         bay_min_tension=after["min_tension"], bay_max_tension=after["max_tension"],
         solution=sol, targets=tuple(targets), success=bool(success), message=message,
         active_constraints=active, violated_constraints=violated, constraint_values=report,
-        history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start)
+        history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start, wing=wing)
 
 
 def _check_limits(constraints, design, parameters, measured, fabric, scale):
