@@ -3,7 +3,11 @@
 Public names::
 
     Fabric, Bay, Scene, Parameters, Solution, Result, ConvergenceError,
-    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing
+    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing, rib_section
+
+``Parameters.rib_shape`` offsets the rib contours (`rib_shape`: Bernstein
+coefficients of a class-shape offset); `rib_section` is the designed rib as
+an airfoil.
 
 ``solve_equilibrium`` is differentiable in its `Parameters` (``jax.grad``,
 ``jax.jacfwd``; implicit adjoint by default, see `adjoint`).
@@ -23,6 +27,7 @@ from .explicit import PressureRamp as PressureRamp
 from .explicit import simulate as simulate
 from .fabric import Fabric as Fabric
 from .parameters import Parameters as Parameters
+from .rib_shape import rib_section as rib_section
 from .scene import Scene as Scene
 from .solution import ConvergenceError as ConvergenceError
 from .solution import Result as Result
@@ -39,6 +44,7 @@ __all__ = [
     "Parameters",
     "PressureRamp",
     "Result",
+    "rib_section",
     "Scene",
     "Solution",
     "simulate",

@@ -123,7 +123,7 @@ def default_linear_solver() -> str:
 # ------------------------------------------------------------ linearisation
 def _full_nodes(x_free_full, geometry, params):
     """Free nodes from ``x_free_full``, held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    mounted = fk.mounted_nodes(geometry, params)
     free = geometry.free[..., None]
     return free * x_free_full + (1.0 - free) * mounted
 
@@ -240,11 +240,14 @@ class _Linearisation:
 
 # ---------------------------------------------------------------- the rule
 def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
-    """The kernel-parameter tangent of a `Parameters` tangent (fabric constants do not move)."""
-    zero = jnp.zeros_like(like.pressure)
-    tangents = {name: zero if getattr(dparameters, name) is None else getattr(dparameters, name)
-                for name in PARAMETER_NAMES}
-    return fk.Params(*(tangents.get(name, zero) for name in fk.Params._fields))
+    """The kernel-parameter tangent of a `Parameters` tangent (fabric constants do not move).
+
+    An unset tip rib shape follows the root's, so it takes the root's tangent too.
+    """
+    tangents = {name: getattr(dparameters, name) for name in PARAMETER_NAMES}
+    tangents["rib_shape_root"], tangents["rib_shape_tip"] = dparameters.rib_shapes
+    return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None else tangents[name]
+                       for name in fk.Params._fields))
 
 
 def _concrete(parameters: Parameters) -> Parameters:

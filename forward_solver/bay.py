@@ -228,15 +228,19 @@ class Bay:
             free=jnp.asarray(~self.fixed, dtype=jnp.asarray(self.contour_root).dtype),
         )
 
-    def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0) -> jnp.ndarray:
+    def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0, rib_shape=None,
+                      rib_shape_tip=None) -> jnp.ndarray:
         """Mounted (nominal) shape of the skin, ``(n_span, n_contour, 3)`` in m.
 
         The skin is the ruled surface between the two rib contours. The rib
         thickness scale multiplies the distance from the camber line; the rib
-        chord scale multiplies x. Both may be traced JAX values.
+        shape adds its offset (`forward_solver.rib_shape`; ``rib_shape_tip``
+        None: the tip rib takes ``rib_shape``); the rib chord scale
+        multiplies x. All may be traced JAX values.
         """
-        with float64_scope(rib_thickness_scale, rib_chord_scale):
-            nodes = nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale)
+        tip = rib_shape if rib_shape_tip is None else rib_shape_tip
+        with float64_scope(rib_thickness_scale, rib_chord_scale, rib_shape, tip):
+            nodes = nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale, rib_shape, tip)
             if isinstance(nodes, jax.core.Tracer):
                 return nodes
             return np.asarray(nodes)

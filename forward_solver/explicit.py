@@ -295,7 +295,7 @@ def simulate(
     else:
         parameters = as_parameters(pressure_history, **loose)
         ramp = PressureRamp(parameters.pressure)
-    parameters = parameters.resolved(scene.fabric).check()
+    parameters = scene.check_parameters(parameters.resolved(scene.fabric))
     if not (math.isfinite(courant) and courant > 0):
         raise ValueError(f"courant must be a positive number (eq. 16), got {courant!r}")
     if not (isinstance(record_every, int) and record_every >= 1):

@@ -32,6 +32,8 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from .rib_shape import rib_offsets
+
 __all__ = [
     "Geometry",
     "Params",
@@ -39,6 +41,7 @@ __all__ = [
     "Reference",
     "Forces",
     "nominal_nodes",
+    "mounted_nodes",
     "prepare",
     "forces",
     "residual",
@@ -82,6 +85,8 @@ class Params(NamedTuple):
     gravity: jnp.ndarray  # m/s^2 along -z
     rib_thickness_scale: jnp.ndarray  # dimensionless
     rib_chord_scale: jnp.ndarray  # dimensionless
+    rib_shape_root: jnp.ndarray  # (2K,) rib-shape coefficients of the root rib (`rib_shape`); (0,): none
+    rib_shape_tip: jnp.ndarray  # (2K,) the same for the tip rib
 
 
 @dataclass(frozen=True)
@@ -187,26 +192,36 @@ def _cell_corners(x: jnp.ndarray, periodic: bool):
 
 
 # ------------------------------------------------------------------ reference
-def nominal_nodes(geometry: Geometry, rib_thickness_scale=1.0, rib_chord_scale=1.0) -> jnp.ndarray:
+def nominal_nodes(geometry: Geometry, rib_thickness_scale=1.0, rib_chord_scale=1.0,
+                  rib_shape_root=None, rib_shape_tip=None) -> jnp.ndarray:
     """Mounted shape ``(ns, nc, 3)``: the ruled surface between the rib contours.
 
-    The rib thickness scale multiplies the distance from the camber line and
-    the chord scale multiplies x (both about the rib's leading edge).
+    The rib thickness scale multiplies the distance from the camber line, the
+    rib shape adds its outward offset (`rib_shape.rib_offsets`, chord-normalised;
+    None: none) and the chord scale multiplies x (both about the rib's leading
+    edge).
     """
     ns = geometry.free.shape[0]
     t = jnp.linspace(0.0, 1.0, ns, dtype=geometry.contour_root.dtype)[:, None]
 
-    def rib(contour, camber, chord):
+    def rib(contour, camber, chord, shape):
         x = contour[:, 0] * chord * rib_chord_scale
-        z = (camber + rib_thickness_scale * (contour[:, 1] - camber)) * chord
+        offset = rib_offsets(contour[:, 0], shape)
+        z = (camber + rib_thickness_scale * (contour[:, 1] - camber) + offset) * chord
         return x, z
 
-    xr, zr = rib(geometry.contour_root, geometry.camber_root, geometry.chord_root)
-    xt, zt = rib(geometry.contour_tip, geometry.camber_tip, geometry.chord_tip)
+    xr, zr = rib(geometry.contour_root, geometry.camber_root, geometry.chord_root, rib_shape_root)
+    xt, zt = rib(geometry.contour_tip, geometry.camber_tip, geometry.chord_tip, rib_shape_tip)
     x = (1.0 - t) * xr[None, :] + t * xt[None, :]
     z = (1.0 - t) * zr[None, :] + t * zt[None, :]
     y = jnp.broadcast_to(t * geometry.rib_spacing, x.shape)
     return jnp.stack([x, y, z], axis=-1)
+
+
+def mounted_nodes(geometry: Geometry, params: Params) -> jnp.ndarray:
+    """`nominal_nodes` with the rib variables of the kernel ``params`` (scales and shapes)."""
+    return nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale,
+                         params.rib_shape_root, params.rib_shape_tip)
 
 
 def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
@@ -215,7 +230,7 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
     The fabric is cut shorter than the mounted geometry: reference length =
     nominal length / (1 + prestrain) per fibre direction (DESIGN section 2).
     """
-    x0 = nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    x0 = mounted_nodes(geometry, params)
     span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + params.prestrain_span)
     contour_length = safe_norm(_next_j(x0, physics.periodic) - _this_j(x0, physics.periodic))
     contour_length = contour_length / (1.0 + params.prestrain_chord)

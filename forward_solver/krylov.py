@@ -63,7 +63,7 @@ KRYLOV_MAX_ITERATIONS = 4000
 
 def _mounted_nodes(x, geometry, params):
     """``x`` on the free nodes, held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    mounted = fk.mounted_nodes(geometry, params)
     free = geometry.free[..., None]
     return free * x + (1.0 - free) * mounted
 

@@ -24,7 +24,8 @@ from typing import Any, Mapping
 import jax
 import numpy as np
 
-__all__ = ["Parameters", "PARAMETER_NAMES", "PARAMETER_UNITS", "as_parameters", "ParameterViews"]
+__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "PARAMETER_UNITS", "as_parameters",
+           "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
 
@@ -39,6 +40,10 @@ PARAMETER_NAMES = (
     "rib_chord_scale",
 )
 
+#: Array-valued fields of `Parameters`: the rib-shape coefficients
+#: (`forward_solver.rib_shape`), None when the ribs keep their sections.
+SHAPE_NAMES = ("rib_shape", "rib_shape_tip")
+
 #: Unit of each parameter, for messages and reports.
 PARAMETER_UNITS = {
     "pressure": "Pa",
@@ -48,10 +53,12 @@ PARAMETER_UNITS = {
     "stiffness_chord": "N/m",
     "rib_thickness_scale": "",
     "rib_chord_scale": "",
+    "rib_shape": "chord",
+    "rib_shape_tip": "chord",
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Parameters:
     """Design parameters of one solve (a JAX pytree of scalars).
 
@@ -66,6 +73,12 @@ class Parameters:
         rib_thickness_scale: multiplies the rib thickness about its camber
             line (> 0).
         rib_chord_scale: multiplies the rib chord (> 0).
+        rib_shape: None, or ``(2 K,)`` Bernstein coefficients of the rib
+            contour's outward offset (K for the upper surface, then K for the
+            lower; chord-normalised; `forward_solver.rib_shape`), applied to
+            both ribs of the bay unless ``rib_shape_tip`` is given.
+        rib_shape_tip: None (the tip rib takes ``rib_shape``), or the tip
+            rib's own ``(2 K,)`` coefficients (a wing's bays, per-rib shapes).
 
     Construction does not validate, because JAX rebuilds pytrees with
     placeholder leaves; `check` does, and every solver calls it.
@@ -78,6 +91,15 @@ class Parameters:
     stiffness_chord: Scalar = None
     rib_thickness_scale: Scalar = 1.0
     rib_chord_scale: Scalar = 1.0
+    rib_shape: Any = None
+    rib_shape_tip: Any = None
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Parameters):
+            return NotImplemented
+        return all(_same(getattr(self, n), getattr(other, n)) for n in PARAMETER_NAMES + SHAPE_NAMES)
+
+    __hash__ = None  # mutable-valued (arrays): not hashable
 
     @property
     def prestrain(self) -> tuple:
@@ -101,20 +123,29 @@ class Parameters:
         )
 
     def as_dict(self) -> dict:
-        """``{name: value}`` for every field."""
-        return {name: getattr(self, name) for name in PARAMETER_NAMES}
+        """``{name: value}`` for every field (the rib shapes as they are: None or arrays)."""
+        return {name: getattr(self, name) for name in PARAMETER_NAMES + SHAPE_NAMES}
 
     def as_floats(self) -> "Parameters":
-        """A copy with every set value a Python float (for records and reports)."""
-        return Parameters(**{k: (None if v is None else float(np.asarray(v)))
-                             for k, v in self.as_dict().items()})
+        """A copy with every set scalar a Python float and every rib shape a float64 numpy array."""
+        values = {k: (None if v is None else float(np.asarray(v)))
+                  for k, v in self.as_dict().items() if k in PARAMETER_NAMES}
+        shapes = {k: (None if getattr(self, k) is None else np.asarray(getattr(self, k), np.float64))
+                  for k in SHAPE_NAMES}
+        return Parameters(**values, **shapes)
+
+    @property
+    def rib_shapes(self) -> tuple:
+        """``(root, tip)`` rib-shape coefficients (the tip takes the root's unless set; None: unchanged)."""
+        return (self.rib_shape, self.rib_shape if self.rib_shape_tip is None else self.rib_shape_tip)
 
     @classmethod
     def from_mapping(cls, values: Mapping) -> "Parameters":
         """From ``{name: value}``; unknown names raise a ValueError naming them."""
-        unknown = sorted(set(values) - set(PARAMETER_NAMES))
+        unknown = sorted(set(values) - set(PARAMETER_NAMES + SHAPE_NAMES))
         if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; the parameters are {PARAMETER_NAMES}")
+            raise ValueError(f"unknown parameter(s) {unknown}; the parameters are "
+                             f"{PARAMETER_NAMES + SHAPE_NAMES}")
         return cls(**values)
 
     def is_traced(self) -> bool:
@@ -139,10 +170,35 @@ class Parameters:
                 raise ValueError(f"{name} must be a positive tensile stiffness in N/m, got {value!r}")
             if name.startswith("rib") and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive multiplier, got {value!r}")
+        sizes = set()
+        for name in SHAPE_NAMES:
+            value = getattr(self, name)
+            if value is None:
+                continue
+            shape = np.shape(value)
+            if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
+                raise ValueError(f"{name} must be a 1-D array of 2 K coefficients (K >= 1 for the upper "
+                                 f"surface, then K for the lower), got shape {shape}")
+            sizes.add(shape[0])
+            if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
+                raise ValueError(f"{name} must be finite, got {np.asarray(value)!r}")
+        if self.rib_shape_tip is not None and self.rib_shape is None:
+            raise ValueError("rib_shape_tip needs rib_shape (the root rib's coefficients) as well")
+        if len(sizes) > 1:
+            raise ValueError(f"rib_shape and rib_shape_tip must have the same number of coefficients, "
+                             f"got {sorted(sizes)}")
         return self
 
 
-jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES), meta_fields=[])
+jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES + SHAPE_NAMES),
+                                 meta_fields=[])
+
+
+def _same(a, b) -> bool:
+    """Equality of two field values (None, scalars or arrays)."""
+    if a is None or b is None:
+        return a is None and b is None
+    return bool(np.array_equal(np.asarray(a), np.asarray(b)))
 
 
 class ParameterViews:
@@ -167,6 +223,11 @@ class ParameterViews:
     @property
     def rib_chord_scale(self):
         return self.parameters.rib_chord_scale
+
+    @property
+    def rib_shape(self):
+        """Rib-shape coefficients (None: the ribs keep their sections)."""
+        return self.parameters.rib_shape
 
 
 def _concrete(value) -> float | None:

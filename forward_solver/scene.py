@@ -92,5 +92,27 @@ class Scene:
             gravity=self.gravity_acceleration,
             rib_thickness_scale=p.rib_thickness_scale,
             rib_chord_scale=p.rib_chord_scale,
+            rib_shape_root=_no_shape if p.rib_shapes[0] is None else p.rib_shapes[0],
+            rib_shape_tip=_no_shape if p.rib_shapes[1] is None else p.rib_shapes[1],
         )
         return Params(*(jnp.asarray(v, dtype=dtype) for v in values))
+
+    def check_parameters(self, parameters: Parameters) -> Parameters:
+        """``parameters.check()``, and a rib shape only on a closed (airfoil) contour.
+
+        Raises:
+            ValueError: saying what to change.
+        """
+        parameters.check()
+        if parameters.rib_shape is not None and not self.bay.periodic:
+            raise ValueError("rib_shape offsets an airfoil rib's upper and lower surfaces; this bay is a "
+                             "flat panel: leave rib_shape None or build the bay with Bay.from_airfoil")
+        return parameters
+
+    def symmetric(self, parameters: Parameters) -> bool:
+        """Whether the bay with these ``parameters`` is symmetric about mid-span (both ribs alike)."""
+        return self.bay.symmetric and parameters.rib_shape_tip is None
+
+
+#: Kernel value of an unset rib shape: no coefficients, no offset (`rib_shape.rib_offsets`).
+_no_shape = ()

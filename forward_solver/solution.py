@@ -271,12 +271,12 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
             returned under a JAX transformation (traced nodes) starts from its
             concrete nodes.
         geometry: the bay's `forces.Geometry`.
-        params: the solve's kernel parameters (for the rib scales).
+        params: the solve's kernel parameters (for the rib scales and shapes).
 
     Raises:
         ValueError: when the shape does not fit the grid.
     """
-    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    mounted = fk.mounted_nodes(geometry, params)
     if initial is None:
         return mounted
     solution = initial if isinstance(initial, Solution) else None
@@ -290,7 +290,8 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
         )
     if solution is not None:
         own = solution.parameters
-        nodes = mounted + (nodes - fk.nominal_nodes(geometry, own.rib_thickness_scale, own.rib_chord_scale))
+        own_mounted = fk.nominal_nodes(geometry, own.rib_thickness_scale, own.rib_chord_scale, *own.rib_shapes)
+        nodes = mounted + (nodes - own_mounted)
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 

@@ -150,7 +150,8 @@ def solve_equilibrium(
     """
     parameters = as_parameters(parameters, prestrain, pressure=pressure, stiffness=stiffness,
                                rib_thickness_scale=rib_thickness_scale,
-                               rib_chord_scale=rib_chord_scale).resolved(scene.fabric).check()
+                               rib_chord_scale=rib_chord_scale).resolved(scene.fabric)
+    scene.check_parameters(parameters)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
@@ -172,7 +173,7 @@ def solve_equilibrium(
     if has_abstract_values(parameters):
         _check_transformable(method, throw, adjoint, linear_solver, precision)
         return traced_solution(scene, parameters, rtol=rtol, initial=initial,
-                               half=_use_half_bay(scene.bay, symmetry), chunk=RELAX_CHUNK,
+                               half=_use_half_bay(scene, parameters, symmetry), chunk=RELAX_CHUNK,
                                max_chunks=-(-max_steps // RELAX_CHUNK))
     linear_solver = linear_solver or default_linear_solver()
 
@@ -213,9 +214,9 @@ def _check_transformable(method, throw, adjoint, linear_solver, precision) -> No
         raise TypeError(f"precision={precision!r} is available eagerly only; {where} use 'float64'")
 
 
-def _use_half_bay(bay, symmetry: bool) -> bool:
+def _use_half_bay(scene, parameters, symmetry: bool) -> bool:
     """Whether the relaxation solves half the bay (both ribs alike, odd ``n_span``)."""
-    return _use_half(bay.geometry(), symmetry and bay.symmetric)
+    return _use_half(scene.bay.geometry(), symmetry and scene.symmetric(parameters))
 
 
 def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symmetry,
@@ -224,7 +225,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
     bay = scene.bay
     bound = bay.chord + bay.rib_spacing
     physics = scene.physics(dynamic=False)
-    symmetric = symmetry and bay.symmetric
+    symmetric = symmetry and scene.symmetric(parameters)
     max_chunks = -(-max_steps // RELAX_CHUNK)
     with float64_scope():
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
@@ -238,7 +239,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         steps = 0
         levels = []
         if initial is None and method == "newton":
-            x_init = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+            x_init = fk.mounted_nodes(geometry, params)
         elif initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
                                                      sequencing, symmetric, precision, coarse_rtol)
@@ -362,7 +363,7 @@ def _use_half(geometry, symmetric: bool) -> bool:
 def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric,
                      precision="float64", coarse_rtol=_COARSE_RTOL):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
-    x0 = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    x0 = fk.mounted_nodes(geometry, params)
     if not (sequencing and _coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
@@ -374,7 +375,7 @@ def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, s
                                 max_chunks, half=_use_half(coarse, symmetric), precision=precision)
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
-    xc0 = fk.nominal_nodes(coarse, params.rib_thickness_scale, params.rib_chord_scale)
+    xc0 = fk.mounted_nodes(coarse, params)
     u = _prolong(xc_full - xc0, physics.periodic)
     chunks = int(out.chunks)
     levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]

@@ -158,7 +158,7 @@ def _stack(trees):
 
 
 def _bay_equilibrium(geometry, bound, displacement, params, rtol, physics, max_chunks):
-    mounted = fk.nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale)
+    mounted = fk.mounted_nodes(geometry, params)
     # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
     x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
     nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,

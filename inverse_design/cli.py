@@ -89,6 +89,7 @@ _GROUPS = {
     "fabric": "fabric",
     "design": "design variables and bounds",
     "constraints": "tension constraints",
+    "rib": "rib shape (--variables ...,rib_shape)",
     "optimiser": "optimiser",
     "aero": "aerodynamics",
     "output": "input and output",
@@ -136,7 +137,7 @@ OPTIONS = (
                                   "value evaluated with --evaluate (default 1e4)")),
     ("design", "--variables", dict(default=DEFAULT_VARIABLES, metavar="NAMES",
                                    help="comma-separated design variables among pressure, prestrain_span, "
-                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale "
+                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale, rib_shape "
                                    f"(default {DEFAULT_VARIABLES})")),
     ("design", "--pressure-bounds", dict(type=_number("Pa", positive=True), nargs=2, default=(1e3, 1e5),
                                          metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")),
@@ -157,6 +158,21 @@ OPTIONS = (
                                           "N/m (default none)")),
     ("constraints", "--no-tension-constraints", dict(action="store_true",
                                                      help="drop both tension constraints (keep the bounds)")),
+    ("rib", "--rib-shape-terms", dict(type=_whole, default=4, metavar="K",
+                                      help="Bernstein terms per surface of the rib's outward offset (2 K "
+                                      "coefficients, started at zero; default 4)")),
+    ("rib", "--rib-shape-bounds", dict(type=_number("chord"), nargs=2, default=(-0.05, 0.05),
+                                       metavar=("LOW", "HIGH"),
+                                       help="bounds of every rib-shape coefficient, fraction of chord "
+                                       "(default -0.05 0.05: offsets up to about 1%% of chord)")),
+    ("rib", "--min-rib-thickness", dict(type=_number("fraction", positive=True), default=0.8, metavar="F",
+                                        help="least local thickness of the shaped rib, as a fraction of the "
+                                        "starting rib's at the same x (default 0.8)")),
+    ("rib", "--min-rib-radius", dict(type=_number("chord", positive=True), default=None, metavar="R",
+                                     help="least radius of curvature of the shaped rib, fraction of chord "
+                                     "(default: half the starting rib's nose radius)")),
+    ("rib", "--no-rib-limits", dict(action="store_true",
+                                    help="drop both rib limits (keep the coefficient bounds)")),
     ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
                                       help="sections that must match the target: the mid-bay one, every "
                                       "row from rib to rib, or the worst row (default average)")),
@@ -232,6 +248,9 @@ such temporary folders left by a killed run are removed by the next run to DIR):
   tensions.png          fibre tensions with the wrinkled cells marked
   history.png           the optimiser's iterates (not with --evaluate)
   aero.png              lift, drag and moment against the target (with --aero)
+  cut_pattern.csv       the fabric's cut lengths along the contour and the span
+  rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
+                        (with --variables ...,rib_shape)
 
 case file (--config case.toml; keys are the long option names, with - or _; paths in it
 are relative to the current folder; options on the command line override it):
@@ -407,6 +426,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
     from .constraints import Constraints
     from .optimise import optimise_pressure, refine_design
+    from .rib_design import RibLimits
     from .export import check_output_folder
     from .summary import write_report
 
@@ -421,8 +441,20 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     parameters = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
                             prestrain_chord=args.prestrain_chord,
                             rib_thickness_scale=args.rib_thickness_scale, rib_chord_scale=args.rib_chord_scale)
+    variables = _variables(args.variables)
+    rib_limits = None
+    if "rib_shape" in variables and not args.evaluate:
+        if args.rib_shape_terms < 1:
+            raise InputError(f"--rib-shape-terms must be at least 1, got {args.rib_shape_terms}")
+        parameters = parameters.replace(rib_shape=[0.0] * (2 * args.rib_shape_terms))
+        if not args.no_rib_limits:
+            if args.min_rib_thickness > 1:
+                raise InputError(f"--min-rib-thickness is a fraction of the starting rib's thickness in "
+                                 f"(0, 1], got {args.min_rib_thickness}")
+            rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
-    report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification)
+    report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
+                  rib=rib, rib_limits=rib_limits)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
@@ -432,15 +464,15 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
             raise ConvergenceError(result)
         aero = _aero(args, result, target, alphas, timings)
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
-    variables = _variables(args.variables)
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
-                  "rib_chord_scale": args.rib_chord_bounds}
+                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
     bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
     constraints = (None if args.no_tension_constraints else
                    Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
     options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
-                   max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress)
+                   max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
+                   rib=rib, rib_limits=rib_limits)
     t = time.perf_counter()
     result = optimise_pressure(scene, target, variables=variables, initial=parameters,
                                objective=args.objective, method=args.method, **options)
@@ -478,6 +510,13 @@ def _aero(args: argparse.Namespace, solution, target, alphas, timings: dict):
     return comparison
 
 
+def _value_text(name: str, value) -> str:
+    """``name value`` for the console (a vector variable as its rounded components)."""
+    if isinstance(value, list):
+        return f"{name} [{', '.join(f'{v:.4f}' for v in value)}]"
+    return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
+
+
 def _describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
     if summary["mode"] == "wing":
@@ -493,8 +532,7 @@ def _describe(summary: dict) -> list[str]:
         lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} chord "
                      f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
     else:
-        chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}"
-                           + (" Pa" if n == "pressure" else "") for n in res["variables"])
+        chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n]) for n in res["variables"])
         lines.append(f"  {res['method']}: {chosen}")
         lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} chord, "
                      f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
@@ -505,7 +543,7 @@ def _describe(summary: dict) -> list[str]:
         grid = res.get("grid_change")
         if grid:
             moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
-                              for n, c in grid["change"].items())
+                              for n, c in grid["change"].items())  # a vector: its largest move
             lines.append(f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> "
                          f"{grid['grids'][1][0]}x{grid['grids'][1][1]}: {moves}")
     aero = summary.get("aero")

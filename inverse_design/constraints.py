@@ -187,10 +187,8 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
         and maximum tension (N/m) with each limit.
     """
     active = []
-    for name in variables.names:
-        lo, hi = variables.bounds[name]
+    for name, value, lo, hi in variables.components(parameters):
         width = hi - lo
-        value = float(getattr(parameters, name))
         if value - lo <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}>=lower")
         if hi - value <= ACTIVE_TOLERANCE * width:

@@ -36,8 +36,10 @@ __all__ = [
     "deviation",
     "remove_stale_partials",
     "staged_folder",
+    "write_cut_pattern",
     "write_npz",
     "write_obj",
+    "write_selig",
     "write_stl",
 ]
 
@@ -125,10 +127,15 @@ def write_npz(path, solution: Solution, target, scene, result: DesignResult | No
     ``target_xz`` (n, 2) the chord-normalised target; ``mid_bay_section``
     and ``rib_section`` (n_contour, 2) x-z in m; scalars ``pressure`` (Pa),
     ``prestrain`` (span, chord), ``rib_thickness_scale``, ``rib_chord_scale``,
-    ``stiffness`` (span, chord) N/m, ``chord`` and ``rib_spacing`` (m); ``variables`` (names) and, after an
-    optimisation, ``history_objective`` and ``history_values`` (iterate x
-    variable).
+    ``stiffness`` (span, chord) N/m, ``chord`` and ``rib_spacing`` (m);
+    ``rib_shape`` (2 K coefficients, empty for an unshaped rib); the cut
+    lengths of `rib_design.cut_lengths` (``contour_edge_cut`` (n_span,
+    n_edges), ``span_edge_cut`` (n_span - 1, n_contour), m); ``variables``
+    (names) and, after an optimisation, ``history_objective`` and
+    ``history_values`` (iterate x component; a rib shape takes 2 K columns).
     """
+    from .rib_design import cut_lengths
+
     bay = scene.bay
     values = solution.parameters
     arrays = dict(
@@ -144,13 +151,16 @@ def write_npz(path, solution: Solution, target, scene, result: DesignResult | No
         stiffness=np.array(values.stiffness, dtype=np.float64),
         chord=np.float64(bay.chord), rib_spacing=np.float64(bay.rib_spacing),
         target_name=np.array(str(target.name)),
+        rib_shape=np.zeros(0) if values.rib_shape is None else np.asarray(values.rib_shape, np.float64),
     )
+    cuts = cut_lengths(scene, values)
+    arrays.update(contour_edge_cut=cuts["contour_edge_cut_m"], span_edge_cut=cuts["span_edge_cut_m"])
     if result is not None:
         names = list(result.variables)
         arrays["variables"] = np.array(names, dtype=str)
         arrays["history_objective"] = np.array([h["objective"] for h in result.history], dtype=np.float64)
-        arrays["history_values"] = np.array([[h["values"][n] for n in names] for h in result.history],
-                                            dtype=np.float64).reshape(-1, len(names))
+        rows = [np.concatenate([np.ravel(h["values"][n]) for n in names]) for h in result.history]
+        arrays["history_values"] = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
     path = Path(path)
     with open(path, "wb") as f:
         np.savez_compressed(f, **arrays)
@@ -158,6 +168,57 @@ def write_npz(path, solution: Solution, target, scene, result: DesignResult | No
 
 
 # ------------------------------------------------------------------ the folder
+def write_selig(path, airfoil, comment: str = "") -> Path:
+    """Write a chord-normalised `targets.Airfoil` as a Selig ``.dat`` file (name line, then x z).
+
+    Points run in the airfoil's own (Selig) order: trailing edge, upper
+    surface, leading edge, lower surface. `targets.load_airfoil` reads it
+    back.
+    """
+    name = " ".join(str(airfoil.name).split()) or "airfoil"
+    lines = [name + (f"  ({comment})" if comment else "")]
+    lines += [f"{x: .8f} {z: .8f}" for x, z in zip(np.asarray(airfoil.x), np.asarray(airfoil.z))]
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def write_cut_pattern(path, scene, parameters) -> Path:
+    """Write the fabric's cut lengths (`rib_design.cut_lengths`) as CSV, one row per contour node.
+
+    Columns: ``j`` (contour node), ``surface`` (upper/lower, Selig order),
+    ``x_over_chord`` (at the root rib), ``arc_cut_root_m`` and
+    ``arc_cut_mid_m`` (cut length along the contour from the trailing edge
+    to the node, at the root rib's row and at mid-bay), ``span_cut_m`` (cut
+    length of the span fibre through the node, rib to rib) and
+    ``span_mounted_m`` (its mounted length). The ``# `` header lines give
+    the prestrains and each row's cut perimeter.
+    """
+    from .rib_design import cut_lengths
+
+    cuts = cut_lengths(scene, parameters)
+    bay = scene.bay
+    contour = cuts["contour_edge_cut_m"]
+    mid = bay.n_span // 2
+    arc_root = np.concatenate([[0.0], np.cumsum(contour[0])])[: bay.n_contour]
+    arc_mid = np.concatenate([[0.0], np.cumsum(contour[mid])])[: bay.n_contour]
+    x = np.asarray(bay.contour_root[:, 0])
+    j_le = int(np.argmin(x))
+    lines = [f"# cut lengths of the fabric: reference length = mounted length / (1 + prestrain), "
+             f"prestrain span {float(parameters.prestrain_span):.6g}, chord {float(parameters.prestrain_chord):.6g}",
+             f"# cut perimeter (trailing edge around to trailing edge): root rib "
+             f"{cuts['contour_cut_m'][0]:.6f} m, mid-bay {cuts['contour_cut_m'][mid]:.6f} m, tip rib "
+             f"{cuts['contour_cut_m'][-1]:.6f} m",
+             "j,surface,x_over_chord,arc_cut_root_m,arc_cut_mid_m,span_cut_m,span_mounted_m"]
+    for j in range(bay.n_contour):
+        surface = "upper" if j <= j_le else "lower"
+        lines.append(f"{j},{surface},{x[j]:.6f},{arc_root[j]:.6f},{arc_mid[j]:.6f},"
+                     f"{cuts['span_cut_m'][j]:.6f},{cuts['span_mounted_m'][j]:.6f}")
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def check_output_folder(out_dir) -> Path:
     """The absolute output path, after checking that `write_report` may write (and replace) it.
 

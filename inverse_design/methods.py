@@ -69,7 +69,7 @@ def slsqp(problem: DesignProblem, u0, max_iterations, tolerance):
         return result
 
     constraints = []
-    if problem.constraints is not None and problem.evaluate(u0)[2].size:
+    if problem.evaluate(u0)[2].size:
         constraints.append({"type": "ineq", "fun": lambda u: evaluate(u)[2], "jac": lambda u: evaluate(u)[3]})
     design = problem.variables
     try:
@@ -82,7 +82,8 @@ def slsqp(problem: DesignProblem, u0, max_iterations, tolerance):
                 f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
                 f"{max_iterations}) without converging; the result is the best iterate")
     except _Stalled as stall:
-        values = ", ".join(f"{n} {v:.6g}" for n, v in design.values(stall.args[0]).items())
+        values = ", ".join(f"{n} {np.round(v, 6).tolist() if isinstance(v, list) else format(v, '.6g')}"
+                           for n, v in design.values(stall.args[0]).items())
         return (problem.best_iterate(), False,
                 f"SLSQP's line search kept returning to one point ({values}) after {len(visited)} "
                 "evaluations: no step improves the objective while meeting the constraints there "

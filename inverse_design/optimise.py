@@ -59,6 +59,7 @@ from .constraints import Constraints, cell_tensions, constraint_report
 from .methods import least_squares, optax_descent, root, slsqp
 from .objectives import check_objective, design_errors
 from .problem import DesignProblem
+from .rib_design import RibGeometry, RibLimits, rib_report
 from .variables import DesignVariables
 
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure", "refine_design"]
@@ -92,16 +93,21 @@ class DesignResult(ParameterViews):
             (within `constraints.ACTIVE_TOLERANCE`).
         violated_constraints: ``{name: amount}``, N/m beyond the limit, of
             each tension limit broken by more than
-            `constraints.VIOLATION_TOLERANCE`.
+            `constraints.VIOLATION_TOLERANCE`; for a shaped rib also
+            ``rib_min_thickness`` (the thickness ratio's shortfall) and
+            ``rib_min_radius`` (the radius's, chord) broken by more than
+            `rib_design.RIB_TOLERANCE` of the limit.
         constraint_values: the measured minimum and maximum fibre tension (N/m)
-            and the limits.
+            and the limits; for a shaped rib the least thickness ratio and
+            radius of curvature with their limits (`rib_design.rib_report`).
         method, objective: as requested.
         solves: forward solves.
         wall_time: s, compilation included.
         grid_change: after `refine_design`, how the design moved from the
             coarser grid: ``{"grids": [[n_span, n_contour], ...], "values":
             {name: [coarse, fine]}, "change": {name: relative change for the
-            pressure, absolute otherwise}, "rms_error": [coarse, fine]}``;
+            pressure, absolute otherwise (the largest component's for a
+            vector)}, "rms_error": [coarse, fine]}``;
             None for a design on one grid.
     """
 
@@ -149,6 +155,8 @@ def optimise_pressure(
     rtol: float = GRADIENT_RTOL,
     progress: bool = False,
     callback=None,
+    rib=None,
+    rib_limits: RibLimits | None = RibLimits(),
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring the inflated skin closest to ``target``.
 
@@ -182,14 +190,22 @@ def optimise_pressure(
         callback: called as ``callback(entry)`` after every iterate with the
             new `DesignResult.history` entry; an exception it raises stops the
             optimisation and propagates.
+        rib: the rib's starting section (`targets.Airfoil`; default the
+            target): what ``rib_limits`` are measured against. Give it when
+            the scene's bay was built from another airfoil.
+        rib_limits: manufacturability limits of a shaped rib
+            (`rib_design.RibLimits`: minimum thickness, curvature bound), SLSQP
+            inequality constraints when ``rib_shape`` is a variable; None
+            leaves the shape free within its bounds.
 
     Returns:
         A `DesignResult`.
 
     Raises:
         ValueError: for an unknown method, objective, variable or condition,
-            bad bounds, inconsistent tension limits, or (``method="root"``)
-            no sign change inside the pressure bounds.
+            bad bounds, inconsistent tension limits, rib limits with a method
+            other than SLSQP, or (``method="root"``) no sign change inside the
+            pressure bounds.
         forward_solver.ConvergenceError: if the forward solve at the starting
             values fails. A solve that fails later stops the optimisation
             instead: the `DesignResult` holds the best iterate whose solve
@@ -213,11 +229,18 @@ def optimise_pressure(
             raise ValueError(f"method='root' solves for the pressure alone; got variables {design.names}")
         if root_condition not in ROOT_CONDITIONS:
             raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
+    rib_geometry = None
+    if "rib_shape" in design.names and rib_limits is not None:
+        if method != "slsqp":
+            raise ValueError(f"the rib limits (minimum thickness, curvature) are constraints that only "
+                             f"method='slsqp' enforces, got method={method!r}: use slsqp, or pass "
+                             "rib_limits=None to leave the rib shape free within its bounds")
+        rib_geometry = RibGeometry(target if rib is None else rib, rib_limits)
     if tolerance is None:
         tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
     with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
-        problem = DesignProblem(scene, target, design, objective, constraints, rtol)
+        problem = DesignProblem(scene, target, design, objective, constraints, rtol, rib_geometry)
         problem.on_record = _notify(bar, callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.to_vector(design.start)
@@ -253,9 +276,11 @@ def optimise_pressure(
         tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), parameters))
         active, violated, report = constraint_report(constraints, design, parameters, tensions,
                                                      scene.fabric, problem.tension_scale)
-        if violated:
+        rib_active, rib_violated, rib_values = rib_report(rib_geometry, parameters)
+        if violated or rib_violated:
             success = False
-            message = f"{message}; {_violation_message(violated, report)}"
+            message = f"{message}; {_violation_message(violated, report, rib_violated, rib_values)}"
+        active, violated, report = active + rib_active, {**violated, **rib_violated}, {**report, **rib_values}
     return DesignResult(
         parameters=parameters,
         variables=design.names,
@@ -302,9 +327,10 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
     fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
                              objective=result.objective, method=result.method, **options)
     coarse_grid = list(result.solution.nodes.shape[:2])
-    values = {n: [float(getattr(result.parameters, n)), float(getattr(fine.parameters, n))]
+    values = {n: [_plain(getattr(result.parameters, n)), _plain(getattr(fine.parameters, n))]
               for n in result.variables}
-    change = {n: (b - a) / a if n == "pressure" else b - a for n, (a, b) in values.items()}
+    change = {n: (b - a) / a if n == "pressure" else float(np.max(np.abs(np.subtract(b, a))))
+              for n, (a, b) in values.items()}
     grid_change = {"grids": [coarse_grid, [scene.bay.n_span, scene.bay.n_contour]], "values": values,
                    "change": change, "rms_error": [result.rms_error, fine.rms_error]}
     return dataclasses.replace(fine, grid_change=grid_change, solves=result.solves + fine.solves,
@@ -314,8 +340,22 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
                                initial_max_error=result.initial_max_error)
 
 
-def _violation_message(violated: dict, report: dict) -> str:
+def _plain(value):
+    """A float, or a list of floats for a vector variable."""
+    return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
+
+
+def _violation_message(violated: dict, report: dict, rib_violated: dict | None = None,
+                       rib_values: dict | None = None) -> str:
     parts = []
+    rib_violated, rib_values = rib_violated or {}, rib_values or {}
+    if "rib_min_thickness" in rib_violated:
+        parts.append(f"rib_min_thickness violated: the rib is {rib_values['rib_min_thickness']:.4g} of its "
+                     f"starting thickness somewhere, below the limit {rib_values['rib_min_thickness_limit']:.4g}")
+    if "rib_min_radius" in rib_violated:
+        parts.append(f"rib_min_radius violated: the rib's smallest radius of curvature is "
+                     f"{rib_values['rib_min_radius']:.4g} chord, below the limit "
+                     f"{rib_values['rib_min_radius_limit']:.4g}")
     if "min_tension" in violated:
         parts.append(f"min_tension violated: the smallest fibre tension is {report['min_tension']:.4g} "
                      f"N/m, {violated['min_tension']:.4g} N/m below the floor "

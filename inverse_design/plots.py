@@ -27,6 +27,7 @@ __all__ = [
     "plot_aero",
     "plot_deviation",
     "plot_history",
+    "plot_rib_design",
     "plot_section",
     "plot_tensions",
 ]
@@ -130,7 +131,7 @@ def _figure(width: float, height: float):
 
 # ------------------------------------------------------------------ plots
 def plot_section(solution: Solution, target, scene, *, magnification: float | None = None,
-                 eta: float = 0.5):
+                 eta: float = 0.5, start_rib=None):
     """The skin section at ``y = eta * rib_spacing`` against the rib (y = 0) and the target.
 
     Top: the profiles with their deviation from the target magnified, as a
@@ -150,6 +151,8 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
         magnification: deviation factor of the top panel; default
             `auto_magnification` of the largest deviation shown.
         eta: span station of the skin section, fraction of the rib spacing.
+        start_rib: the rib's section before its shape was designed (a
+            `targets.Airfoil`), drawn beside the designed rib; None: not drawn.
 
     Returns:
         A `matplotlib.figure.Figure`.
@@ -178,13 +181,19 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     rib_m, skin_m = magnified(rib), magnified(skin)
     if scene.bay.periodic:
         rib_m, skin_m = np.vstack([rib_m, rib_m[:1]]), np.vstack([skin_m, skin_m[:1]])
-    top.plot(rib_m[:, 0], rib_m[:, 1], ls="--", label=f"rib at y = 0 (deviation {times})", **_RIB_STYLE)
+    if start_rib is not None:
+        start = magnified(_target_stations(start_rib, scene))
+        start = np.vstack([start, start[:1]])
+        top.plot(start[:, 0], start[:, 1], ls=":", color="0.5", lw=1.2,
+                 label=f"starting rib (deviation {times})")
+    rib_label = "designed rib" if start_rib is not None else "rib at y = 0"
+    top.plot(rib_m[:, 0], rib_m[:, 1], ls="--", label=f"{rib_label} (deviation {times})", **_RIB_STYLE)
     top.plot(skin_m[:, 0], skin_m[:, 1], label=f"{station} skin (deviation {times})", **_SKIN_STYLE)
     top.set_aspect("equal", adjustable="datalim")  # true shape; the box keeps its size
     top.set_xlabel("x / chord")
     top.set_ylabel("z / chord")
     top.grid(alpha=0.3)
-    top.legend(loc="upper center", fontsize="small", ncols=3)
+    top.legend(loc="upper center", fontsize="small", ncols=4 if start_rib is not None else 3)
     top.set_title(f"profiles; deviations from the target magnified {times}", fontsize="medium")
 
     j_le = _leading_edge_index(np.asarray(solution.nodes))
@@ -300,7 +309,59 @@ def plot_tensions(solution: Solution, scene):
 
 _UNITS = {"pressure": ("pressure, kPa", 1e-3), "prestrain_span": ("span prestrain, %", 100.0),
           "prestrain_chord": ("chord prestrain, %", 100.0),
-          "rib_thickness_scale": ("rib thickness scale", 1.0), "rib_chord_scale": ("rib chord scale", 1.0)}
+          "rib_thickness_scale": ("rib thickness scale", 1.0), "rib_chord_scale": ("rib chord scale", 1.0),
+          "rib_shape": ("rib shape coefficients", 1.0)}
+
+
+def plot_rib_design(parameters, start_rib, chord: float, limits=None):
+    """The designed rib against its starting section: the offset to cut, and the thickness kept.
+
+    Top: the outward offset of the upper and lower surfaces (mm; what the
+    rib's template changes). Bottom: the local thickness as a fraction of the
+    starting rib's, with the minimum-thickness limit.
+
+    Args:
+        parameters: the design's `forward_solver.Parameters` (``rib_shape`` set).
+        start_rib: the starting rib section (`targets.Airfoil`).
+        chord: the rib chord, m.
+        limits: the `rib_design.RibLimits` (default: the defaults).
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    from .rib_design import RibGeometry, RibLimits
+
+    geometry = RibGeometry(start_rib, limits or RibLimits())
+    import jax
+
+    with jax.enable_x64(True):
+        z = np.asarray(geometry.section_z(parameters))
+    start = geometry.z0
+    x = geometry.x
+    values = geometry.measure(parameters)
+    fig = _figure(9.0, 6.0)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    n_nose = int(np.argmin(x))
+    top.plot(x[: n_nose + 1], (z - start)[: n_nose + 1] * chord * 1e3, color="C0", label="upper surface")
+    top.plot(x[n_nose:], -(z - start)[n_nose:] * chord * 1e3, color="C0", ls="--", label="lower surface")
+    top.axhline(0.0, color="0.3", lw=0.8)
+    top.set_ylabel("outward offset, mm")
+    top.grid(alpha=0.3)
+    top.legend(fontsize="small")
+    top.set_title(f"designed rib minus starting rib {start_rib.name} (chord {chord:g} m)", fontsize="medium")
+    thickness = z[geometry.upper] - z[geometry.lower]
+    bottom.plot(x[geometry.upper], thickness / geometry.thickness0, color="C0", label="thickness / starting")
+    bottom.axhline(geometry.limits.min_thickness, color="C3", ls="--",
+                   label=f"limit {geometry.limits.min_thickness:g}")
+    bottom.set_xlabel("x / chord")
+    bottom.set_ylabel("thickness ratio")
+    bottom.grid(alpha=0.3)
+    bottom.legend(fontsize="small")
+    bottom.set_title(f"least radius of curvature {values['rib_min_radius']:.4f} chord (limit "
+                     f"{values['rib_min_radius_limit']:.4f}; starting rib {values['rib_start_radius']:.4f})",
+                     fontsize="medium")
+    fig.suptitle("rib design: the template offset and the thickness kept")
+    return fig
 
 
 def plot_history(result: DesignResult, bounds: dict | None = None):
@@ -340,9 +401,14 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
     bounds = bounds or {}
     for ax, name in zip(axes[1:], names):
         label, unit = _UNITS.get(name, (name, 1.0))
-        ax.plot(it, [h["values"][name] * unit for h in history], "o-", color="C0", label="iterate")
-        ax.axhline(result.values[name] * unit, color="0.3", ls=":",
-                   label=f"result: {result.values[name] * unit:.5g}")
+        if np.ndim(result.values[name]) > 0:  # a vector variable: one line per component
+            track = np.array([h["values"][name] for h in history], dtype=np.float64) * unit
+            for k in range(track.shape[1]):
+                ax.plot(it, track[:, k], ".-", lw=1.0, label=f"[{k}]" if track.shape[1] <= 8 else None)
+        else:
+            ax.plot(it, [h["values"][name] * unit for h in history], "o-", color="C0", label="iterate")
+            ax.axhline(result.values[name] * unit, color="0.3", ls=":",
+                       label=f"result: {result.values[name] * unit:.5g}")
         if name in bounds:
             for k, b in enumerate(bounds[name]):
                 ax.axhline(b * unit, color="0.5", ls="--", lw=1.0, label="bounds" if k == 0 else None)

@@ -30,7 +30,8 @@ __all__ = ["DesignProblem"]
 class DesignProblem:
     """The objective, the constraints, their derivatives and the iterate history of one design."""
 
-    def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol):
+    def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol,
+                 rib_geometry=None):
         self.scene = scene
         self.target = target
         self.variables = variables
@@ -47,6 +48,14 @@ class DesignProblem:
         self.tension_scale = tension_scale(variables.start, self.chord)
         self._cache: dict = {}  # the last evaluation with its derivatives
         self._solved: dict = {}  # every converged solve by `_key`, without its LU factor
+        # The rib's manufacturability limits (`rib_design.RibGeometry`): no solve in them, so their
+        # Jacobian comes from forward mode on the design vector alone.
+        self.rib_geometry = rib_geometry
+        if rib_geometry is not None:
+            def rib_rows(u):
+                return rib_geometry.functions(variables.parameters(u))
+
+            self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
 
     # ------------------------------------------------------------ solves
     def _solve(self, parameters: Parameters) -> Solution:
@@ -99,12 +108,13 @@ class DesignProblem:
         if not self.history:
             return None
         best = min(self.history, key=lambda h: (violation(h), abs(h["objective"])))
-        return np.array([best["values"][n] / self.variables.scale(n) for n in self.variables.names])
+        return self.variables.from_values(best["values"])
 
     # ----------------------------------------------- smooth constraints (slsqp)
     def evaluate(self, u):
         """``(f, grad f, g, dg/du, solution)`` at ``u``: mean square error (chord^2) and
-        the smooth constraints ``g >= 0``, gradients by reverse mode (one adjoint solve each)."""
+        the smooth constraints ``g >= 0`` (tension limits, gradients by reverse mode, one adjoint
+        solve each; then the rib limits' rows, if any)."""
         key = key_of(u)
         if key not in self._cache:
 
@@ -119,8 +129,14 @@ class DesignProblem:
             y, pullback, sol = jax.vjp(outputs, jnp.asarray(u, jnp.float64), has_aux=True)
             rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
             y = np.asarray(y)
+            recorded = y[1:]
+            if self.rib_geometry is not None:
+                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
+                y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
+                n_thick = self.rib_geometry.upper.size  # history: the least row of each rib limit
+                recorded = np.concatenate([recorded, [g_rib[:n_thick].min(), g_rib[n_thick:].min()]])
             self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
-            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=y[1:])
+            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
         return self._cache[key]
 
     # ------------------------------------------------------ penalty methods

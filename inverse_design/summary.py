@@ -16,6 +16,12 @@ into a folder::
                           single equilibrium)
     aero.png              lift, drag and moment against the target (`plot_aero`; only
                           with an `inverse_design.aero.AeroComparison`)
+    cut_pattern.csv       the fabric's cut lengths along the contour and the span
+                          (`inverse_design.export.write_cut_pattern`)
+    rib.dat               the designed rib as a Selig file (`export.write_selig`; only
+                          for a shaped rib)
+    rib_design.png        the rib's template offset and the thickness kept
+                          (`plot_rib_design`; only for a shaped rib)
 
 The folder is written atomically (`inverse_design.export.staged_folder`).
 """
@@ -32,10 +38,12 @@ import numpy as np
 
 from forward_solver import Solution
 
-from .export import check_output_folder, staged_folder, write_npz, write_obj, write_stl
+from .export import (check_output_folder, staged_folder, write_cut_pattern, write_npz, write_obj, write_selig,
+                     write_stl)
 from .objectives import design_errors, section_errors
 from .optimise import DesignResult
-from .plots import plot_aero, plot_deviation, plot_history, plot_section, plot_tensions
+from .plots import plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions
+from .rib_design import RibGeometry, RibLimits, cut_lengths
 
 __all__ = ["summarise", "write_report"]
 
@@ -83,7 +91,8 @@ def _jsonable(value):
 
 
 def summarise(result, target, scene, *, objective: str | None = None,
-              inputs: dict | None = None, timings: dict | None = None, aero=None) -> dict:
+              inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
+              rib_limits: RibLimits | None = None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
     Args:
@@ -96,6 +105,9 @@ def summarise(result, target, scene, *, objective: str | None = None,
         timings: seconds, e.g. ``{"setup": ..., "optimisation": ...}``.
         aero: an `inverse_design.aero.AeroComparison` of the result, stored as
             ``summary["aero"]`` (`AeroComparison.as_dict`); None leaves the key out.
+        rib: the rib's starting section (default the target), for the rib
+            entry of a shaped rib.
+        rib_limits: the `rib_design.RibLimits` the design used (default the defaults).
 
     Returns:
         A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
@@ -129,7 +141,8 @@ def summarise(result, target, scene, *, objective: str | None = None,
                        "rib_thickness_scale": params["rib_thickness_scale"],
                        "rib_chord_scale": params["rib_chord_scale"],
                        "stiffness_span_n_per_m": params["stiffness_span"],
-                       "stiffness_chord_n_per_m": params["stiffness_chord"]},
+                       "stiffness_chord_n_per_m": params["stiffness_chord"],
+                       "rib_shape": params["rib_shape"]},
             "variables": list(design.variables) if design is not None else [],
             "method": design.method if design is not None else None,
             "iterations": len(design.history) if design is not None else 0,
@@ -164,13 +177,29 @@ def summarise(result, target, scene, *, objective: str | None = None,
                                           "tensions are the solver's (compression clamped to zero)")
     if aero is not None:
         summary["aero"] = aero.as_dict()
+    cuts = cut_lengths(scene, solution.parameters)
+    mid_row = bay.n_span // 2
+    summary["cut_lengths"] = {
+        "unit": "m", "file": "cut_pattern.csv",
+        "contour_perimeter": {"root_rib": cuts["contour_cut_m"][0], "mid_bay": cuts["contour_cut_m"][mid_row],
+                              "tip_rib": cuts["contour_cut_m"][-1]},
+        "span_fibre": {"min": float(np.min(cuts["span_cut_m"])), "max": float(np.max(cuts["span_cut_m"]))},
+    }
+    if solution.parameters.rib_shape is not None:
+        geometry = RibGeometry(target if rib is None else rib, rib_limits or RibLimits())
+        summary["rib"] = {"coefficients": solution.parameters.rib_shape,
+                          "terms_per_surface": int(np.size(solution.parameters.rib_shape)) // 2,
+                          "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
+                                             "upper-surface coefficients, then lower (forward_solver.rib_shape)",
+                          "limits": geometry.measure(solution.parameters), "file": "rib.dat"}
     return _jsonable(summary)
 
 
 # ------------------------------------------------------------------ the folder
 def write_report(out_dir, result, target, *, scene, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
-                 timings: dict | None = None, magnification: float | None = None, aero=None) -> dict:
+                 timings: dict | None = None, magnification: float | None = None, aero=None,
+                 rib=None, rib_limits: RibLimits | None = None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -186,6 +215,9 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
         magnification: deviation factor of the section plot (default automatic).
         aero: an `inverse_design.aero.AeroComparison`: stored in the summary
             and drawn as ``aero.png`` (default none).
+        rib, rib_limits: the rib's starting section (default the target)
+            and its `rib_design.RibLimits`: a shaped rib is written as
+            ``rib.dat`` and drawn against it in ``rib_design.png``.
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -199,15 +231,29 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
-    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero)
+    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero,
+                        rib=rib, rib_limits=rib_limits)
     files, skipped = [], {}
+    start_rib = target if rib is None else rib
+    shaped = solution.parameters.rib_shape is not None
     with staged_folder(out) as staging:
         write_npz(staging / "equilibrium.npz", solution, target, scene, design)
         write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
         write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
-        files += ["equilibrium.npz", "skin.obj", "skin.stl"]
+        write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
+        files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
+        if shaped:
+            from forward_solver import rib_section
+
+            section = rib_section(start_rib, solution.parameters.rib_shape,
+                                  float(solution.parameters.rib_thickness_scale),
+                                  name=f"{start_rib.name} designed rib")
+            chord = scene.bay.chord * float(solution.parameters.rib_chord_scale)
+            write_selig(staging / "rib.dat", section, comment=f"chord {chord:g} m")
+            files.append("rib.dat")
         figures = [("mid_bay_section.png", lambda: plot_section(solution, target, scene,
-                                                                magnification=magnification)),
+                                                                magnification=magnification,
+                                                                start_rib=start_rib if shaped else None)),
                    ("deviation.png", lambda: plot_deviation(solution, target, scene)),
                    ("tensions.png", lambda: plot_tensions(solution, scene))]
         if design is not None and design.history:
@@ -216,6 +262,10 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
             skipped["history.png"] = "a single equilibrium has no optimiser history"
         if aero is not None:
             figures.append(("aero.png", lambda: plot_aero(aero)))
+        if shaped:
+            figures.append(("rib_design.png", lambda: plot_rib_design(
+                solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
+                rib_limits)))
         for name, make in figures:
             make().savefig(staging / name, dpi=_DPI)
             files.append(name)

@@ -24,7 +24,7 @@ from inverse_design import cli, export, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
-FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "mid_bay_section.png",
+FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv", "mid_bay_section.png",
           "deviation.png", "tensions.png", "history.png"}
 
 

@@ -1,0 +1,194 @@
+"""Rib design: manufacturability limits of a shaped rib, and the fabric's cut lengths (issue 12, item 1).
+
+A rib shape (`forward_solver.rib_shape`, the design variable ``rib_shape``)
+must stay a rib that can be made:
+
+* minimum thickness: at every chordwise station the designed rib's
+  thickness (upper minus lower surface at the same x) is at least
+  ``min_thickness`` times the starting rib's there (room for spars and
+  stiffness where the section is thick, no crossing surfaces where it is
+  thin);
+* curvature bound: nowhere is the contour's radius of curvature below
+  ``min_radius`` (fraction of chord; default half the starting rib's
+  smallest, its nose radius), so the optimiser cannot buy accuracy with a
+  kinked or pinched nose that a cut rib and a draped skin would not follow.
+
+Both are evaluated on the designed section at `RIB_POINTS` points (the
+starting rib's cosine spacing; thickness at every pair of upper and lower
+points, curvature by the circle through each three consecutive points) as
+vectors of smooth inequality constraints ``g >= 0`` for SLSQP, with exact
+Jacobians from JAX (they do not involve the equilibrium, so they cost no
+solve). `rib_report` measures them at a design, with active and violated
+limits named as the tension limits are.
+
+`cut_lengths` gives the fabric's cut pattern: the cut (reference) length of
+every grid edge, paper eq. (12) ``h = nominal / (1 + prestrain)``, summed
+along the contour (each span row's perimeter strip) and along the span (each
+contour node's span fibre).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from forward_solver import Parameters
+from forward_solver import forces as fk
+from forward_solver.rib_shape import rib_offsets
+
+__all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "cut_lengths"]
+
+#: Points of the designed section the limits are evaluated on.
+RIB_POINTS = 201
+#: A rib limit counts as active within this fraction of its limit, and as broken beyond it.
+RIB_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class RibLimits:
+    """Manufacturability limits of a shaped rib.
+
+    Args:
+        min_thickness: least local thickness, as a fraction of the starting
+            rib's at the same x (in (0, 1]; 0.8: at most 20% thinner anywhere).
+        min_radius: least radius of curvature of the contour, fraction of
+            chord (> 0); None: half the starting rib's smallest radius.
+    """
+
+    min_thickness: float = 0.8
+    min_radius: float | None = None
+
+    def check(self) -> "RibLimits":
+        """Raise a ValueError saying what to change for a limit that makes no sense."""
+        if not (isinstance(self.min_thickness, (int, float)) and 0 < self.min_thickness <= 1):
+            raise ValueError(f"min_thickness is a fraction of the starting rib's thickness in (0, 1], "
+                             f"got {self.min_thickness!r}")
+        if self.min_radius is not None and not (isinstance(self.min_radius, (int, float))
+                                                and math.isfinite(self.min_radius) and self.min_radius > 0):
+            raise ValueError(f"min_radius is a positive fraction of chord (or None), got {self.min_radius!r}")
+        return self
+
+
+def _section_z(x, z0, camber, thickness_scale, coefficients):
+    """The designed section's z at the starting rib's points (as `forces.nominal_nodes` mounts it)."""
+    return camber + thickness_scale * (z0 - camber) + rib_offsets(x, coefficients)
+
+
+def _curvature(x, z):
+    """Signed curvature (1/chord) of the circle through each three consecutive points (Menger)."""
+    a = jnp.stack([x[:-2], z[:-2]], -1)
+    b = jnp.stack([x[1:-1], z[1:-1]], -1)
+    c = jnp.stack([x[2:], z[2:]], -1)
+    ab, bc, ac = b - a, c - b, c - a
+    cross = ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0]
+    return 2.0 * cross / (fk.safe_norm(ab) * fk.safe_norm(bc) * fk.safe_norm(ac))
+
+
+class RibGeometry:
+    """The designed rib of a design vector, and its limits as smooth constraints.
+
+    Args:
+        rib: the starting rib section (`targets.Airfoil`, chord-normalised).
+        limits: the `RibLimits`.
+    """
+
+    def __init__(self, rib, limits: RibLimits):
+        self.limits = limits.check()
+        section = rib.resample(RIB_POINTS)
+        self.x = np.asarray(section.x, np.float64)
+        self.z0 = np.asarray(section.z, np.float64)
+        self.camber = np.asarray(rib.camber(np.clip(self.x, 0.0, 1.0)), np.float64)
+        n = self.x.size
+        half = n // 2
+        # Upper point k and lower point n-1-k share their x (the resampling is symmetric).
+        self.upper = np.arange(1, half)
+        self.lower = n - 1 - self.upper
+        with jax.enable_x64(True):
+            t0 = self.z0[self.upper] - self.z0[self.lower]
+            radius0 = 1.0 / np.max(np.abs(np.asarray(_curvature(jnp.asarray(self.x), jnp.asarray(self.z0)))))
+        self.thickness0 = t0
+        self.start_radius = float(radius0)
+        self.min_radius = 0.5 * radius0 if limits.min_radius is None else float(limits.min_radius)
+
+    NAMES = ("rib_min_thickness", "rib_min_radius")
+
+    def section_z(self, parameters: Parameters):
+        """z of the designed section at the starting rib's points (chord-normalised)."""
+        return _section_z(self.x, self.z0, self.camber, parameters.rib_thickness_scale, parameters.rib_shape)
+
+    def functions(self, parameters: Parameters):
+        """``g >= 0``: thickness rows (per station, relative to the starting thickness's largest)
+        and curvature rows (two per point: ``1 -+ kappa r_min``)."""
+        z = self.section_z(parameters)
+        thickness = z[self.upper] - z[self.lower]
+        g_thickness = (thickness - self.limits.min_thickness * self.thickness0) / np.max(self.thickness0)
+        kappa = _curvature(jnp.asarray(self.x), z) * self.min_radius
+        return jnp.concatenate([g_thickness, 1.0 - kappa, 1.0 + kappa])
+
+    def measure(self, parameters: Parameters) -> dict:
+        """The limits' measured values at concrete ``parameters``: least thickness ratio and radius."""
+        with jax.enable_x64(True):
+            z = np.asarray(self.section_z(parameters))
+            kappa = np.asarray(_curvature(jnp.asarray(self.x), jnp.asarray(z)))
+        thickness = z[self.upper] - z[self.lower]
+        inside = self.thickness0 > 1e-3 * np.max(self.thickness0)  # ratios where the rib has thickness
+        return {"rib_min_thickness": float(np.min(thickness[inside] / self.thickness0[inside])),
+                "rib_min_thickness_limit": self.limits.min_thickness,
+                "rib_min_radius": float(1.0 / np.max(np.abs(kappa))),
+                "rib_min_radius_limit": float(self.min_radius),
+                "rib_start_radius": self.start_radius}
+
+
+def rib_report(geometry: RibGeometry | None, parameters: Parameters) -> tuple[list, dict, dict]:
+    """Active and violated rib limits at a design, and the measured values.
+
+    Returns:
+        ``(active, violated, values)``: names of limits within `RIB_TOLERANCE`
+        of their bound; ``{name: amount}`` of each limit broken by more than
+        it, relative to the limit (the thickness ratio's shortfall, or the
+        radius's in fractions of chord); and `RibGeometry.measure`.
+    """
+    if geometry is None or parameters.rib_shape is None:
+        return [], {}, {}
+    values = geometry.measure(parameters)
+    active, violated = [], {}
+    for name in RibGeometry.NAMES:
+        measured, limit = values[name], values[f"{name}_limit"]
+        if (measured - limit) / limit <= RIB_TOLERANCE:
+            active.append(name)
+        if (limit - measured) / limit > RIB_TOLERANCE:
+            violated[name] = float(limit - measured)
+    return active, violated, values
+
+
+def cut_lengths(scene, parameters: Parameters) -> dict:
+    """The fabric's cut pattern: reference lengths of eq. (12) summed along the grid lines.
+
+    Args:
+        scene: the `forward_solver.Scene` (bay and fabric).
+        parameters: the design's `Parameters` (prestrain, rib scales and shape).
+
+    Returns:
+        ``{"contour_cut_m": (n_span,) cut perimeter of each span row's strip
+        (rib to rib), "contour_mounted_m": the mounted perimeters,
+        "span_cut_m": (n_contour,) cut length of each contour node's span
+        fibre (rib to rib), "span_mounted_m": the mounted lengths,
+        "contour_edge_cut_m": (n_span, n_edges) every contour edge's cut
+        length, "span_edge_cut_m": (n_span - 1, n_contour) every span
+        edge's}``, metres.
+    """
+    physics = fk.static_physics(scene.physics(dynamic=False))
+    with jax.enable_x64(True):
+        params = scene.params(parameters.as_floats())
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        ref = fk.prepare(geometry, params, physics)
+        contour = np.asarray(ref.contour_length)
+        span = np.asarray(ref.span_length)
+    prestrain_span, prestrain_chord = (float(v) for v in parameters.prestrain)
+    return {"contour_cut_m": contour.sum(axis=1), "contour_mounted_m": contour.sum(axis=1) * (1 + prestrain_chord),
+            "span_cut_m": span.sum(axis=0), "span_mounted_m": span.sum(axis=0) * (1 + prestrain_span),
+            "contour_edge_cut_m": contour, "span_edge_cut_m": span}
