@@ -94,8 +94,9 @@ def jit_loop(wing, fabric, grid):
             geometry = _stack([bay.geometry()])
             bound = jnp.asarray([bay.chord + bay.rib_spacing], jnp.float64)
             zeros = jnp.zeros((1, *bay.shape, 3), jnp.float64)
-            nodes, result, _, s = _wing_equilibrium(geometry, bound, zeros, params, jnp.asarray(RTOL, jnp.float64),
-                                                    physics, -(-MAX_STEPS // _CHUNK))
+            nodes, result, _, s, _ = _wing_equilibrium(geometry, bound, zeros, None, None, params,
+                                                       jnp.asarray(RTOL, jnp.float64), physics,
+                                                       -(-MAX_STEPS // _CHUNK))
             jax.block_until_ready(nodes)
             assert int(result[0]) == 0
             steps.append(int(s[0]))
