@@ -23,7 +23,11 @@ other ``variables``, for every bay) and `wing_report.write_wing_report`::
 
 The other keys are the single-bay options that apply to a wing (grid,
 fabric, prestrain, pressure, variables and bounds, tension limits,
-objective, ``max-iterations``, ``tolerance``, output); those that do not
+objective, ``max-iterations``, ``tolerance``, output; with ``rib_shape``
+among the variables every rib gets its own shape, ``rib-shape-terms``
+coefficients per surface within ``rib-shape-bounds``, each rib held to the
+rib limits ``min-rib-thickness`` and ``min-rib-radius`` against its own
+section unless ``no-rib-limits``); those that do not
 (``chord``, ``rib-spacing``, ``rib``, ``method`` other than slsqp,
 ``refine``, ``evaluate``, ``aero``) are refused with what to change. Bad
 wing input exits 2 with one line naming the file and the rib. An example:
@@ -152,16 +156,29 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
                          prestrain_chord=args.prestrain_chord, rib_thickness_scale=args.rib_thickness_scale,
                          rib_chord_scale=args.rib_chord_scale)
     variables = _variables(args.variables)
+    rib_limits = None
+    if "rib_shape" in variables:  # one shape per rib, each from its own section (zero offset)
+        from .rib_design import RibLimits
+
+        if args.rib_shape_terms < 1:
+            raise _error(f"--rib-shape-terms must be at least 1, got {args.rib_shape_terms}")
+        initial = initial.replace(rib_shape=[0.0] * (2 * args.rib_shape_terms))
+        if not args.no_rib_limits:
+            if args.min_rib_thickness > 1:
+                raise _error(f"--min-rib-thickness is a fraction of the starting rib's thickness in (0, 1], "
+                             f"got {args.min_rib_thickness}")
+            rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
-                  "rib_chord_scale": args.rib_chord_bounds}
+                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
     bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
     constraints = (None if args.no_tension_constraints else
                    Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
     timings = {"setup": time.perf_counter() - start}
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
-                           objective=args.objective, constraints=constraints, n_span=args.n_span,
+                           objective=args.objective, constraints=constraints, rib_limits=rib_limits,
+                           n_span=args.n_span,
                            n_contour=args.n_contour, max_iterations=args.max_iterations,
                            **({} if args.tolerance is None else {"tolerance": args.tolerance}),
                            progress=progress)
@@ -180,7 +197,9 @@ def describe_wing(summary: dict) -> list[str]:
              f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
              f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
     chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}" + (" Pa" if n == "pressure" else "")
-                       for n in res["variables"])
+                       for n in res["variables"] if n != "rib_shape")
+    if "rib_shape" in res["variables"]:
+        chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
     lines.append(f"  {res['method']}: {chosen}")
     lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
     for bay in res["bays"]:

@@ -63,18 +63,18 @@ and its result code): at the start it propagates; later it stops the
 optimisation at the best iterate whose solves converged, with
 ``success=False`` and the failure in the message.
 
-Per-rib design variables (the hook)
------------------------------------
-Every variable here is shared by the whole wing, so one `Parameters` feeds
-every bay (`solve_wing` vmaps the bays with the parameters broadcast). Rib
-shape coefficients per rib (``Parameters.rib_shape`` / ``rib_shape_tip``,
-being added on main) would extend the design vector after the shared
-values, one block per rib (`WingVariables.per_rib`); bay ``k`` takes rib
-``k``'s block as its ``rib_shape`` and rib ``k + 1``'s as its
-``rib_shape_tip``, and `solve_wing` maps those two fields over the bays
-(``in_axes=0``). `WingVariables.bay_parameters` is the one place that
-mapping lives. Until `Parameters` has those fields a per-rib name is refused
-with a message saying so.
+Per-rib rib shapes
+------------------
+The shared variables (pressure, prestrains, rib thickness and chord scales)
+are one `Parameters` for every bay. ``"rib_shape"`` is per rib: each rib
+``k`` has its own 2 K Bernstein coefficients (`forward_solver.rib_shape`),
+one block per rib after the shared values in the design vector
+(`WingVariables`); bay ``k`` is mounted between rib ``k``'s shape (its
+``rib_shape``) and rib ``k + 1``'s (its ``rib_shape_tip``), both batched by
+`solve_wing` (``rib_shapes=``) and differentiated by the same adjoint. Each
+shaped rib keeps the manufacturability limits of `rib_design.RibLimits`
+(minimum local thickness against its own starting section, curvature bound)
+as SLSQP rows with exact forward-mode Jacobians (no solve), reported per rib.
 
 All JAX work runs inside ``jax.enable_x64(True)`` (thread-local).
 """
@@ -103,15 +103,17 @@ from .constraints import (VIOLATION_TOLERANCE, Constraints, cell_tensions, const
 from .methods import slsqp
 from .objectives import WORST_SHARPNESS, check_objective, section_points, station_etas, target_distance
 from .problem import DesignProblem, key_of
-from .variables import DEFAULT_START, VARIABLES, DesignVariables
+from .rib_design import RibGeometry, RibLimits, rib_report
+from .variables import (_SCALES, DEFAULT_BOUNDS, DEFAULT_RIB_SHAPE_TERMS, DEFAULT_START, VARIABLES,
+                        DesignVariables)
 
 __all__ = ["BLEND_POINTS", "WING_VARIABLES", "PER_RIB_VARIABLES", "WingConvergenceError", "WingProblem",
            "WingDesignResult", "WingVariables", "bay_weights", "row_targets", "optimise_wing"]
 
-#: Shared design variables of a wing (fields of `Parameters`, one value for every bay).
-WING_VARIABLES = VARIABLES
-#: Per-rib design variables (one block per rib): refused until `Parameters` has rib shapes.
+#: Per-rib design variables (one block of coefficients per rib).
 PER_RIB_VARIABLES = ("rib_shape",)
+#: Design variables of a wing: the shared ones (one value for every bay), then the per-rib ones.
+WING_VARIABLES = tuple(n for n in VARIABLES if n not in PER_RIB_VARIABLES) + PER_RIB_VARIABLES
 #: Points of each target section when two different sections are blended along a bay.
 BLEND_POINTS = 401
 
@@ -136,66 +138,137 @@ class WingConvergenceError(ConvergenceError):
 
 @dataclass(frozen=True)
 class WingVariables:
-    """The design vector of a wing: shared values, then (hook) one block per rib.
+    """The design vector of a wing: the shared values, then one block of rib-shape coefficients per rib.
 
     Attributes:
         shared: the `DesignVariables` of the values every bay shares.
-        per_rib: names of per-rib variables (empty: see the module docstring).
         n_ribs: ribs of the wing.
+        rib_shape_start: ``(n_ribs, 2 K)`` starting coefficients, or None when
+            the rib shapes are not optimised (then every rib keeps
+            ``shared.start.rib_shape``, None: its section).
+        rib_shape_bounds: ``(lower, upper)`` of every coefficient.
     """
 
     shared: DesignVariables
-    per_rib: tuple = ()
-    n_ribs: int = 2
+    n_ribs: int
+    rib_shape_start: np.ndarray | None = None
+    rib_shape_bounds: tuple = DEFAULT_BOUNDS["rib_shape"]
 
     @classmethod
     def build(cls, variables, initial, bounds, n_ribs: int) -> "WingVariables":
-        """Validate the names (`DesignVariables.build` for the shared ones).
+        """Validate the names, starts and bounds.
+
+        Args:
+            variables: names from `WING_VARIABLES`.
+            initial: a `Parameters` or ``{name: value}`` (`DesignVariables.build`); a
+                ``rib_shape`` start is one ``(2 K,)`` row for every rib or an
+                ``(n_ribs, 2 K)`` array (default zeros, K = `DEFAULT_RIB_SHAPE_TERMS`).
+            bounds: ``{name: (lower, upper)}``; ``rib_shape``'s hold for every coefficient.
+            n_ribs: ribs of the wing.
 
         Raises:
-            ValueError: for an unknown name, or a per-rib name (not available yet).
+            ValueError: for an unknown name, a bad start or bound.
         """
         names = (variables,) if isinstance(variables, str) else tuple(variables)
-        per_rib = tuple(n for n in names if n in PER_RIB_VARIABLES)
-        if per_rib:
-            raise ValueError(
-                f"per-rib design variables {per_rib} need forward_solver.Parameters.rib_shape, which this "
-                f"version does not have; optimise the shared variables {WING_VARIABLES} instead")
-        return cls(DesignVariables.build(names, initial, bounds), (), n_ribs)
+        for name in names:
+            if name not in WING_VARIABLES:
+                raise ValueError(f"unknown design variable {name!r}; choose from {WING_VARIABLES}")
+        bounds = dict(bounds or {})
+        shaped = "rib_shape" in names
+        shape_bounds = tuple(float(b) for b in bounds.pop("rib_shape", DEFAULT_BOUNDS["rib_shape"]))
+        if isinstance(initial, Parameters):
+            shape_start, initial = initial.rib_shape, initial.replace(rib_shape=None, rib_shape_tip=None)
+        else:
+            initial = dict(initial or {})
+            shape_start = initial.pop("rib_shape", None)
+        shared_names = tuple(n for n in names if n != "rib_shape")
+        if not shared_names:
+            raise ValueError("a wing design needs at least one shared variable (the pressure is the usual one) "
+                             "besides the rib shapes")
+        shared = DesignVariables.build(shared_names, initial, bounds)
+        if not shaped:
+            if shape_start is not None:  # a fixed shape for every rib
+                shared = dataclasses.replace(shared, start=shared.start.replace(
+                    rib_shape=np.asarray(shape_start, np.float64)).check())
+            return cls(shared, n_ribs)
+        lo, hi = shape_bounds
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ValueError(f"bounds of rib_shape must be a finite (lower, upper) pair with lower < upper, "
+                             f"got {shape_bounds}")
+        start = np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS) if shape_start is None else np.asarray(shape_start, float)
+        if start.ndim == 1:
+            start = np.tile(start, (n_ribs, 1))
+        if start.ndim != 2 or start.shape[0] != n_ribs or start.shape[1] < 2 or start.shape[1] % 2:
+            raise ValueError(f"the rib_shape start must be one row of 2K coefficients for every rib or an "
+                             f"({n_ribs}, 2K) array, got shape {np.shape(shape_start)}")
+        if not np.all(np.isfinite(start)) or np.any(start < lo) or np.any(start > hi):
+            raise ValueError(f"the rib_shape start must be finite and inside its bounds {shape_bounds}")
+        return cls(shared, n_ribs, start, (lo, hi))
 
     @property
     def names(self) -> tuple:
-        return self.shared.names
+        return self.shared.names + (() if self.rib_shape_start is None else ("rib_shape",))
 
     @property
     def bounds(self) -> dict:
-        return self.shared.bounds
+        extra = {} if self.rib_shape_start is None else {"rib_shape": self.rib_shape_bounds}
+        return {**self.shared.bounds, **extra}
+
+    @property
+    def _n_shared(self) -> int:
+        return self.shared.size
+
+    @property
+    def _n_shape(self) -> int:
+        return 0 if self.rib_shape_start is None else self.rib_shape_start.size
 
     @property
     def lower(self) -> np.ndarray:
-        return self.shared.lower
+        return np.concatenate([self.shared.lower, np.full(self._n_shape, self.rib_shape_bounds[0] / _SCALES["rib_shape"])])
 
     @property
     def upper(self) -> np.ndarray:
-        return self.shared.upper
+        return np.concatenate([self.shared.upper, np.full(self._n_shape, self.rib_shape_bounds[1] / _SCALES["rib_shape"])])
 
     def scale(self, name: str) -> float:
-        return self.shared.scale(name)
+        return _SCALES["rib_shape"] if name == "rib_shape" else self.shared.scale(name)
 
-    def values(self, u) -> dict:
-        return self.shared.values(u)
-
-    def to_vector(self, parameters: Parameters) -> np.ndarray:
-        return self.shared.to_vector(parameters)
+    def start_vector(self) -> np.ndarray:
+        """The scaled vector of the start."""
+        shape = [] if self.rib_shape_start is None else [self.rib_shape_start.reshape(-1) / _SCALES["rib_shape"]]
+        return np.concatenate([self.shared.to_vector(self.shared.start), *shape])
 
     def parameters(self, u) -> Parameters:
         """The shared `Parameters` at the scaled vector ``u`` (JAX values stay traced)."""
-        return self.shared.parameters(u)
+        return self.shared.parameters(u[: self._n_shared])
 
-    def bay_parameters(self, u) -> Parameters:
-        """What `solve_wing` gets at ``u``: the shared `Parameters` (per-rib blocks would map to
-        each bay's ``rib_shape`` / ``rib_shape_tip`` here; module docstring)."""
-        return self.parameters(u)
+    def rib_shapes(self, u):
+        """``(n_ribs, 2 K)`` rib-shape coefficients at ``u`` (JAX values stay traced), or None."""
+        if self.rib_shape_start is None:
+            return None
+        return u[self._n_shared:].reshape(self.rib_shape_start.shape) * _SCALES["rib_shape"]
+
+    def bay_parameters(self, u, bay: int) -> Parameters:
+        """The `Parameters` of bay ``bay`` at ``u``: the shared ones with its ribs' shapes."""
+        parameters, shapes = self.parameters(u), self.rib_shapes(u)
+        if shapes is None:
+            return parameters
+        return parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+
+    def values(self, u) -> dict:
+        """``{name: value}`` at ``u``; ``rib_shape`` as one list of coefficients per rib."""
+        u = np.asarray(u, np.float64)
+        values = self.shared.values(u[: self._n_shared])
+        if self.rib_shape_start is not None:
+            values["rib_shape"] = np.asarray(self.rib_shapes(u)).tolist()
+        return values
+
+    def from_values(self, values: dict) -> np.ndarray:
+        """The scaled vector of ``values`` (as `values` returns them)."""
+        shared = self.shared.from_values({n: values[n] for n in self.shared.names})
+        if self.rib_shape_start is None:
+            return shared
+        return np.concatenate([shared, np.asarray(values["rib_shape"], np.float64).reshape(-1) / _SCALES["rib_shape"]])
 
 
 def bay_weights(wing: Wing) -> np.ndarray:
@@ -272,13 +345,16 @@ class WingProblem:
 
     Duck-types `problem.DesignProblem` where `methods.slsqp` needs it
     (``evaluate``, ``cached``, ``constraints``, ``variables``, ``best_iterate``).
+    Its constraint vector is the tension rows (`constraints.Constraints.names`,
+    over all bays), then, with rib shapes and ``rib_limits``, every rib's
+    `rib_design.RibGeometry.functions` rows, root to tip.
     """
 
-    best_iterate = DesignProblem.best_iterate  # uses only ``history`` and ``variables``
+    best_iterate = DesignProblem.best_iterate  # uses only ``history`` and ``variables.from_values``
 
     def __init__(self, wing: Wing, fabric: Fabric, targets: list, variables: WingVariables, objective: str,
                  constraints: Constraints | None, *, n_span: int, n_contour: int, rtol: float,
-                 max_steps: int):
+                 max_steps: int, rib_limits: RibLimits | None = None):
         self.wing, self.fabric, self.targets = wing, fabric, targets
         self.variables, self.objective, self.constraints = variables, objective, constraints
         self.grid = dict(n_span=n_span, n_contour=n_contour)
@@ -292,6 +368,17 @@ class WingProblem:
                      for k, b in enumerate(self.bays)]
         self.chord = max(b.chord for b in self.bays)
         self.tension_scale = 0.5 * abs(float(variables.shared.start.pressure)) * self.chord
+        self.rib_geometries = None
+        if variables.rib_shape_start is not None and rib_limits is not None:
+            # Each rib against its own starting section (the wing's rib airfoils).
+            self.rib_geometries = [RibGeometry(af, rib_limits) for af in wing.airfoils]
+
+            def rib_rows(u):
+                parameters, shapes = variables.parameters(u), variables.rib_shapes(u)
+                return jnp.concatenate([g.functions(parameters.replace(rib_shape=shapes[k]))
+                                        for k, g in enumerate(self.rib_geometries)])
+
+            self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
         self.previous: WingSolution | None = None
         self.solves = 0
         self.history: list[dict] = []
@@ -305,30 +392,36 @@ class WingProblem:
         return [_bay_distances(nodes[k], self.rows[k], self.etas, self.local_chords[k])
                 for k in range(len(self.bays))]
 
-    def tensions(self, nodes, parameters: Parameters) -> list:
-        """Per bay, its unclamped cell tensions (span then chord), N/m, differentiable."""
-        return [cell_tensions(scene, nodes[k], parameters) for k, scene in enumerate(self.scenes)]
+    def tensions(self, nodes, u) -> list:
+        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
+        return [cell_tensions(scene, nodes[k], self.variables.bay_parameters(u, k))
+                for k, scene in enumerate(self.scenes)]
 
-    def _solve_wing(self, parameters, initial):
+    def _solve_wing(self, u, initial):
         self.solves += 1
-        return solve_wing(self.wing, self.fabric, parameters, rtol=self.rtol, max_steps=self.max_steps,
-                          initial=initial, **self.grid)
+        return solve_wing(self.wing, self.fabric, self.variables.parameters(u), rtol=self.rtol,
+                          max_steps=self.max_steps, initial=initial, rib_shapes=self.variables.rib_shapes(u),
+                          **self.grid)
 
     def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
-        concrete = self.variables.parameters(np.asarray(u, np.float64)).resolved(self.fabric).as_floats()
-        return dataclasses.replace(sol, nodes=np.asarray(aux["nodes"]), result=np.asarray(aux["result"]),
-                                   residual=np.asarray(aux["residual"]), steps=np.asarray(aux["steps"]),
-                                   parameters=concrete)
+        u = np.asarray(u, np.float64)
+        shapes = self.variables.rib_shapes(u)
+        return dataclasses.replace(
+            sol, nodes=np.asarray(aux["nodes"]), result=np.asarray(aux["result"]),
+            residual=np.asarray(aux["residual"]), steps=np.asarray(aux["steps"]),
+            mounted=np.asarray(aux["mounted"]), rib_shapes=None if shapes is None else np.asarray(shapes),
+            parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
-    def _remember(self, sol: WingSolution) -> WingSolution:
+    def _remember(self, sol: WingSolution, u) -> WingSolution:
         self.previous = sol
-        self._solved[key_of(self.variables.to_vector(sol.parameters))] = sol
+        self._solved[key_of(u)] = sol
         return sol
 
     # ------------------------------------------------------------ evaluation
     def evaluate(self, u):
         """``(f, grad f, g, dg/du, solution)`` at the scaled vector ``u``: the area-weighted mean
-        square error (chord^2) and the smooth constraints ``g >= 0``, gradients by reverse mode.
+        square error (chord^2) and the smooth constraints ``g >= 0``, gradients by reverse mode
+        (the rib limits' rows by forward mode, without a solve).
 
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
@@ -340,17 +433,17 @@ class WingProblem:
             held = {}
 
             def outputs(v):
-                parameters = self.variables.bay_parameters(v)
-                sol = self._solve_wing(parameters, initial)
+                sol = self._solve_wing(v, initial)
                 held["sol"] = sol
-                aux = {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps}
+                aux = {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps,
+                       "mounted": sol.mounted}
                 if not sol.converged:  # NaN nodes: stop here, nothing downstream is used
                     return jnp.zeros(1), aux
                 d = self.distances(sol.nodes)
                 f = sum(float(w) * _mean_square(dk, self.objective) for w, dk in zip(self.weights, d))
                 if self.constraints is None:
                     return f[None], aux
-                t = jnp.concatenate(self.tensions(sol.nodes, parameters))
+                t = jnp.concatenate(self.tensions(sol.nodes, v))
                 g = constraint_functions(self.constraints, t, self.fabric, self.tension_scale)
                 return jnp.concatenate([f[None], g]), aux
 
@@ -362,8 +455,13 @@ class WingProblem:
             raise WingConvergenceError(sol, sol.failed_bays()[0])
         rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
         y = np.asarray(y)
-        self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
-        self.record(u, y[0], np.linalg.norm(rows[0]), sol, y[1:])
+        recorded = y[1:]
+        if self.rib_geometries is not None:
+            g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
+            y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
+            recorded = np.concatenate([recorded, [g_rib.min()]])  # history: the least rib-limit row
+        self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol, u))}
+        self.record(u, y[0], np.linalg.norm(rows[0]), sol, recorded)
         return self._cache[key]
 
     def solve(self, u) -> WingSolution:
@@ -373,16 +471,16 @@ class WingProblem:
             WingConvergenceError: if a bay does not converge from the mounted shape.
         """
         u = np.asarray(u, np.float64)
-        key = key_of(self.variables.to_vector(self.variables.parameters(u)))
-        if key in self._solved:
-            return self._solved[key]
-        parameters = self.variables.bay_parameters(u).resolved(self.fabric).as_floats()
+        if key_of(u) in self._solved:
+            return self._solved[key_of(u)]
         for initial in ([self.previous, None] if self.previous is not None else [None]):
-            sol = self._solve_wing(parameters, initial)
+            sol = self._solve_wing(u, initial)
             sol = dataclasses.replace(sol, nodes=np.asarray(sol.nodes), result=np.asarray(sol.result),
-                                      residual=np.asarray(sol.residual), steps=np.asarray(sol.steps))
+                                      residual=np.asarray(sol.residual), steps=np.asarray(sol.steps),
+                                      mounted=np.asarray(sol.mounted),
+                                      rib_shapes=None if sol.rib_shapes is None else np.asarray(sol.rib_shapes))
             if sol.converged:
-                return self._remember(sol)
+                return self._remember(sol, u)
         raise WingConvergenceError(sol, sol.failed_bays()[0])
 
     def cached(self, key):
@@ -397,11 +495,11 @@ class WingProblem:
             self.on_record(entry)
 
     # ------------------------------------------------------------ measurements
-    def measure(self, sol: WingSolution) -> dict:
-        """Per-bay errors and tension extremes of a concrete converged solution."""
+    def measure(self, sol: WingSolution, u) -> dict:
+        """Per-bay errors and tension extremes of a concrete converged solution at ``u``."""
         d = [np.asarray(x) for x in self.distances(jnp.asarray(sol.nodes))]
         errors = [_errors(x, self.objective) for x in d]
-        t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), sol.parameters)]
+        t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
         mean_square = np.array([np.mean(x**2) if self.objective != "worst" else e[0] ** 2
                                 for x, e in zip(d, errors)])
         return {"rms": np.array([e[0] for e in errors]), "max": np.array([e[1] for e in errors]),
@@ -433,9 +531,11 @@ class WingDesignResult(ParameterViews):
         success: SLSQP converged, every bay's final solve converged and no
             tension limit is broken by more than `constraints.VIOLATION_TOLERANCE`.
         message: SLSQP's message and whatever failed (constraint, bay, amount).
-        active_constraints: bounds and tension limits at their limit.
-        violated_constraints: ``{name: {bay: amount N/m}}`` for each limit
-            broken beyond the tolerance.
+        active_constraints: bounds, tension limits and rib limits at their
+            limit (``"rib_min_thickness@rib 2"``, ``"rib_shape[1][3]<=upper"``).
+        violated_constraints: ``{name: {index: amount}}`` for each limit
+            broken beyond its tolerance: tension limits by bay (N/m), rib
+            limits by rib (`rib_design.rib_report`'s amounts).
         constraint_values: the wing's extreme tensions and the limits, N/m.
         history: one dict per iterate: ``values``, ``objective`` (chord^2),
             ``gradient_norm``, ``constraints`` (``g >= 0`` feasible), ``steps``
@@ -444,6 +544,10 @@ class WingDesignResult(ParameterViews):
         wall_time: s, compilation included.
         method: "slsqp".
         wing: the `forward_solver.wing.Wing` designed.
+        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of the design
+            (root to tip), or None when the rib shapes were not optimised.
+        rib_limits: per rib, the measured manufacturability limits
+            (`rib_design.RibGeometry.measure`) of a shaped rib; empty otherwise.
     """
 
     parameters: Parameters
@@ -471,6 +575,8 @@ class WingDesignResult(ParameterViews):
     wall_time: float = 0.0
     method: str = "slsqp"
     wing: Wing | None = None
+    rib_shapes: np.ndarray | None = None
+    rib_limits: list = field(default_factory=list)
 
     @property
     def values(self) -> dict:
@@ -507,6 +613,7 @@ def optimise_wing(
     bounds: Mapping | None = None,
     objective: str = "average",
     constraints: Constraints | None = Constraints(),
+    rib_limits: RibLimits | None = RibLimits(),
     n_span: int = 17,
     n_contour: int = 64,
     max_iterations: int = 50,
@@ -523,14 +630,18 @@ def optimise_wing(
         fabric: the skin's `forward_solver.Fabric` (one for the whole wing).
         targets: the target section of each rib (N + 1 `targets.Airfoil`), one
             `targets.Airfoil` for every rib, or None: each rib's own section.
-        variables: shared names to optimise, from `WING_VARIABLES`.
+        variables: names to optimise, from `WING_VARIABLES`: shared ones, and
+            ``"rib_shape"`` for one set of coefficients per rib.
         initial: the starting `Parameters`, or ``{name: value}`` (Pa,
-            fractions) over `variables.DEFAULT_START`.
+            fractions) over `variables.DEFAULT_START`; a ``rib_shape`` start
+            is one ``(2 K,)`` row for every rib or ``(n_ribs, 2 K)``.
         bounds: ``{name: (lower, upper)}`` of optimised names (defaults
-            `variables.DEFAULT_BOUNDS`).
+            `variables.DEFAULT_BOUNDS`; ``rib_shape``'s for every coefficient).
         objective: per bay: "mid_bay", "average" (default) or "worst";
             combined over bays weighted by planform area (`bay_weights`).
         constraints: tension limits over every cell of every bay, or None.
+        rib_limits: manufacturability limits of every shaped rib against its
+            own starting section (`rib_design.RibLimits`), or None.
         n_span, n_contour: the grid of every bay.
         max_iterations: SLSQP's iteration cap (and twice that in forward solves).
         tolerance: SLSQP's ``ftol`` on the objective relative to its start.
@@ -567,7 +678,7 @@ def optimise_wing(
                dynamic_ncols=True, bar_format="{desc}: iterate {n_fmt} (cap {total_fmt}), {elapsed} elapsed{postfix}")
     with jax.enable_x64(True), bar:
         problem = WingProblem(wing, fabric, targets, design, objective, constraints, n_span=n_span,
-                              n_contour=n_contour, rtol=rtol, max_steps=max_steps)
+                              n_contour=n_contour, rtol=rtol, max_steps=max_steps, rib_limits=rib_limits)
 
         def on_record(entry):
             bar.set_postfix_str(f"rms={math.sqrt(max(entry['objective'], 0.0)):.3e}", refresh=False)
@@ -576,9 +687,9 @@ def optimise_wing(
                 callback(entry)
 
         problem.on_record = on_record
-        u0 = design.to_vector(design.shared.start)
+        u0 = design.start_vector()
         sol0 = problem.evaluate(u0)[-1]
-        before = problem.measure(sol0)
+        before = problem.measure(sol0, u0)
         try:
             u, success, message = slsqp(problem, u0, max_iterations, tolerance)
         except WingConvergenceError as failure:
@@ -589,12 +700,29 @@ def optimise_wing(
                        "the bounds to where every bay has an equilibrium")
         u = np.clip(np.asarray(u, np.float64), design.lower, design.upper)
         sol = problem.solve(u)
-        parameters = sol.parameters
-        after = problem.measure(sol)
+        parameters = sol.parameters  # shared (rib shapes: `WingSolution.rib_shapes`)
+        after = problem.measure(sol, u)
         if not (np.all(np.isfinite(after["rms"])) and np.all(np.isfinite(sol.nodes))):
             success, message = False, f"{message}; the shape errors at the result are not finite"
         active, violated, report, text = _check_limits(constraints, design, parameters, after, fabric,
                                                        problem.tension_scale)
+        shapes = design.rib_shapes(u)
+        ribs = []
+        if shapes is not None:
+            lo, hi = design.rib_shape_bounds
+            for k, row in enumerate(np.asarray(shapes)):
+                active += [f"rib_shape[{k}][{j}]{side}" for j, c in enumerate(row)
+                           for side, hit in ((">=lower", c - lo <= 1e-3 * (hi - lo)),
+                                             ("<=upper", hi - c <= 1e-3 * (hi - lo))) if hit]
+                if problem.rib_geometries is not None:
+                    rib_active, rib_violated, measured = rib_report(
+                        problem.rib_geometries[k], parameters.replace(rib_shape=row))
+                    ribs.append(measured)
+                    active += [f"{name}@rib {k}" for name in rib_active]
+                    for name, amount in rib_violated.items():
+                        violated.setdefault(name, {})[k] = amount
+                        text += (f"{'; ' if text else ''}{name} violated at rib {k}: "
+                                 f"{measured[name]:.4g} against the limit {measured[name + '_limit']:.4g}")
         if violated:
             success, message = False, f"{message}; {text}"
         if not sol.converged:
@@ -608,7 +736,8 @@ def optimise_wing(
         bay_min_tension=after["min_tension"], bay_max_tension=after["max_tension"],
         solution=sol, targets=tuple(targets), success=bool(success), message=message,
         active_constraints=active, violated_constraints=violated, constraint_values=report,
-        history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start, wing=wing)
+        history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start, wing=wing,
+        rib_shapes=None if shapes is None else np.asarray(shapes), rib_limits=ribs)
 
 
 def _check_limits(constraints, design, parameters, measured, fabric, scale):

@@ -11,6 +11,8 @@
                                  y from the root rib), metres (`export.write_obj` / `write_stl`)
     bay_K_mid_bay_section.png    bay K's mid-bay section against its rib and its target
                                  (`plots.plot_section`)
+    rib_K.dat                    rib K's designed section (Selig), when the rib shapes were
+                                 optimised (`export.write_selig`)
     history.png                  the optimiser's iterates (`plots.plot_history`)
 
 The single-bay helpers are reused as they are; nothing of the single-bay
@@ -25,7 +27,7 @@ import time
 
 import numpy as np
 
-from .export import check_output_folder, staged_folder, write_obj, write_stl
+from .export import check_output_folder, staged_folder, write_obj, write_selig, write_stl
 from .plots import plot_history, plot_section
 from .summary import _jsonable, _version
 from .wing_design import WingDesignResult, _bay_distances, row_targets
@@ -106,6 +108,9 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
                        "rib_chord_scale": params["rib_chord_scale"],
                        "stiffness_span_n_per_m": params["stiffness_span"],
                        "stiffness_chord_n_per_m": params["stiffness_chord"]},
+            "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
+            "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
+            "rib_limits": [{"rib": k, **m} for k, m in enumerate(result.rib_limits)],
             "variables": list(result.variables), "method": result.method,
             "iterations": len(result.history), "forward_solves": result.solves,
             "wall_time_s": result.wall_time, "bays": bays,
@@ -125,6 +130,17 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
         "history": list(result.history),
     }
     return _jsonable(summary)
+
+
+class _SharedHistory:
+    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes
+    are many coefficients; they are in summary.json's history and the rib_K.dat files)."""
+
+    def __init__(self, result: WingDesignResult):
+        names = tuple(n for n in result.variables if n != "rib_shape")
+        self.variables, self.method, self.objective = names, result.method, result.objective
+        self.rms_error, self.success, self.values = result.rms_error, result.success, result.values
+        self.history = [{**h, "values": {n: h["values"][n] for n in names}} for h in result.history]
 
 
 def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None = None,
@@ -154,6 +170,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     with staged_folder(out) as staging:
         solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
         params = result.parameters
+        shared = [n for n in result.variables if n != "rib_shape"]
         with open(staging / "wing.npz", "wb") as f:
             np.savez_compressed(
                 f, nodes=np.stack([s.nodes for s in solutions]),
@@ -168,10 +185,11 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
                 rib_thickness_scale=np.float64(params.rib_thickness_scale),
                 rib_chord_scale=np.float64(params.rib_chord_scale),
                 target_names=np.array([t.name for t in result.targets], dtype=str),
-                variables=np.array(list(result.variables), dtype=str),
+                variables=np.array(list(shared), dtype=str),
                 history_objective=np.array([h["objective"] for h in result.history], np.float64),
-                history_values=np.array([[h["values"][n] for n in result.variables] for h in result.history],
-                                        np.float64).reshape(-1, len(result.variables)))
+                history_values=np.array([[h["values"][n] for n in shared] for h in result.history],
+                                        np.float64).reshape(-1, len(shared)),
+                rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes))
         joined = wing_nodes(result)
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
         write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
@@ -184,8 +202,16 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
             fig.suptitle(f"bay {k} (ribs {k}-{k + 1}): {fig.get_suptitle()}")
             fig.savefig(staging / name, dpi=_DPI)
             files.append(name)
+        if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
+            from forward_solver import rib_section
+
+            for k, (airfoil, row) in enumerate(zip(result.wing.airfoils, np.asarray(result.rib_shapes))):
+                section = rib_section(airfoil, row, float(result.parameters.rib_thickness_scale),
+                                      name=f"{airfoil.name} rib {k}")
+                write_selig(staging / f"rib_{k}.dat", section, comment=f"chord {result.wing.chords[k]:g} m")
+                files.append(f"rib_{k}.dat")
         if result.history:
-            plot_history(result, bounds).savefig(staging / "history.png", dpi=_DPI)
+            plot_history(_SharedHistory(result), bounds).savefig(staging / "history.png", dpi=_DPI)
             files.append("history.png")
         else:
             skipped["history.png"] = "no optimiser history"

@@ -16,6 +16,7 @@ from forward_solver import Bay, Fabric, Scene
 from forward_solver.wing import Wing
 from inverse_design import Constraints, optimise_pressure
 from inverse_design.constraints import VIOLATION_TOLERANCE
+from inverse_design.rib_design import RibLimits
 from inverse_design.wing_design import (WingConvergenceError, WingProblem, WingVariables, bay_weights,
                                         optimise_wing, row_targets)
 from targets import naca
@@ -51,6 +52,37 @@ def test_objective_and_constraint_gradients_match_central_differences(wing):
     assert grad[0] == pytest.approx((fp - fm) / (2 * h), rel=1e-5)
     assert dg[0, 0] == pytest.approx((gp[0] - gm[0]) / (2 * h), rel=1e-5)
     assert abs(grad[0]) > 1e-3 * f  # the objective does depend on the pressure
+
+
+def test_per_rib_shape_gradients_match_central_differences(wing):
+    # The design vector: pressure, then 4 ribs x 4 coefficients (K = 2). Coefficient 1 of rib 1
+    # moves bays 0 and 1 (its tip and root); the objective's and the wrinkle row's derivatives
+    # in it and in the pressure must match central differences (steps of 2e-4 in the scaled
+    # variables: rel 1e-5). The wrinkle row's derivative in the coefficient is small (1.5e-5 per
+    # unit), so the solves go to rtol 1e-13: at 1e-12 their noise alone moved the difference
+    # quotient by 3e-5 relative (measured; at 1e-13 it agrees to 1e-6 for steps 1e-4 to 4e-4).
+    # The rib-limit rows follow the tension row.
+    shapes = 0.01 * np.array([[0.0, 0.5, 0.0, -0.5], [-0.5, 0.5, 0.5, -0.5], [0.5, -0.5, 0.0, 0.5],
+                              [0.5, 0.5, -0.5, 0.0]])
+    with jax.enable_x64(True):
+        variables = WingVariables.build(("pressure", "rib_shape"), {**START, "rib_shape": shapes}, BOUNDS, 4)
+        problem = WingProblem(wing, Fabric(), list(wing.airfoils), variables, "average", Constraints(),
+                              rtol=1e-13, max_steps=400_000, rib_limits=RibLimits(), **GRID)
+        u = variables.start_vector()
+        assert u.size == 1 + 16
+        f, grad, g, dg, _ = problem.evaluate(u)
+        assert g.size == 1 + 4 * problem.rib_geometries[0].functions(
+            variables.bay_parameters(u, 0)).size  # wrinkle row, then every rib's limit rows
+        h = 2e-4
+        for index in (0, 1 + 4 + 1):  # the pressure; rib 1's coefficient 1
+            step = np.zeros_like(u)
+            step[index] = h
+            fp, _, gp, _, _ = problem.evaluate(u + step)
+            fm, _, gm, _, _ = problem.evaluate(u - step)
+            assert grad[index] == pytest.approx((fp - fm) / (2 * h), rel=1e-5), index
+            assert dg[0, index] == pytest.approx((gp[0] - gm[0]) / (2 * h), rel=1e-5), index
+            np.testing.assert_allclose(dg[1:, index], (gp[1:] - gm[1:]) / (2 * h), rtol=1e-5, atol=1e-7)
+        assert abs(grad[1 + 4 + 1]) > 1e-3 * f  # the rib shape does move the skin
 
 
 def test_blended_rows_run_from_the_root_to_the_tip_section():
@@ -120,8 +152,10 @@ def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
 
 
 def test_bad_wing_designs_are_refused(wing):
-    with pytest.raises(ValueError, match="need forward_solver.Parameters.rib_shape"):
-        optimise_wing(wing, Fabric(), variables=("pressure", "rib_shape"), **GRID)
+    with pytest.raises(ValueError, match=r"rib_shape start must be one row of 2K coefficients for every rib "
+                                         r"or an \(4, 2K\) array"):
+        optimise_wing(wing, Fabric(), variables=("pressure", "rib_shape"),
+                      initial={**START, "rib_shape": np.zeros((3, 8))}, **GRID)
     with pytest.raises(ValueError, match="one target section per rib: the wing has 4 ribs, got 2"):
         optimise_wing(wing, Fabric(), targets=[naca("2412")] * 2, **GRID)
     with pytest.raises(ValueError, match="objective must be one of"):
