@@ -27,7 +27,20 @@ pressure and errors.
 
 Writes ``benchmarks/results/wing_batch.json`` (git-ignored) and prints a table.
 
-Usage: python benchmarks/wing_batch.py [--quick] [--repeats 3] [--design]
+Measured 2026-11-23 (x86_64 AMD EPYC, 2 cores shared with other jobs, CPU
+only, JAX 0.10.2), jit loop / batch time: 9x32 1.05, 0.98, 0.58 and 17x64
+0.66, 0.68, 0.85 for 2, 4, 8 bays (eager loop / batch within 0.07 of
+those): on this CPU the batch never pays (a relaxation step is already
+vectorised over the nodes, and a vmapped loop runs every bay until the
+slowest stops). The 3-bay design at 17x64: pressure alone 7686 Pa in 4
+solves, 21 s, rms 8.62e-3 -> 7.12e-3, wrinkle floor active; with a rib
+shape per rib 2.98e-3 after 60 solves (139 s) at SLSQP's 50-iteration cap.
+
+``--rib-shapes`` (with ``--design``) designs the same wing again with a
+rib shape per rib (``variables=("pressure", "rib_shape")``, 4 Bernstein
+terms per surface, the default rib limits).
+
+Usage: python benchmarks/wing_batch.py [--quick] [--repeats 3] [--design [--rib-shapes]] [--no-batch]
 """
 
 from __future__ import annotations
@@ -111,7 +124,7 @@ def eager_loop(wing, fabric, grid):
     return steps
 
 
-def design_case(fabric) -> dict:
+def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design import cli
     from inverse_design.constraints import Constraints
     from inverse_design.wing_cli import EXAMPLE_CASE
@@ -123,20 +136,22 @@ def design_case(fabric) -> dict:
     wing = Wing(airfoils=(af,) * len(ribs), chords=tuple(r["chord"] for r in ribs),
                 stations=tuple(r["station"] for r in ribs))
     t = time.perf_counter()
-    res = optimise_wing(wing, fabric, None, ("pressure",),
+    res = optimise_wing(wing, fabric, None, variables,
                         initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
                                  "prestrain_chord": values["prestrain_chord"]},
                         bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
                         constraints=Constraints(), n_span=values["n_span"], n_contour=values["n_contour"])
     wall = time.perf_counter() - t
-    return {"case": str(EXAMPLE_CASE.name), "grid": [values["n_span"], values["n_contour"]],
+    return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
+            "grid": [values["n_span"], values["n_contour"]],
             "chords_m": list(wing.chords), "stations_m": list(wing.stations),
             "success": res.success, "message": res.message, "pressure_pa": float(res.pressure),
             "solves": res.solves, "iterations": len(res.history), "wall_time_s": wall,
             "rms_before": res.initial_rms_error, "rms_after": res.rms_error,
             "bay_rms_before": res.initial_bay_rms_error.tolist(), "bay_rms_after": res.bay_rms_error.tolist(),
             "bay_max_after": res.bay_max_error.tolist(), "bay_results": list(res.bay_results),
-            "bay_min_tension": res.bay_min_tension.tolist(), "active": res.active_constraints}
+            "bay_min_tension": res.bay_min_tension.tolist(), "active": res.active_constraints,
+            "rib_shapes": None if res.rib_shapes is None else res.rib_shapes.tolist(), "rib_limits": res.rib_limits}
 
 
 def main(argv=None) -> int:
@@ -144,13 +159,16 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="9x32 only, 2 and 4 bays, one repeat")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--design", action="store_true", help="also time the 3-bay design at 17x64")
+    parser.add_argument("--rib-shapes", action="store_true",
+                        help="with --design, also design the same wing with a rib shape per rib (4 terms per surface)")
+    parser.add_argument("--no-batch", action="store_true", help="skip the batch timings")
     args = parser.parse_args(argv)
     grids = [(9, 32)] if args.quick else [(9, 32), (17, 64)]
     counts = [2, 4] if args.quick else [2, 4, 8]
     repeats = 1 if args.quick else args.repeats
     fabric = Fabric()
     rows = []
-    for n_span, n_contour in grids:
+    for n_span, n_contour in ([] if args.no_batch else grids):
         grid = dict(n_span=n_span, n_contour=n_contour)
         for n in counts:
             wing = tapered_wing(n)
@@ -167,10 +185,14 @@ def main(argv=None) -> int:
             print(f"{n_span}x{n_contour} {n} bays: batch {t_batch:.3f} s, jit loop {t_jit:.3f} s "
                   f"({row['jit_loop_over_batch']:.2f}x), eager loop {t_eager:.3f} s "
                   f"({row['eager_loop_over_batch']:.2f}x)", file=sys.stderr)
-    design = design_case(fabric) if args.design else None
+    designs = []
+    if args.design:
+        designs.append(design_case(fabric))
+        if args.rib_shapes:
+            designs.append(design_case(fabric, ("pressure", "rib_shape")))
     record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "cpus": os.cpu_count(),
               "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "rtol": RTOL,
-              "parameters": PARAMETERS.as_dict(), "repeats": repeats, "rows": rows, "design": design}
+              "parameters": PARAMETERS.as_floats().as_dict(), "repeats": repeats, "rows": rows, "designs": designs}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "wing_batch.json").write_text(json.dumps(record, indent=2, default=str) + "\n")
     print(f"{'grid':>6} {'bays':>4} {'batch s':>8} {'jit loop s':>10} {'eager loop s':>12} "
@@ -179,8 +201,8 @@ def main(argv=None) -> int:
         print(f"{r['grid'][0]:>3}x{r['grid'][1]:<3} {r['bays']:>4} {r['batch_s']:>8.3f} {r['jit_loop_s']:>10.3f} "
               f"{r['eager_loop_s']:>12.3f} {r['jit_loop_over_batch']:>9.2f} {r['eager_loop_over_batch']:>11.2f}  "
               f"{max(r['batch_steps'])}, {sum(r['jit_loop_steps'])}, {sum(r['eager_loop_steps'])}")
-    if design is not None:
-        print(f"design {design['case']} ({design['grid'][0]}x{design['grid'][1]}, 3 bays): "
+    for design in designs:
+        print(f"design {design['variables']} {design['case']} ({design['grid'][0]}x{design['grid'][1]}, 3 bays): "
               f"{'success' if design['success'] else 'FAILED'}, {design['pressure_pa']:.6g} Pa, "
               f"{design['solves']} wing solves, {design['wall_time_s']:.1f} s; rms {design['rms_before']:.3e} -> "
               f"{design['rms_after']:.3e}; bays {design['bay_results']}; active {design['active']}")

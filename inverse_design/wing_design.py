@@ -1,8 +1,9 @@
 """`optimise_wing`: one set of manufacturing parameters for a whole wing (issue 12, item 2).
 
 A wing (`forward_solver.wing.Wing`) is N bays between N + 1 rigid ribs; all
-bays share one inflation pressure and one fabric cut (prestrain), and (here)
-one rib thickness scale. `optimise_wing` chooses them with scipy's SLSQP
+bays share one inflation pressure and one fabric cut (prestrain), and one
+rib thickness (and chord) scale; each rib may have its own rib shape
+(below). `optimise_wing` chooses them with scipy's SLSQP
 (`methods.slsqp`, the loop of `optimise_pressure`, with its evaluation cap
 and stall detection), the gradients by reverse mode (``jax.vjp``) through
 `forward_solver.solve_wing`: every bay relaxed in one ``jit(vmap)`` call and
@@ -623,7 +624,7 @@ def optimise_wing(
     progress: bool = False,
     callback=None,
 ) -> WingDesignResult:
-    """One pressure (and prestrain, rib thickness scale) for every bay of ``wing`` (module docstring).
+    """One pressure (and prestrain, rib scales; a rib shape per rib) for every bay of ``wing`` (module docstring).
 
     Args:
         wing: the ribs (`forward_solver.wing.Wing`).
@@ -657,7 +658,9 @@ def optimise_wing(
     Raises:
         ValueError: for an unknown variable or objective, bad bounds, targets
             or limits.
-        WingConvergenceError: if a bay's solve at the start does not converge.
+        WingConvergenceError: if a bay's solve at the start (or the final solve
+            at a clipped design never solved before) does not converge; a
+            failure in between ends the optimisation at the best iterate.
     """
     check_objective(objective)
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
