@@ -7,10 +7,17 @@ one inflation pressure and one fabric. On a common grid shape their
 every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
 `relax`, as `traced` runs it under ``jax.vmap``) instead of a Python loop,
 and the result is differentiable in the shared `Parameters` by the implicit
-function theorem (`krylov.implicit_nodes`, per bay).
+function theorem (`krylov.implicit_nodes`, per bay). Per-rib shapes
+(``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
+the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
+and rib ``k + 1``'s, and they are differentiated like the parameters.
 
-Not here yet: the design loop over a wing (one pressure for all bays,
-per-rib shapes) and the command-line / TOML form of a wing.
+A warm start (``initial``: an earlier `WingSolution`) starts every bay from
+its earlier displacement added to this solve's mounted shape (as
+`solution.initial_nodes` does for one bay), so the design loop
+(`inverse_design.wing_design`) re-solves a nearby design in fewer steps.
+`WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
+wrinkles), for reports and for comparison with `solve_equilibrium`.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ from .bay import Bay
 from .fabric import Fabric
 from .parameters import Parameters, as_parameters
 from .scene import Scene
-from .solution import Result
+from .solution import Result, Solution, static_forces
 from .traced import relaxed_nodes
 
 __all__ = ["Wing", "WingSolution", "solve_wing"]
@@ -93,6 +100,12 @@ class WingSolution:
             slowest bay stops).
         bays: the `Bay` of each.
         parameters: the shared `Parameters`.
+        fabric: the skin's `Fabric` (for `bay_solution`).
+        tension_only: the scene switch it was solved with.
+        mounted: ``(n_bays, n_span, n_contour, 3)`` m, each bay's mounted
+            (nominal) shape in this solve (ribs with their scales and shapes).
+        rib_shapes: ``(n_ribs, 2 K)`` per-rib shape coefficients it was
+            solved with, or None (the ribs take ``parameters.rib_shape``).
     """
 
     nodes: jnp.ndarray
@@ -101,33 +114,88 @@ class WingSolution:
     steps: jnp.ndarray
     bays: list
     parameters: Parameters
+    fabric: Fabric | None = None
+    tension_only: bool = True
+    mounted: jnp.ndarray | None = None
+    rib_shapes: jnp.ndarray | None = None
 
     @property
     def converged(self) -> bool:
         """Whether every bay converged."""
         return bool(np.all(np.asarray(self.result) == Result.converged))
 
+    def failed_bays(self) -> list[int]:
+        """Indices of the bays whose solve did not converge (root to tip)."""
+        return [int(k) for k in np.flatnonzero(np.asarray(self.result) != Result.converged)]
+
+    def scene(self, bay: int) -> Scene:
+        """The `Scene` of bay ``bay`` (its `Bay`, the wing's fabric and switches)."""
+        return Scene(self.bays[bay], self.fabric, tension_only=self.tension_only)
+
+    def bay_solution(self, bay: int) -> Solution:
+        """Bay ``bay`` as a concrete `Solution` (float64 numpy arrays; tensions of eq. 10 at its nodes).
+
+        Its ``nodes`` are NaN where the bay did not converge (the implicit
+        fixed point is undefined there); ``result``, ``steps`` and
+        ``residual`` say why.
+        """
+        if self.fabric is None:
+            raise ValueError("this WingSolution carries no fabric; solve it with solve_wing")
+        scene = self.scene(bay)
+        parameters = self.bay_parameters(bay)
+        with float64_scope():
+            nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
+            f = static_forces(nodes, jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry()),
+                              scene.params(parameters), scene.physics(dynamic=False))
+            return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
+                            tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
+                            result=Result(int(np.asarray(self.result[bay]))), steps=int(self.steps[bay]),
+                            residual=float(self.residual[bay]), wall_time=None, method="relax",
+                            parameters=parameters, rib_spacing=scene.bay.rib_spacing,
+                            extra={"precision": "float64", "wing_bay": bay})
+
+    def bay_parameters(self, bay: int) -> Parameters:
+        """The concrete `Parameters` of bay ``bay``: the shared ones with, for per-rib shapes, its
+        root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``."""
+        parameters = self.parameters.as_floats()
+        if self.rib_shapes is None:
+            return parameters
+        shapes = np.asarray(self.rib_shapes, np.float64)
+        return parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+
+    def displacements(self) -> np.ndarray:
+        """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""
+        return np.asarray(self.nodes) - np.asarray(self.mounted)
+
 
 def _stack(trees):
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
 
 
-def _bay_equilibrium(geometry, bound, params, rtol, physics, max_chunks):
-    x_init = fk.mounted_nodes(geometry, params)
+def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, params, rtol, physics,
+                     max_chunks):
+    if shape_root is not None:  # per-rib shapes: this bay's two ribs
+        params = params._replace(rib_shape_root=shape_root, rib_shape_tip=shape_tip)
+    mounted = fk.mounted_nodes(geometry, params)
+    # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
+    x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
     nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,
                                half=False)
-    return nodes, out.result, out.residual, out.chunks * _CHUNK
+    return nodes, out.result, out.residual, out.chunks * _CHUNK, jax.lax.stop_gradient(mounted)
 
 
 @partial(jax.jit, static_argnames=("physics", "max_chunks"))
-def _wing_equilibrium(geometries, bounds, params, rtol, physics, max_chunks):
+def _wing_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip, params, rtol, physics,
+                      max_chunks):
     solve = partial(_bay_equilibrium, physics=physics, max_chunks=max_chunks)
-    return jax.vmap(solve, in_axes=(0, 0, None, None))(geometries, bounds, params, rtol)
+    return jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, None, None))(geometries, bounds, displacements, shapes_root,
+                                                                 shapes_tip, params, rtol)
 
 
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
-               tension_only: bool = True, **loose) -> WingSolution:
+               tension_only: bool = True, initial: WingSolution | None = None, rib_shapes=None,
+               **loose) -> WingSolution:
     """Every bay of ``wing`` at one pressure, as one batched relaxation.
 
     Args:
@@ -141,24 +209,68 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         rtol: relative residual each bay is solved to.
         max_steps: step cap (the batch runs until its slowest bay stops).
         tension_only: the scene switch (no compression, wrinkles).
+        initial: None (every bay from its mounted shape) or an earlier
+            `WingSolution` of this wing on this grid: each bay starts from its
+            displacement there, added to this solve's mounted shape (held
+            nodes stay mounted). Not differentiated.
+        rib_shapes: None, or ``(n_ribs, 2 K)`` rib-shape coefficients, one row
+            per rib root to tip (`forward_solver.rib_shape`; K for the upper
+            surface, then K for the lower): bay ``k`` is mounted between rib
+            ``k``'s shape and rib ``k + 1``'s (its ``rib_shape`` and
+            ``rib_shape_tip``). JAX values allowed (differentiated like the
+            parameters). Without it every rib takes ``parameters.rib_shape``.
 
     Returns:
         A `WingSolution`. A failed bay is reported by its result code, not
-        raised.
+        raised; its nodes are NaN (the implicit fixed point is undefined).
+
+    Raises:
+        ValueError: for a bad ``rtol`` or ``max_steps``, an ``initial`` of
+            another wing or grid, or ``rib_shapes`` of the wrong shape.
     """
     parameters = as_parameters(parameters, prestrain, **loose).resolved(fabric).check()
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
         raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
     if not (isinstance(max_steps, int) and max_steps >= 1):
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if parameters.rib_shape_tip is not None:
+        raise ValueError("rib_shape_tip has no meaning for a whole wing: give every rib's shape as "
+                         "rib_shapes (n_ribs x 2K), or one rib_shape for all ribs")
+    if rib_shapes is not None:
+        if parameters.rib_shape is not None:
+            raise ValueError("give the rib shapes once: per rib as rib_shapes, or one parameters.rib_shape "
+                             "for every rib, not both")
+        size = np.shape(rib_shapes)
+        if len(size) != 2 or size[0] != len(wing.airfoils) or size[1] < 2 or size[1] % 2:
+            raise ValueError(f"rib_shapes must be an ({len(wing.airfoils)}, 2K) array, one row of 2K >= 2 "
+                             f"coefficients per rib, got shape {size}")
+        if not isinstance(rib_shapes, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(rib_shapes))):
+            raise ValueError("rib_shapes must be finite")
     bays = wing.bays(n_span, n_contour)
     scene = Scene(bays[0], fabric, tension_only=tension_only)
     physics = fk.static_physics(scene.physics(dynamic=False))
-    with float64_scope(parameters):
+    with float64_scope(parameters, rib_shapes):
         params = scene.params(parameters)  # the fabric's constants: the same for every bay
+        shapes = None if rib_shapes is None else jnp.asarray(rib_shapes, jnp.float64)
         geometries = _stack([bay.geometry() for bay in bays])
         bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
-        nodes, result, residual, steps = _wing_equilibrium(
-            geometries, bounds, params, jnp.asarray(rtol, jnp.float64), physics, -(-max_steps // _CHUNK))
+        shape = (len(bays), n_span, n_contour, 3)
+        if initial is None:
+            displacements = jnp.zeros(shape, jnp.float64)
+        else:
+            if not isinstance(initial, WingSolution) or tuple(initial.nodes.shape) != shape:
+                raise ValueError(f"initial must be a WingSolution of this wing on its {n_span}x{n_contour} "
+                                 f"grid ({shape[0]} bays), got {type(initial).__name__}"
+                                 + (f" of shape {tuple(initial.nodes.shape)}" if hasattr(initial, "nodes") else ""))
+            moved = initial.displacements()
+            if not np.all(np.isfinite(moved)):
+                raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
+                                 "solve from the mounted shape (initial=None)")
+            displacements = jnp.asarray(moved, jnp.float64)
+        nodes, result, residual, steps, mounted = _wing_equilibrium(
+            geometries, bounds, displacements, None if shapes is None else shapes[:-1],
+            None if shapes is None else shapes[1:], params, jnp.asarray(rtol, jnp.float64), physics,
+            -(-max_steps // _CHUNK))
     return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
-                        parameters=parameters)
+                        parameters=parameters, fabric=fabric, tension_only=tension_only, mounted=mounted,
+                        rib_shapes=shapes)

@@ -3,7 +3,8 @@
 Public names::
 
     optimise_pressure, refine_design, DesignResult, Constraints, section_errors,
-    objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits
+    objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits,
+    optimise_wing, WingDesignResult (a whole wing: one pressure for every bay)
 
 ``optimise_pressure`` wraps scipy's SLSQP (default), ``least_squares`` and
 ``brentq`` and optax around the differentiable
@@ -20,6 +21,8 @@ from .optimise import optimise_pressure as optimise_pressure
 from .optimise import refine_design as refine_design
 from .rib_design import RibLimits as RibLimits
 from .variables import VARIABLES as VARIABLES
+from .wing_design import WingDesignResult as WingDesignResult
+from .wing_design import optimise_wing as optimise_wing
 
 __all__ = [
     "Constraints",
@@ -32,4 +35,6 @@ __all__ = [
     "optimise_pressure",
     "refine_design",
     "section_errors",
+    "WingDesignResult",
+    "optimise_wing",
 ]

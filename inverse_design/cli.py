@@ -346,6 +346,11 @@ def read_config(path) -> dict:
     values = {}
     for key, value in data.items():
         dest = key.replace("-", "_")
+        if key == "rib" and isinstance(value, list) and all(isinstance(v, dict) for v in value):
+            from .wing_cli import read_ribs  # [[rib]] tables: a whole wing
+
+            values["wing"] = read_ribs(str(path), value)
+            continue
         if dest in values:
             raise InputError(f"{path}: {key!r} is given twice (with - and _)")
         values[dest] = _toml_value(str(path), key, value)
@@ -409,6 +414,10 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         forward_solver.ConvergenceError: a forward solve failed (nothing written).
     """
     start = time.perf_counter() if started is None else started
+    if getattr(args, "wing", None) is not None:  # a case file with [[rib]] tables
+        from .wing_cli import run_wing
+
+        return run_wing(args, sources, progress=progress, started=start)
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
@@ -510,6 +519,10 @@ def _value_text(name: str, value) -> str:
 
 def _describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
+    if summary["mode"] == "wing":
+        from .wing_cli import describe_wing
+
+        return describe_wing(summary)
     case, res, err = summary["case"], summary["results"], summary["errors"]
     v = res["values"]
     lines = [f"{case['target']}, {case['grid'][0]}x{case['grid'][1]} grid, {err['objective']} objective"]

@@ -159,7 +159,7 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     """
     chord = scene.bay.chord
     skin = solution.section(eta) / chord
-    rib = solution.section(0.0) / chord
+    rib = solution.section(0.0) / scene.bay.chord_root  # the rib at y = 0 at its own chord (taper)
     skin_proj, rib_proj = target.project(skin), target.project(rib)
     stations = _target_stations(target, scene)
     largest = float(max(np.max(np.linalg.norm(skin - stations, axis=1)),

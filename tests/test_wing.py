@@ -64,3 +64,34 @@ def test_bad_wings_are_refused():
         Wing(airfoils=(af, af), chords=(1.0, -0.8), stations=(0.0, 0.3))
     with pytest.raises(ValueError, match="one chord and one station per rib"):
         Wing(airfoils=(af, af), chords=(1.0,), stations=(0.0, 0.3))
+
+
+def test_per_rib_shapes_mount_each_bay_between_its_own_ribs(wing):
+    # Rib k's coefficients: bay k's root and bay k - 1's tip. Each bay must equal its own
+    # solve_equilibrium with rib_shape = rib k's row and rib_shape_tip = rib k + 1's (rtol 1e-10,
+    # nodes < 1e-8 m), and d/d(one coefficient of rib 1, shared by bays 0 and 1) must match
+    # central differences (solves at 1e-11 against a step of 1e-4 of the offset: rel 1e-5).
+    shapes = 0.01 * np.array([[0.0, 0.0, 0.0, 0.0], [-1.0, 0.5, 1.0, -0.5], [0.5, -1.0, 0.0, 1.0],
+                              [1.0, 1.0, -1.0, 0.0]])
+    sol = solve_wing(wing, Fabric(), PARAMETERS, rtol=1e-10, rib_shapes=shapes, **GRID)
+    assert sol.converged
+    for k, bay in enumerate(sol.bays):
+        alone = solve_equilibrium(Scene(bay, Fabric()),
+                                  PARAMETERS.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1]), rtol=1e-10)
+        assert np.max(np.abs(np.asarray(sol.nodes[k]) - alone.nodes)) < 1e-8
+    # The shared rib really is one rib: bay 0's tip row is bay 1's root row.
+    np.testing.assert_allclose(np.asarray(sol.nodes[0, -1, :, [0, 2]]), np.asarray(sol.nodes[1, 0, :, [0, 2]]),
+                               atol=1e-14)
+
+    def bulge(c):
+        s = jnp.asarray(shapes).at[1, 1].set(c)
+        nodes = solve_wing(wing, Fabric(), PARAMETERS, rtol=1e-11, rib_shapes=s, **GRID).nodes
+        return jnp.sum(nodes[:2, 4, :, 2] ** 2)
+
+    c0, h = shapes[1, 1], 1e-4
+    with jax.enable_x64(True):
+        grad = float(jax.grad(bulge)(c0))
+        fd = float(bulge(c0 + h) - bulge(c0 - h)) / (2 * h)
+    assert grad == pytest.approx(fd, rel=1e-5)
+    with pytest.raises(ValueError, match=r"rib_shapes must be an \(4, 2K\) array"):
+        solve_wing(wing, Fabric(), PARAMETERS, rib_shapes=shapes[:3], **GRID)

@@ -1,0 +1,105 @@
+"""A wing case file (``[[rib]]`` tables) for ``optimise-pressure --config``: bad input and a full run.
+
+The command runs in this process (`cli.main` with ``--no-compilation-cache``,
+which leaves JAX's configuration alone), so the end-to-end run reuses the
+3-bay 9x32 compilation of tests/test_wing_design.py when both run together.
+Bad input never reaches JAX: it is refused while the case file is read.
+"""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from inverse_design import cli
+from inverse_design.wing_cli import EXAMPLE_CASE
+
+RIBS = """
+[[rib]]
+section = "naca2412"
+chord = 1.0
+station = 0.0
+[[rib]]
+section = "naca2412"
+chord = 0.8
+station = 0.25
+[[rib]]
+section = "naca2412"
+chord = 0.7
+station = 0.5
+[[rib]]
+section = "naca4415"
+chord = 0.6
+station = 0.75
+"""
+CASE = f"""
+variables = ["pressure"]
+pressure = 3e4
+pressure-bounds = [1e3, 1e5]
+n-span = 9
+n-contour = 32
+max-iterations = 30
+{RIBS}
+"""
+
+
+def _run(tmp_path, text, *extra):
+    case = tmp_path / "wing.toml"
+    case.write_text(text)
+    return cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache",
+                     "--quiet", *extra]), case
+
+
+def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, capsys):
+    code, _ = _run(tmp_path, CASE)
+    assert code == 0, capsys.readouterr().err
+    out = tmp_path / "out"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mode"] == "wing" and summary["results"]["success"]
+    assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
+    assert summary["case"]["ribs"][3]["target"] == "NACA 4415"
+    bays = summary["results"]["bays"]
+    assert [b["result"] for b in bays] == ["converged"] * 3
+    assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
+    assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
+                                     "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
+                                     "bay_2_mid_bay_section.png"}
+    with np.load(out / "wing.npz") as npz:
+        assert npz["nodes"].shape == (3, 9, 32, 3) and npz["deviation"].shape == (3, 9, 32)
+        assert float(npz["pressure"]) == pytest.approx(summary["results"]["values"]["pressure_pa"])
+        # The bays meet at their ribs: bay k's tip row is bay k + 1's root row (in wing coordinates).
+        np.testing.assert_allclose(npz["nodes"][0, -1, :, [0, 2]], npz["nodes"][1, 0, :, [0, 2]], atol=1e-12)
+    # One mesh for the whole wing: 3 bays of 8 cell rows, 32 cells round.
+    faces = [line for line in (out / "skin.obj").read_text().splitlines() if line.startswith("f ")]
+    assert len(faces) == 3 * 8 * 32
+
+
+def test_the_built_in_example_is_a_valid_wing_case():
+    values = cli.read_config(EXAMPLE_CASE)
+    assert len(values["wing"]) == 4 and values["n_span"] == 17
+
+
+@pytest.mark.parametrize("text, message", [
+    ('[[rib]]\nsection = "naca2412"\nchord = 1.0\nstation = 0.0\n',
+     r"wing.toml: a wing needs at least two \[\[rib\]\] tables \(root and tip\), got 1; add ribs"),
+    (RIBS.replace("station = 0.5", "station = 0.2"),
+     r"wing.toml: rib 2: station 0.2 m does not lie beyond rib 1's \(0.25 m\); list the ribs root to tip"),
+    (RIBS.replace('"naca4415"', '"naca99x"'),
+     r"wing.toml: rib 3: section 'naca99x' is neither a NACA code nor a .dat file"),
+    (RIBS.replace("chord = 0.8\n", ""), r"wing.toml: rib 1: missing chord; every \[\[rib\]\] needs section"),
+    (RIBS.replace("chord = 0.7", "chord = -0.7"), r"wing.toml: rib 2: chord must be a positive length in m"),
+    (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
+    (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
+    ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
+    ('method = "root"\n' + RIBS, r"method root is not available for a wing .*; use slsqp"),
+], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
+        "missing file", "chord option", "method"])
+def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):
+    code, case = _run(tmp_path, text)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and err.startswith("optimise-pressure: error: ")
+    assert str(case) in err or "wing.toml" in err
+    assert re.search(message, err), err
+    assert not (tmp_path / "out").exists()
