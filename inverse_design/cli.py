@@ -422,11 +422,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
-    from forward_solver import Bay, ConvergenceError, Fabric, Parameters, Scene, solve_equilibrium
+    from forward_solver import Bay, ConvergenceError, Fabric, Scene, solve_equilibrium
 
-    from .constraints import Constraints
     from .optimise import optimise_pressure, refine_design
-    from .rib_design import RibLimits
     from .export import check_output_folder
     from .summary import write_report
 
@@ -438,20 +436,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
                                  poisson=args.poisson))
 
     scene = scene_on(args.n_span)
-    parameters = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
-                            prestrain_chord=args.prestrain_chord,
-                            rib_thickness_scale=args.rib_thickness_scale, rib_chord_scale=args.rib_chord_scale)
-    variables = _variables(args.variables)
-    rib_limits = None
-    if "rib_shape" in variables and not args.evaluate:
-        if args.rib_shape_terms < 1:
-            raise InputError(f"--rib-shape-terms must be at least 1, got {args.rib_shape_terms}")
-        parameters = parameters.replace(rib_shape=[0.0] * (2 * args.rib_shape_terms))
-        if not args.no_rib_limits:
-            if args.min_rib_thickness > 1:
-                raise InputError(f"--min-rib-thickness is a fraction of the starting rib's thickness in "
-                                 f"(0, 1], got {args.min_rib_thickness}")
-            rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
+    parameters, variables, rib_limits, bounds, constraints = design_inputs(args)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
                   rib=rib, rib_limits=rib_limits)
@@ -464,12 +449,6 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
             raise ConvergenceError(result)
         aero = _aero(args, result, target, alphas, timings)
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
-    all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
-                  "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
-                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
-    bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
-    constraints = (None if args.no_tension_constraints else
-                   Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
     options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
                    max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
                    rib=rib, rib_limits=rib_limits)
@@ -482,6 +461,49 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result.solution, target, alphas, timings)
     return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
+
+
+def design_inputs(args: argparse.Namespace) -> tuple:
+    """What the options say of the design, for one bay and for a wing alike.
+
+    Returns:
+        ``(initial, variables, rib_limits, bounds, constraints)``: the
+        starting `forward_solver.Parameters` (a zero rib shape of 2
+        ``--rib-shape-terms`` coefficients when ``rib_shape`` is optimised),
+        the variable names, the `rib_design.RibLimits` (None without a rib
+        shape or with ``--no-rib-limits``), ``{name: (low, high)}`` of the
+        variables and the tension `constraints.Constraints` (None with
+        ``--no-tension-constraints``).
+
+    Raises:
+        InputError: for rib-shape options that make no sense.
+    """
+    from forward_solver import Parameters
+
+    from .constraints import Constraints
+    from .rib_design import RibLimits
+
+    initial = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
+                         prestrain_chord=args.prestrain_chord, rib_thickness_scale=args.rib_thickness_scale,
+                         rib_chord_scale=args.rib_chord_scale)
+    variables = _variables(args.variables)
+    rib_limits = None
+    if "rib_shape" in variables and not getattr(args, "evaluate", False):
+        if args.rib_shape_terms < 1:
+            raise InputError(f"--rib-shape-terms must be at least 1, got {args.rib_shape_terms}")
+        initial = initial.replace(rib_shape=[0.0] * (2 * args.rib_shape_terms))
+        if not args.no_rib_limits:
+            if args.min_rib_thickness > 1:
+                raise InputError(f"--min-rib-thickness is a fraction of the starting rib's thickness in "
+                                 f"(0, 1], got {args.min_rib_thickness}")
+            rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
+    all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
+                  "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
+                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
+    bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
+    constraints = (None if args.no_tension_constraints else
+                   Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
+    return initial, variables, rib_limits, bounds, constraints
 
 
 def _aero_angles(args: argparse.Namespace):

@@ -122,7 +122,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
         ValueError: bad input (`cli.InputError` among them).
         forward_solver.ConvergenceError: a bay's solve at the start failed (nothing written).
     """
-    from .cli import _airfoil, _variables
+    from .cli import _airfoil, design_inputs
 
     start = time.perf_counter() if started is None else started
     sources = dict(sources or {})
@@ -139,10 +139,9 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     sections = [_airfoil(r["section"], f"{where}: rib {k}: section") for k, r in enumerate(args.wing)]
     targets = [(_airfoil(r["target"], f"{where}: rib {k}: target") if "target" in r else
                 common if common is not None else sections[k]) for k, r in enumerate(args.wing)]
-    from forward_solver import Fabric, Parameters
+    from forward_solver import Fabric
     from forward_solver.wing import Wing
 
-    from .constraints import Constraints
     from .export import check_output_folder
     from .wing_design import optimise_wing
     from .wing_report import write_wing_report
@@ -152,28 +151,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
                 stations=tuple(r["station"] for r in args.wing))
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
                     poisson=args.poisson)
-    initial = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
-                         prestrain_chord=args.prestrain_chord, rib_thickness_scale=args.rib_thickness_scale,
-                         rib_chord_scale=args.rib_chord_scale)
-    variables = _variables(args.variables)
-    rib_limits = None
-    if "rib_shape" in variables:  # one shape per rib, each from its own section (zero offset)
-        from .rib_design import RibLimits
-
-        if args.rib_shape_terms < 1:
-            raise _error(f"--rib-shape-terms must be at least 1, got {args.rib_shape_terms}")
-        initial = initial.replace(rib_shape=[0.0] * (2 * args.rib_shape_terms))
-        if not args.no_rib_limits:
-            if args.min_rib_thickness > 1:
-                raise _error(f"--min-rib-thickness is a fraction of the starting rib's thickness in (0, 1], "
-                             f"got {args.min_rib_thickness}")
-            rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
-    all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
-                  "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
-                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
-    bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
-    constraints = (None if args.no_tension_constraints else
-                   Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
+    initial, variables, rib_limits, bounds, constraints = design_inputs(args)  # (one shape per rib)
     timings = {"setup": time.perf_counter() - start}
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
