@@ -24,7 +24,7 @@ from .constraints import cell_tensions, constraint_functions, penalty_residuals,
 from .objectives import objective_residuals, objective_value
 from .variables import DesignVariables
 
-__all__ = ["DesignProblem"]
+__all__ = ["DesignProblem", "with_rib_rows"]
 
 
 class DesignProblem:
@@ -131,8 +131,7 @@ class DesignProblem:
             y = np.asarray(y)
             recorded = y[1:]
             if self.rib_geometry is not None:
-                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-                y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
+                y, rows, g_rib = with_rib_rows(y, rows, self._rib_rows, u)
                 n_thick = self.rib_geometry.upper.size  # history: the least row of each rib limit
                 recorded = np.concatenate([recorded, [g_rib[:n_thick].min(), g_rib[n_thick:].min()]])
             self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
@@ -178,6 +177,15 @@ class DesignProblem:
         self.history.append(entry)
         if self.on_record is not None:
             self.on_record(entry)
+
+
+def with_rib_rows(y, rows, rib_rows, u):
+    """``(y, rows, g_rib)``: the outputs and their gradient rows with the rib limits' rows appended.
+
+    ``rib_rows(u)`` returns the rib-limit values and their Jacobian (no solve in them).
+    """
+    g_rib, jac_rib = (np.asarray(a) for a in rib_rows(jnp.asarray(u, jnp.float64)))
+    return np.concatenate([y, g_rib]), np.vstack([rows, jac_rib]), g_rib
 
 
 def key_of(u) -> tuple:

@@ -192,12 +192,15 @@ class DesignVariables:
             else:
                 yield n, float(value[0]), lo, hi
 
+    def _bound(self, side: int) -> np.ndarray:
+        """Scaled lower (``side`` 0) or upper (1) bound of every component."""
+        return np.concatenate([np.full(part.stop - part.start, self.bounds[n][side] / self.scale(n))
+                               for n, part in self._slices().items()])
+
     @property
     def lower(self) -> np.ndarray:
-        return np.concatenate([np.full(self._slices()[n].stop - self._slices()[n].start,
-                                       self.bounds[n][0] / self.scale(n)) for n in self.names])
+        return self._bound(0)
 
     @property
     def upper(self) -> np.ndarray:
-        return np.concatenate([np.full(self._slices()[n].stop - self._slices()[n].start,
-                                       self.bounds[n][1] / self.scale(n)) for n in self.names])
+        return self._bound(1)

@@ -103,7 +103,7 @@ from .constraints import (VIOLATION_TOLERANCE, Constraints, cell_tensions, const
                           constraint_report)
 from .methods import slsqp
 from .objectives import WORST_SHARPNESS, check_objective, section_points, station_etas, target_distance
-from .problem import DesignProblem, key_of
+from .problem import DesignProblem, key_of, with_rib_rows
 from .rib_design import RibGeometry, RibLimits, rib_report
 from .variables import (_SCALES, DEFAULT_BOUNDS, DEFAULT_RIB_SHAPE_TERMS, DEFAULT_START, VARIABLES,
                         DesignVariables)
@@ -458,8 +458,7 @@ class WingProblem:
         y = np.asarray(y)
         recorded = y[1:]
         if self.rib_geometries is not None:
-            g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-            y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
+            y, rows, g_rib = with_rib_rows(y, rows, self._rib_rows, u)
             recorded = np.concatenate([recorded, [g_rib.min()]])  # history: the least rib-limit row
         self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol, u))}
         self.record(u, y[0], np.linalg.norm(rows[0]), sol, recorded)
