@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from targets.airfoil import common_trailing_edge
+
 from . import forces as fk
 from ._precision import float64_scope
 from .bay import Bay
@@ -52,15 +54,28 @@ class Wing:
         airfoils: the rib sections (`targets.Airfoil`), root to tip, N + 1 >= 2.
         chords: the rib chords, m, one per rib.
         stations: the ribs' span positions y, m, strictly increasing.
+        trailing_edge: how ribs with open and closed trailing edges are brought
+            to one form (every bay runs one seam form): "close" (default:
+            close the open ones, as a fabric wing's seam is), "open" (open the
+            closed ones to the largest gap) or "as-given" (refuse a mix);
+            `targets.common_trailing_edge`.
+
+    Attributes:
+        sections: the rib sections the bays are built on: ``airfoils`` with
+            their trailing edges brought to one form.
+        trailing_edge_changes: a note per changed rib (``index`` = the rib,
+            ``label``, ``gap_before``, ``gap_after`` in chord units, ``blend``).
 
     Raises:
         ValueError: for fewer than two ribs, lists of different lengths,
-            stations that do not increase or a non-positive chord.
+            stations that do not increase or a non-positive chord, or ribs of
+            both trailing-edge forms with ``trailing_edge="as-given"``.
     """
 
     airfoils: tuple
     chords: tuple
     stations: tuple
+    trailing_edge: str = "close"
 
     def __post_init__(self):
         n = len(self.airfoils)
@@ -73,6 +88,10 @@ class Wing:
             raise ValueError(f"rib chords must be positive lengths in m, got {self.chords}")
         if not (np.all(np.isfinite(self.stations)) and np.all(np.diff(self.stations) > 0)):
             raise ValueError(f"rib stations must increase strictly from root to tip (m), got {self.stations}")
+        labels = [f"rib {k} ({getattr(a, 'name', 'airfoil')})" for k, a in enumerate(self.airfoils)]
+        sections, changes = common_trailing_edge(self.airfoils, self.trailing_edge, labels)
+        object.__setattr__(self, "sections", tuple(sections))
+        object.__setattr__(self, "trailing_edge_changes", tuple(changes))
 
     @property
     def n_bays(self) -> int:
@@ -80,9 +99,9 @@ class Wing:
 
     def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
         """The bays, root to tip, each between ribs k and k + 1, all on one grid shape."""
-        return [Bay.from_airfoil(self.airfoils[k], chord=self.chords[k],
+        return [Bay.from_airfoil(self.sections[k], chord=self.chords[k],
                                  rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
-                                 n_contour=n_contour, tip_airfoil=self.airfoils[k + 1],
+                                 n_contour=n_contour, tip_airfoil=self.sections[k + 1],
                                  tip_chord=self.chords[k + 1])
                 for k in range(self.n_bays)]
 

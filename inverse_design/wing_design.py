@@ -371,8 +371,8 @@ class WingProblem:
         self.tension_scale = 0.5 * abs(float(variables.shared.start.pressure)) * self.chord
         self.rib_geometries = None
         if variables.rib_shape_start is not None and rib_limits is not None:
-            # Each rib against its own starting section (the wing's rib airfoils).
-            self.rib_geometries = [RibGeometry(af, rib_limits) for af in wing.airfoils]
+            # Each rib against its own starting section (as built: Wing.sections).
+            self.rib_geometries = [RibGeometry(af, rib_limits) for af in wing.sections]
 
             def rib_rows(u):
                 parameters, shapes = variables.parameters(u), variables.rib_shapes(u)

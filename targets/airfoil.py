@@ -61,6 +61,16 @@ _NEWTON_STEPS = 50  # cap on the projection iterations
 _BISECTION_STEPS = 64  # halvings of a parameter interval: below float64 spacing
 _STATION_TOLERANCE = 1e-6  # chord; stations this close outside the chord are clipped
 
+TRAILING_EDGE_BLEND = 0.05
+"""Chord fraction ahead of the trailing edge over which :meth:`Airfoil.with_trailing_edge`
+blends a change of the trailing-edge gap (the section ahead of it is kept)."""
+
+TRAILING_EDGE_MODES = ("close", "open", "as-given")
+"""How :func:`common_trailing_edge` brings sections with open and closed trailing
+edges to one form."""
+
+_BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend is applied to
+
 
 class Projection(NamedTuple):
     """Closest points of the contour to a set of query points.
@@ -435,6 +445,11 @@ class Airfoil:
         return bool(self.x[0] == self.x[-1] and self.z[0] == self.z[-1])
 
     @property
+    def trailing_edge_gap(self) -> float:
+        """Distance between the first and last nodes (chord units): 0 for a closed trailing edge."""
+        return float(np.hypot(self.x[0] - self.x[-1], self.z[0] - self.z[-1]))
+
+    @property
     def points(self) -> np.ndarray:
         """Nodes as an array of shape ``(n_points, 2)`` of (x, z), chord units."""
         return np.column_stack([self.x, self.z])
@@ -613,6 +628,79 @@ class Airfoil:
         points[0], points[-1] = contour.start, contour.end
         return Airfoil._on_contour(points[:, 0], points[:, 1], self.name, contour)
 
+    def with_trailing_edge(self, gap: float, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
+        """The section with its trailing-edge gap changed to ``gap``, blended over the last ``blend``.
+
+        The contour is resampled at :data:`_BLEND_NODES` cosine-spaced nodes
+        (:meth:`resample`); each surface's node at chordwise distance ``d``
+        ahead of that surface's trailing-edge point moves by ``w(d) (e' - e)``,
+        where ``e`` is its trailing-edge point, ``e'`` the new one and
+        ``w = 1 - S(d / blend)`` with ``S(t) = 10 t^3 - 15 t^4 + 6 t^5`` for
+        ``t < 1`` (0 beyond): the blend is C2 where it starts and moves
+        nothing ahead of ``1 - blend``, where the section is the original's to
+        the resampling error (below 1e-5 chord on the UIUC test files). The new trailing-edge points
+        lie ``gap / 2`` either side of the old mid-point, along the old base
+        (vertically for a closed trailing edge), so the chord stays unit.
+
+        Closing lowers the thickness near the trailing edge by at most the old
+        gap: ``t'(x) = t(x) - w t(1)``, which stays positive where the
+        thickness falls towards the trailing edge (every usual section).
+
+        Args:
+            gap: the new gap, chord units, >= 0 (0 closes the trailing edge).
+            blend: chord fraction over which the change is blended, in (0, 0.5].
+
+        Returns:
+            A new :class:`Airfoil` of the same name (``self`` when the gap is
+            already ``gap``).
+
+        Raises:
+            ValueError: for a bad ``gap`` or ``blend``, or when the blend would
+                make the surfaces cross (give a longer blend).
+        """
+        if isinstance(gap, bool) or not isinstance(gap, (int, float, np.floating)) or not (
+            math.isfinite(gap) and 0.0 <= gap < 0.1
+        ):
+            raise ValueError(f"trailing-edge gap must be a number in [0, 0.1) chord, got {gap!r}")
+        if isinstance(blend, bool) or not isinstance(blend, (int, float, np.floating)) or not (
+            0.0 < blend <= 0.5
+        ):
+            raise ValueError(f"trailing-edge blend must be a chord fraction in (0, 0.5], got {blend!r}")
+        old_gap = self.trailing_edge_gap
+        if old_gap == gap:
+            return self
+        dense = self.resample(_BLEND_NODES)
+        x, z = dense.x.copy(), dense.z.copy()
+        first, last = np.array([x[0], z[0]]), np.array([x[-1], z[-1]])
+        middle = 0.5 * (first + last)
+        base = (first - last) / old_gap if old_gap > 0.0 else np.array([0.0, 1.0])
+        new_first, new_last = middle + 0.5 * gap * base, middle - 0.5 * gap * base
+        if gap == 0.0:
+            new_first = new_last = middle
+        i_le = int(np.argmin(x))
+        for nodes, end, moved in ((slice(0, i_le), first, new_first),
+                                  (slice(i_le + 1, x.size), last, new_last)):
+            t = np.clip((end[0] - x[nodes]) / blend, 0.0, 1.0)
+            weight = 1.0 - t**3 * (10.0 - 15.0 * t + 6.0 * t**2)
+            x[nodes] += weight * (moved[0] - end[0])
+            z[nodes] += weight * (moved[1] - end[1])
+        (x[0], z[0]), (x[-1], z[-1]) = new_first, new_last
+        changed = Airfoil(x, z, name=self.name)
+        stations = 1.0 - blend * (1.0 - np.linspace(0.0, 1.0, 201)[:-1] ** 2)
+        stations = stations[stations < min(x[0], x[-1])]
+        thin = changed.thickness(stations)
+        if thin.size and thin.min() < 0.0:
+            raise ValueError(
+                f"airfoil {self.name!r}: changing the trailing-edge gap from {old_gap:.4g} to {gap:.4g} "
+                f"chord over the last {blend:g} of chord makes the surfaces cross at x = "
+                f"{stations[int(np.argmin(thin))]:.4f}; give a longer blend"
+            )
+        return changed
+
+    def with_closed_trailing_edge(self, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
+        """The section with its trailing edge closed (see :meth:`with_trailing_edge`, gap 0)."""
+        return self.with_trailing_edge(0.0, blend)
+
     def scaled(self, chord: float) -> tuple[np.ndarray, np.ndarray]:
         """Node coordinates scaled to a physical chord.
 
@@ -686,3 +774,70 @@ def _checked_n_points(n_points: int) -> int:
     if n_points < MIN_POINTS:
         raise ValueError(f"n_points must be at least {MIN_POINTS}, got {n_points}")
     return int(n_points)
+
+
+def common_trailing_edge(
+    airfoils, mode: str = "close", labels=None, blend: float = TRAILING_EDGE_BLEND
+) -> tuple[list, list[dict]]:
+    """Sections brought to one trailing-edge form, open or closed, and what was changed.
+
+    A skin between two ribs, and a wing of bays, runs one grid whose
+    trailing-edge seam is either one line (closed) or two with a base
+    between them (open), so its sections must share the form. NACA codes are
+    closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
+
+    Modes:
+
+    * ``"close"`` (the default): close every open trailing edge
+      (:meth:`Airfoil.with_closed_trailing_edge`). A fabric wing's trailing
+      edge is a seam where the upper and lower skins meet, so a shop builds
+      it closed whatever the section's file says; closing moves the section
+      by at most half the gap, only over the last ``blend`` of chord.
+    * ``"open"``: open every closed trailing edge to the largest gap among
+      the open ones (:meth:`Airfoil.with_trailing_edge`), for a wing whose
+      trailing edge is a rigid (blunt) spar.
+    * ``"as-given"``: change nothing; a mix raises ValueError naming a closed
+      and an open section and the modes that fix it.
+
+    Sections that already share a form are returned unchanged in every mode.
+
+    Args:
+        airfoils: the sections (:class:`Airfoil`).
+        mode: one of :data:`TRAILING_EDGE_MODES`.
+        labels: a name per section for the notes and messages (default: the
+            airfoil names).
+        blend: chord fraction of the blend.
+
+    Returns:
+        ``(sections, changes)``: the sections, and per changed one a dict with
+        ``index``, ``label``, ``gap_before``, ``gap_after`` (chord units) and
+        ``blend``.
+
+    Raises:
+        ValueError: for an unknown mode, or a mix with ``"as-given"``.
+    """
+    if mode not in TRAILING_EDGE_MODES:
+        raise ValueError(f"trailing_edge must be one of {', '.join(TRAILING_EDGE_MODES)}, got {mode!r}")
+    airfoils = list(airfoils)
+    labels = [a.name for a in airfoils] if labels is None else list(labels)
+    closed = [a.closed_te for a in airfoils]
+    if all(closed) or not any(closed):
+        return airfoils, []
+    if mode == "as-given":
+        i, j = closed.index(True), closed.index(False)
+        raise ValueError(
+            f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
+            f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
+            f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
+            f"(open the closed ones to the largest gap)"
+        )
+    gap = 0.0 if mode == "close" else max(a.trailing_edge_gap for a in airfoils)
+    sections, changes = [], []
+    for k, airfoil in enumerate(airfoils):
+        if airfoil.closed_te == (mode == "close"):
+            sections.append(airfoil)
+            continue
+        sections.append(airfoil.with_trailing_edge(gap, blend))
+        changes.append({"index": k, "label": labels[k], "gap_before": airfoil.trailing_edge_gap,
+                        "gap_after": gap, "blend": blend})
+    return sections, changes
