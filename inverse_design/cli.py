@@ -28,6 +28,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -51,8 +52,18 @@ class InputError(ValueError):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Anything that reads as a negative number (-2e5, -.5, -inf, not only argparse's -4 and -0.5) is a
+        # value, so that it reaches the option's own check ("must be a positive number") instead of
+        # argparse's "expected one argument"; no option of ours looks like a number.
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
     def error(self, message):  # one line, no usage block: the caller prints it and exits 2
         raise InputError(f"{message} (see {PROG} --help)")
+
+
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
 
 
 # ------------------------------------------------------------------ option types

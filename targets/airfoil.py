@@ -69,6 +69,14 @@ TRAILING_EDGE_MODES = ("close", "open", "as-given")
 """How :func:`common_trailing_edge` brings sections with open and closed trailing
 edges to one form."""
 
+ZERO_AREA = 1e-9
+"""Enclosed area (chord^2) at or below which a contour has zero thickness: a 0.01%-thick
+section encloses about 7e-5."""
+
+ORDER_TOLERANCE = 0.02
+"""Chord fraction by which x must turn back to count as a turn of the contour (see
+:func:`x_turns`): far above the small reversals beside a rounded nose or trailing edge."""
+
 _BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend is applied to
 
 
@@ -93,6 +101,48 @@ class Projection(NamedTuple):
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
+
+
+def x_turns(x: np.ndarray, tolerance: float = ORDER_TOLERANCE) -> list[int]:
+    """Indices of the points where x turns back by more than ``tolerance`` (a falling run becomes a rising one
+    or the reverse).
+
+    A section in contour order (Selig: trailing edge, upper surface, leading
+    edge, lower surface, trailing edge) turns once, at the leading edge;
+    shuffled or merged points turn many times.
+    """
+    turns: list[int] = []
+    direction = 0  # +1 rising, -1 falling, 0 not known yet
+    low = high = 0  # index of the lowest / highest x of the current run
+    for i in range(1, len(x)):
+        if x[i] < x[low]:
+            low = i
+        if x[i] > x[high]:
+            high = i
+        if direction >= 0 and x[i] < x[high] - tolerance:
+            if direction > 0:
+                turns.append(high)
+            direction, low = -1, i
+        elif direction <= 0 and x[i] > x[low] + tolerance:
+            if direction < 0:
+                turns.append(low)
+            direction, high = 1, i
+    return turns
+
+
+def order_error(x: np.ndarray, where=None) -> str | None:
+    """Why points are not in contour order (more than two turns of x, :func:`x_turns`), or None.
+
+    ``where(i)`` names point ``i`` in the message (e.g. its line in a file).
+    """
+    turns = x_turns(np.asarray(x, dtype=np.float64))
+    if len(turns) <= 2:  # one at the leading edge (two: a surface missing or reversed, said elsewhere)
+        return None
+    name = where or (lambda i: f"point {i}")
+    shown = ", ".join(name(i) for i in turns[:4]) + (", ..." if len(turns) > 4 else "")
+    return (f"the points are not in contour order: x turns back {len(turns)} times (at {shown}), where a "
+            f"section turns once, at the leading edge; order them trailing edge, upper surface, leading "
+            f"edge, lower surface, trailing edge (Selig), as the file's source lists them")
 
 
 def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -121,6 +171,9 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
     if not_finite.any():
         i = int(np.argmax(not_finite))
         raise ValueError(f"{what}: point {i} is not finite (x={x[i]}, z={z[i]}); fix or remove it")
+    disorder = order_error(x)
+    if disorder is not None:
+        raise ValueError(f"{what}: {disorder}")
     segment = np.hypot(np.diff(x), np.diff(z))
     if (segment == 0.0).any():
         i = int(np.argmax(segment == 0.0))
@@ -149,7 +202,13 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
         )
     # Shoelace area of the polygon closed by the trailing-edge base.
     area = 0.5 * float(np.sum(x * np.roll(z, -1) - np.roll(x, -1) * z))
-    if area <= 0.0:
+    if abs(area) <= ZERO_AREA:
+        raise ValueError(
+            f"{what} has zero thickness: its contour encloses no area (signed area {area:.3g}), as a flat "
+            f"plate or a camber line alone does; a bay's rib needs a section with thickness: give both "
+            f"surfaces"
+        )
+    if area < 0.0:
         raise ValueError(
             f"{what} runs clockwise (signed area {area:.3g}); Selig order runs counter-clockwise "
             f"(trailing edge, upper surface, leading edge, lower surface): reverse the points"
@@ -638,13 +697,18 @@ class Airfoil:
         ``w = 1 - S(d / blend)`` with ``S(t) = 10 t^3 - 15 t^4 + 6 t^5`` for
         ``t < 1`` (0 beyond): the blend is C2 where it starts and moves
         nothing ahead of ``1 - blend``, where the section is the original's to
-        the resampling error (below 1e-5 chord on the UIUC test files). The new trailing-edge points
+        the resampling error (below 1e-5 chord on the UIUC test files, 1e-4 over
+        the whole database). The new trailing-edge points
         lie ``gap / 2`` either side of the old mid-point, along the old base
         (vertically for a closed trailing edge), so the chord stays unit.
 
-        Closing lowers the thickness near the trailing edge by at most the old
-        gap: ``t'(x) = t(x) - w t(1)``, which stays positive where the
-        thickness falls towards the trailing edge (every usual section).
+        Narrowing the gap from ``g`` to ``g'`` lowers the thickness by
+        ``w (g - g') min(1, t(x) / (g - g'))``: the gap change itself where the
+        section is thicker than that (nearly everywhere), and never more than
+        ``w t(x)``, so the surfaces cannot cross where a section thickens
+        towards its trailing edge (35 of the 895 open sections of the UIUC
+        database do, within the last 1%). No point moves further than half
+        the gap change.
 
         Args:
             gap: the new gap, chord units, >= 0 (0 closes the trailing edge).
@@ -655,8 +719,7 @@ class Airfoil:
             already ``gap``).
 
         Raises:
-            ValueError: for a bad ``gap`` or ``blend``, or when the blend would
-                make the surfaces cross (give a longer blend).
+            ValueError: for a bad ``gap`` or ``blend``.
         """
         if isinstance(gap, bool) or not isinstance(gap, (int, float, np.floating)) or not (
             math.isfinite(gap) and 0.0 <= gap < 0.1
@@ -678,24 +741,19 @@ class Airfoil:
         if gap == 0.0:
             new_first = new_last = middle
         i_le = int(np.argmin(x))
+        narrowing = old_gap - gap
         for nodes, end, moved in ((slice(0, i_le), first, new_first),
                                   (slice(i_le + 1, x.size), last, new_last)):
             t = np.clip((end[0] - x[nodes]) / blend, 0.0, 1.0)
             weight = 1.0 - t**3 * (10.0 - 15.0 * t + 6.0 * t**2)
+            if narrowing > 0.0:  # never take more thickness than there is (see the docstring)
+                inside = weight > 0.0
+                local = self.thickness(np.clip(x[nodes][inside], self._contour.x_le, 1.0))
+                weight[inside] *= np.clip(local / narrowing, 0.0, 1.0)
             x[nodes] += weight * (moved[0] - end[0])
             z[nodes] += weight * (moved[1] - end[1])
         (x[0], z[0]), (x[-1], z[-1]) = new_first, new_last
-        changed = Airfoil(x, z, name=self.name)
-        stations = 1.0 - blend * (1.0 - np.linspace(0.0, 1.0, 201)[:-1] ** 2)
-        stations = stations[stations < min(x[0], x[-1])]
-        thin = changed.thickness(stations)
-        if thin.size and thin.min() < 0.0:
-            raise ValueError(
-                f"airfoil {self.name!r}: changing the trailing-edge gap from {old_gap:.4g} to {gap:.4g} "
-                f"chord over the last {blend:g} of chord makes the surfaces cross at x = "
-                f"{stations[int(np.argmin(thin))]:.4f}; give a longer blend"
-            )
-        return changed
+        return Airfoil(x, z, name=self.name)
 
     def with_closed_trailing_edge(self, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
         """The section with its trailing edge closed (see :meth:`with_trailing_edge`, gap 0)."""
