@@ -29,7 +29,10 @@ coefficients per surface within ``rib-shape-bounds``, each rib held to the
 rib limits ``min-rib-thickness`` and ``min-rib-radius`` against its own
 section unless ``no-rib-limits``); those that do not
 (``chord``, ``rib-spacing``, ``rib``, ``method`` other than slsqp,
-``refine``, ``evaluate``, ``aero``) are refused with what to change. Bad
+``refine``, ``evaluate``, ``aero``) are refused with what to change.
+``trailing-edge`` (close, open, as-given) says how ribs with closed and
+open trailing edges are brought to one form (`forward_solver.wing.Wing`);
+a changed rib is noted in the summary and on the console. Bad
 wing input exits 2 with one line naming the file and the rib. An example:
 ``inverse_design/cases/wing_taper.toml``.
 """
