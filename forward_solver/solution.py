@@ -152,7 +152,12 @@ class Solution(ParameterViews):
         """Why the solve stopped, and for a failure what to change (one solve, not a batch)."""
         code = Result(int(np.asarray(self.result)))
         advice = self.detail or RESULT_ADVICE[code]
-        return f"{RESULT_MESSAGES[code]}; {advice}" if advice else RESULT_MESSAGES[code]
+        head = RESULT_MESSAGES[code]
+        if code == Result.max_steps_reached and "newton_iterations" in (self.extra or {}):
+            # Newton stops on its own iteration cap, a stalled line search or slow progress, never
+            # on max_steps: the detail says which.
+            head = "max_steps_reached: the Newton iteration stopped before the residual fell below the tolerance"
+        return f"{head}; {advice}" if advice else head
 
     @property
     def wrinkled_fraction(self) -> float:

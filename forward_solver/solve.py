@@ -317,7 +317,11 @@ def _newton_solution(result, steps, *, start, parameters, bay, params, geometry,
     out = LoopOutput(None, int(result.result), 0, result.residual, None)
     extra = dict(extra, newton_iterations=result.iterations)
     method = "relax+newton" if "relax_steps" in extra else "newton"
-    detail = "" if int(result.result) == Result.converged else result.message
+    detail = ""
+    if int(result.result) != Result.converged:  # the real cause and the counts (not max_steps)
+        relax = extra.get("relax_steps")
+        detail = (f"Newton stopped after {result.iterations} iterations"
+                  + (f" (following {relax} relaxation steps)" if relax else "") + f": {result.message}")
     return make_solution(out, f, steps + result.iterations, time.perf_counter() - start, method,
                          parameters, bay, extra=extra, nodes=x, detail=detail,
                          factor=result.jacobian_factor())

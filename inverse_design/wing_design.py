@@ -97,7 +97,7 @@ from forward_solver import ConvergenceError, Fabric, Parameters, Scene
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
-from forward_solver.wing import Wing, WingSolution, solve_wing
+from forward_solver.wing import Wing, WingSolution, check_rib_gaps, solve_wing
 
 from .constraints import (VIOLATION_TOLERANCE, Constraints, cell_tensions, constraint_functions,
                           constraint_report)
@@ -361,6 +361,7 @@ class WingProblem:
         self.grid = dict(n_span=n_span, n_contour=n_contour)
         self.rtol, self.max_steps = rtol, max_steps
         self.bays = wing.bays(n_span, n_contour)
+        check_rib_gaps(wing, fabric, variables.shared.start, n_span=n_span, n_contour=n_contour, rtol=rtol)
         self.scenes = [Scene(bay, fabric) for bay in self.bays]  # (tension_only, as solve_wing's default)
         self.weights = bay_weights(wing)
         self.etas = station_etas(objective, n_span)
@@ -371,8 +372,8 @@ class WingProblem:
         self.tension_scale = 0.5 * abs(float(variables.shared.start.pressure)) * self.chord
         self.rib_geometries = None
         if variables.rib_shape_start is not None and rib_limits is not None:
-            # Each rib against its own starting section (the wing's rib airfoils).
-            self.rib_geometries = [RibGeometry(af, rib_limits) for af in wing.airfoils]
+            # Each rib against its own starting section (as built: Wing.sections).
+            self.rib_geometries = [RibGeometry(af, rib_limits) for af in wing.sections]
 
             def rib_rows(u):
                 parameters, shapes = variables.parameters(u), variables.rib_shapes(u)
