@@ -72,6 +72,11 @@ class Bay:
         periodic: True for a closed contour.
         fixed: ``(n_span, n_contour)`` bool, nodes held by ribs and seams.
         name: a label for reports.
+        airfoil: the root rib's section (`targets.Airfoil`) of a bay built
+            with :meth:`from_airfoil`, else None (a flat panel).
+        tip_airfoil: the tip rib's section as given to :meth:`from_airfoil`
+            (None: the root's).
+        fix_trailing_edge: whether :meth:`from_airfoil` held the trailing edge.
     """
 
     contour_root: np.ndarray
@@ -84,6 +89,9 @@ class Bay:
     periodic: bool
     fixed: np.ndarray
     name: str = "bay"
+    airfoil: object = None
+    tip_airfoil: object = None
+    fix_trailing_edge: bool = True
 
     @property
     def n_span(self) -> int:
@@ -173,6 +181,9 @@ class Bay:
             periodic=True,
             fixed=fixed,
             name=str(name),
+            airfoil=airfoil,
+            tip_airfoil=tip_airfoil,
+            fix_trailing_edge=bool(fix_trailing_edge),
         )
 
     @classmethod
