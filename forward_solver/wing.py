@@ -7,7 +7,7 @@ one inflation pressure and one fabric. On a common grid shape their
 every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
 `relax`, as `traced` runs it under ``jax.vmap``) instead of a Python loop,
 and the result is differentiable in the shared `Parameters` by the implicit
-function theorem (`krylov.implicit_nodes`, per bay). Per-rib shapes
+function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 (``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
 the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
 and rib ``k + 1``'s, and they are differentiated like the parameters.
