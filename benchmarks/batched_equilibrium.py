@@ -54,7 +54,8 @@ from jax.scipy.sparse.linalg import bicgstab
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from forward_solver import Bay, Fabric, Parameters, Scene, forces, solve_equilibrium
-from forward_solver.krylov import KRYLOV_RTOL, implicit_tangent, jacobian_operator
+from forward_solver.implicit import ImplicitAdjoint
+from forward_solver.krylov import KRYLOV_RTOL, jacobian_operator
 from targets import naca
 
 RTOL = 1e-8
@@ -123,7 +124,7 @@ def krylov_products(n_span: int, n_contour: int) -> dict:
 
         dpressure = jax.tree_util.tree_map(jnp.zeros_like, params)._replace(pressure=jnp.float64(1.0))
         # b = J dx for the pressure tangent dx: the right-hand side the derivative solves.
-        rhs = matvec(implicit_tangent(x, geometry, params, dpressure, physics) * free)
+        rhs = matvec(ImplicitAdjoint(x, geometry, params, physics, "iterative").tangent(dpressure) * free)
         random = jnp.asarray(np.random.default_rng(0).normal(size=x.shape)) * free
         counts = {}
         for name, b in (("pressure", rhs), ("random", random)):

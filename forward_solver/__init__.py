@@ -3,7 +3,8 @@
 Public names::
 
     Fabric, Bay, Scene, Parameters, Solution, Result, ConvergenceError,
-    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing, rib_section
+    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing, solve_bays,
+    rib_section
 
 ``Parameters.rib_shape`` offsets the rib contours (`rib_shape`: Bernstein
 coefficients of a class-shape offset); `rib_section` is the designed rib as
@@ -34,6 +35,7 @@ from .solution import Result as Result
 from .solution import Solution as Solution
 from .solve import solve_equilibrium as solve_equilibrium
 from .wing import Wing as Wing
+from .wing import solve_bays as solve_bays
 from .wing import solve_wing as solve_wing
 
 __all__ = [
@@ -49,6 +51,7 @@ __all__ = [
     "Solution",
     "simulate",
     "solve_equilibrium",
+    "solve_bays",
     "solve_wing",
     "Wing",
 ]

@@ -12,25 +12,19 @@ over the whole `Parameters` pytree:
 
 * primal: the concrete host solve (relaxation, Newton, warm starts) at the
   concrete parameter values;
-* tangent (forward mode, ``jax.jvp`` / ``jax.jacfwd``): ``dR/dtheta .
-  dtheta`` is one ``jax.jvp`` of `forces.residual` (through
-  `forces.prepare`, so the cut lengths see the prestrain, and through the
-  mounted rib nodes, which move with the rib scales), then ``dx = -J^-1
-  (...)`` by one of two linear solvers (``linear_solver``):
-  "lu", the sparse LU of J on the host: the solution's own factor
-  (`Solution.factor`) when it was factorised at the returned state, else a
-  fresh one from `jacobian.assemble_jacobian`, reached through
-  ``jax.pure_callback``; or "iterative", the matrix-free block-Jacobi
-  BiCGStab of `krylov` in JAX (no callback). `default_linear_solver` picks
-  "lu" on a CPU backend and "iterative" elsewhere, since a host callback
-  fails where JAX sees only a GPU (``JAX_PLATFORMS=cuda``);
-* cotangent (reverse mode, ``jax.grad`` / ``jax.vjp``): JAX transposes the
-  tangent rule. The linear solve is a `jax.lax.custom_linear_solve` whose
-  transpose solves the adjoint system ``J^T lambda = xbar`` with the same
-  factor (``lu.solve(b, trans="T")``) or the same BiCGStab on ``J^T``, and the transpose of the ``jax.jvp``
-  above is ``thetabar = -(dR/dtheta)^T lambda``: one adjoint solve per
-  gradient, whatever the number of parameters. The two modes cannot
-  disagree: one is derived from the other.
+* tangent (forward mode, ``jax.jvp`` / ``jax.jacfwd``) and cotangent
+  (reverse mode, ``jax.grad`` / ``jax.vjp``): `implicit.ImplicitAdjoint` at
+  the solved state, the one implicit rule of the package (its right-hand
+  side ``-dR/dtheta . dtheta`` through `forces.prepare` and the mounted rib
+  nodes; one ``jax.lax.custom_linear_solve``, whose transpose is the
+  adjoint solve ``J^T lambda = xbar``) with the linear solver
+  ``linear_solver``: "lu", the sparse LU of J on the host (the solution's
+  own factor, `Solution.factor`, when it was factorised at the returned
+  state), or "iterative", the matrix-free BiCGStab of `krylov`.
+  `default_linear_solver` picks "lu" on a CPU backend and "iterative"
+  elsewhere, since a host callback fails where JAX sees only a GPU
+  (``JAX_PLATFORMS=cuda``). One adjoint solve per gradient, whatever the
+  number of parameters; the two modes cannot disagree.
 
 Tolerance under differentiation. The derivative is exact only at an exact
 equilibrium; at a state with residual ``r`` the tangent is wrong by about
@@ -49,7 +43,7 @@ so it serves eager ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` and
 ``jax.vjp``, where the parameters are traced but concrete. Under ``jax.jit``
 or ``jax.vmap`` of the parameters they are abstract and `solve_equilibrium`
 takes the pure-JAX path of `traced` instead: the relaxation alone, under
-``stop_gradient``, its fixed point differentiated by `krylov.implicit_nodes`
+``stop_gradient``, its fixed point differentiated by `implicit.implicit_nodes`
 (the same implicit rule with the iterative solver). The two agree to 1e-10
 relative on the 9x32 bay (tests/test_transforms.py). The host methods
 (newton, relax+newton, explicit) refuse jit and vmap with a TypeError that
@@ -73,13 +67,10 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-import scipy.sparse.linalg as spla
 
 from . import forces as fk
 from ._precision import float64_scope
-from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
-from .krylov import implicit_tangent
+from .implicit import LINEAR_SOLVERS, ImplicitAdjoint, default_linear_solver
 from .loop import LoopOutput
 from .parameters import PARAMETER_NAMES, Parameters
 from .relax import MASS_SAFETY, kinetic_damping_step
@@ -99,143 +90,12 @@ __all__ = [
 #: How `solve_equilibrium` is differentiated.
 ADJOINTS = ("implicit", "unrolled")
 
-#: Linear solvers of the implicit derivative: the host sparse LU, or matrix-free BiCGStab in JAX.
-LINEAR_SOLVERS = ("lu", "iterative")
-
 #: Parameters the equilibrium can be differentiated in (the `Parameters` fields).
 DIFFERENTIABLE = PARAMETER_NAMES
 
 #: Relative residual ``||R_free||_2 / (p A)`` of solves whose derivative must
 #: be accurate (see the module docstring for why).
 GRADIENT_RTOL = 1e-11
-
-
-def default_linear_solver() -> str:
-    """"lu" when JAX's default backend is the CPU, else "iterative".
-
-    The LU lives on the host and is reached through ``jax.pure_callback``,
-    which fails when JAX sees only an accelerator (``JAX_PLATFORMS=cuda``);
-    the iterative solve (`krylov`) is pure JAX and runs where the rest does.
-    """
-    return "lu" if jax.default_backend() == "cpu" else "iterative"
-
-
-# ------------------------------------------------------------ linearisation
-def _full_nodes(x_free_full, geometry, params):
-    """Free nodes from ``x_free_full``, held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.mounted_nodes(geometry, params)
-    free = geometry.free[..., None]
-    return free * x_free_full + (1.0 - free) * mounted
-
-
-@partial(jax.jit, static_argnames=("physics",))
-def _parameter_tangent(x, geometry, params, dparams, free, physics):
-    """``(-dR_free/dtheta . dtheta, dx_held)`` at fixed free nodes.
-
-    ``dR/dtheta`` includes the change of the cut lengths and areas
-    (`forces.prepare`) and the pull of the held rib nodes, which move with
-    the rib geometry parameters; ``dx_held`` is that motion (full grid, zero
-    on free nodes).
-    """
-
-    def response(p):
-        nodes = _full_nodes(x, geometry, p)
-        ref = fk.prepare(geometry, p, physics)
-        return fk.residual(nodes, ref, p, physics), nodes
-
-    _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))
-    held = 1.0 - geometry.free[..., None]
-    return -dr.reshape(-1)[free], held * dnodes
-
-
-@partial(jax.jit, static_argnames=("physics",))
-def _state_tangent(x, geometry, params, dx_free, free, physics):
-    """``J dx`` on the free dofs: the matvec of the linear solve (used for its transpose)."""
-    ref = fk.prepare(geometry, params, physics)
-    dx = _scatter(dx_free, free, x.shape)
-    return jax.jvp(lambda y: fk.residual(y, ref, params, physics), (x,), (dx,))[1].reshape(-1)[free]
-
-
-def _scatter(v_free, free, shape):
-    full = jnp.zeros(math.prod(shape), v_free.dtype).at[free].set(v_free, unique_indices=True)
-    return full.reshape(shape)
-
-
-@partial(jax.jit, static_argnames=("shape",))
-def _assemble_tangent(dx_free, dheld, free, shape):
-    return _scatter(dx_free, free, shape) + dheld
-
-
-_prepare = jax.jit(fk.prepare, static_argnames=("physics",))
-
-
-def _float64_on_this_thread() -> None:
-    """Let a host callback return float64 when XLA runs it on one of its own threads.
-
-    `float64_scope` turns float64 on for the calling thread only. XLA may run a
-    ``jax.pure_callback`` on a worker thread of its own, where JAX then
-    canonicalises the callback's float64 result to float32 and rejects it
-    ("Incorrect output dtype"). On such a thread (float64 off) this turns
-    float64 on for that thread, for good: it runs nothing but callbacks. The
-    caller's thread is inside its float64 scope already and is left alone.
-    """
-    if not jax.config.jax_enable_x64:
-        jax.enable_x64(True).__enter__()
-
-
-class _Linearisation:
-    """What the tangent rule needs at one equilibrium: state, parameters and the LU of J."""
-
-    def __init__(self, scene: Scene, solution: Solution, params: fk.Params, linear_solver: str = "lu"):
-        physics = fk.static_physics(scene.physics(dynamic=False))
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        x = jnp.asarray(solution.nodes)
-        self.linear_solver = linear_solver
-        if linear_solver == "iterative":
-            factor, free = None, None  # matrix-free (`krylov`): nothing to assemble
-        elif solution.factor is not None and solution.factor.current:
-            factor, free = solution.factor.lu, np.asarray(solution.factor.free_dofs)
-        else:
-            ref = _prepare(geometry, params, physics)
-            factor = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
-            free = free_dofs(ref)
-        self.factor = factor
-        self.free = None if free is None else jnp.asarray(free)
-        self.x = x
-        self.geometry = geometry
-        self.params = params
-        self.physics = physics
-
-    # Host solves with the LU; ``b`` may carry leading batch axes (jax.vmap, jacfwd).
-    def _host_solve(self, b, trans):
-        _float64_on_this_thread()
-        b = np.asarray(b, dtype=np.float64)
-        flat = b.reshape(-1, b.shape[-1]).T
-        out = self.factor.solve(np.ascontiguousarray(flat), trans=trans)
-        return out.T.reshape(b.shape)
-
-    def _solve(self, b, transpose: bool):
-        trans = "T" if transpose else "N"
-        shape = jax.ShapeDtypeStruct(b.shape, jnp.float64)
-        return jax.pure_callback(partial(self._host_solve, trans=trans), shape, b,
-                                 vmap_method="expand_dims")
-
-    def tangent(self, dparams: fk.Params):
-        """``dx*`` for a parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
-        if self.linear_solver == "iterative":
-            return implicit_tangent(self.x, self.geometry, self.params, dparams, self.physics)
-        rhs, dheld = _parameter_tangent(self.x, self.geometry, self.params, dparams, self.free,
-                                        self.physics)
-
-        def matvec(v):
-            return _state_tangent(self.x, self.geometry, self.params, v, self.free, self.physics)
-
-        dx_free = jax.lax.custom_linear_solve(
-            matvec, rhs,
-            solve=lambda _, b: self._solve(b, transpose=False),
-            transpose_solve=lambda _, b: self._solve(b, transpose=True),
-        )
-        return _assemble_tangent(dx_free, dheld, self.free, tuple(self.x.shape))
 
 
 # ---------------------------------------------------------------- the rule
@@ -309,8 +169,12 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
             # gets the failed solution, whose tangent is undefined.
             nan = jnp.full(sol.nodes.shape, jnp.nan)
             return jnp.asarray(sol.nodes), nan
-        lin = _Linearisation(scene, sol, scene.params(concrete), linear_solver)
-        return lin.x, lin.tangent(_kernel_tangent(dp, lin.params))
+        params = scene.params(concrete)
+        x = jnp.asarray(sol.nodes)
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        implicit = ImplicitAdjoint(x, geometry, params, scene.physics(dynamic=False), linear_solver,
+                                   factor=sol.factor)
+        return x, implicit.tangent(_kernel_tangent(dp, params))
 
     with float64_scope(parameters):
         nodes = nodes_of(parameters)

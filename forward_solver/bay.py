@@ -77,6 +77,11 @@ class Bay:
         trailing_edge_changes: the ribs whose trailing edge :meth:`from_airfoil`
             changed to the other's form (`targets.common_trailing_edge`'s notes,
             labels "root (name)" / "tip (name)"); empty when none was.
+        airfoil: the root rib's section (`targets.Airfoil`) of a bay built
+            with :meth:`from_airfoil`, else None (a flat panel).
+        tip_airfoil: the tip rib's section as given to :meth:`from_airfoil`
+            (None: the root's).
+        fix_trailing_edge: whether :meth:`from_airfoil` held the trailing edge.
     """
 
     contour_root: np.ndarray
@@ -90,6 +95,9 @@ class Bay:
     fixed: np.ndarray
     name: str = "bay"
     trailing_edge_changes: tuple = ()
+    airfoil: object = None
+    tip_airfoil: object = None
+    fix_trailing_edge: bool = True
 
     @property
     def n_span(self) -> int:
@@ -191,6 +199,9 @@ class Bay:
             fixed=fixed,
             name=str(name),
             trailing_edge_changes=tuple(changes),
+            airfoil=airfoil,
+            tip_airfoil=tip_airfoil,
+            fix_trailing_edge=bool(fix_trailing_edge),
         )
 
     @classmethod

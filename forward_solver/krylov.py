@@ -1,9 +1,10 @@
 """The implicit tangent without a matrix: ``J dx = -dR/dtheta . dtheta`` by preconditioned BiCGStab in JAX.
 
-The host path of `adjoint` factorises the sparse Jacobian with scipy and
+The "lu" solver of `implicit` factorises the sparse Jacobian with scipy and
 reaches it through ``jax.pure_callback``: it needs concrete values and a CPU
-backend. This module solves the same linear system with JAX alone, so it
-runs under ``jax.jit`` and ``jax.vmap``, on any backend:
+backend. This module holds the operator and preconditioner with which the
+"iterative" solver (`implicit.Krylov`) solves the same linear system with
+JAX alone, so it runs under ``jax.jit`` and ``jax.vmap``, on any backend:
 
 * the operator is matrix-free: ``J v`` is one ``jax.jvp`` of
   `forces.residual` (eq. 10-15) at the equilibrium ``x*``, on the full node
@@ -41,17 +42,13 @@ with the host LU's to about 1e-10 relative on 9x32.
 
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.sparse.linalg import bicgstab
 
 from . import forces as fk
 
-__all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "implicit_tangent", "implicit_nodes",
-           "jacobian_operator"]
+__all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "jacobian_operator"]
 
 #: Relative residual ``||J dx - b|| / ||b||`` the BiCGStab solve stops at:
 #: well below the equilibrium's own error (`adjoint.GRADIENT_RTOL`) in the tangent.
@@ -59,13 +56,6 @@ KRYLOV_RTOL = 1e-10
 #: Cap on BiCGStab iterations (two matrix-vector products each); about ten
 #: times what 17x128 needs.
 KRYLOV_MAX_ITERATIONS = 4000
-
-
-def _mounted_nodes(x, geometry, params):
-    """``x`` on the free nodes, held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.mounted_nodes(geometry, params)
-    free = geometry.free[..., None]
-    return free * x + (1.0 - free) * mounted
 
 
 def _node_colours(shape, periodic: bool) -> np.ndarray:
@@ -114,66 +104,3 @@ def jacobian_operator(x, geometry, params, physics):
         return jnp.einsum("nmcr,nmc->nmr", inverse, v)
 
     return matvec, preconditioner, transposed_preconditioner
-
-
-@partial(jax.jit, static_argnames=("physics",))
-def implicit_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params,
-                     physics: fk.Physics) -> jnp.ndarray:
-    """``dx*`` for a kernel-parameter tangent ``dparams`` at the equilibrium ``x``.
-
-    ``-J^-1 dR/dtheta . dtheta`` on the free nodes (BiCGStab, see the module
-    docstring) plus the motion of the held (rib) nodes, which follow the rib
-    scales. ``dR/dtheta`` goes through `forces.prepare` (cut lengths see the
-    prestrain) and through the mounted rib nodes.
-
-    Args:
-        x: ``(n_span, n_contour, 3)`` equilibrium nodes, m.
-        geometry: the bay's `forces.Geometry`.
-        params: kernel parameters of the equilibrium.
-        dparams: their tangent (same structure).
-        physics: static switches.
-
-    Returns:
-        ``(n_span, n_contour, 3)`` node tangent, m per unit parameter tangent.
-    """
-    physics = fk.static_physics(physics)
-
-    def response(p):
-        nodes = _mounted_nodes(x, geometry, p)
-        return fk.residual(nodes, fk.prepare(geometry, p, physics), p, physics), nodes
-
-    _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))
-    held = 1.0 - geometry.free[..., None]
-    matvec, preconditioner, transposed_preconditioner = jacobian_operator(x, geometry, params, physics)
-
-    def solver(precondition):
-        def solve(operator, b):
-            out, _ = bicgstab(operator, b, tol=KRYLOV_RTOL, atol=0.0, maxiter=KRYLOV_MAX_ITERATIONS,
-                              M=precondition)
-            return out
-        return solve
-
-    dx = jax.lax.custom_linear_solve(matvec, -dr, solve=solver(preconditioner),
-                                     transpose_solve=solver(transposed_preconditioner))
-    return dx + held * dnodes
-
-
-@partial(jax.custom_jvp, nondiff_argnums=(0,))
-def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.Params, converged):
-    """The equilibrium ``x`` (returned as is), differentiable in ``params`` by `implicit_tangent`.
-
-    ``x`` must be the equilibrium at ``params`` computed without derivatives
-    (under ``jax.lax.stop_gradient``); its own tangent and the geometry's are
-    ignored (the geometry is the bay's, a constant). Where ``converged`` is
-    False there is no equilibrium and the tangent is NaN (the solve's result
-    code says why).
-    """
-    return x
-
-
-@implicit_nodes.defjvp
-def _implicit_nodes_jvp(physics, primals, tangents):
-    x, geometry, params, converged = primals
-    dparams = tangents[2]
-    dx = implicit_tangent(x, geometry, params, dparams, physics)
-    return x, jnp.where(converged, dx, jnp.nan)

@@ -13,7 +13,7 @@ decided in Python from values:
   passes ``throw=False`` and checks ``solution.result`` / ``converged``
   (after the compiled call, `Solution.raise_if_failed` raises for the batch);
 * derivatives by the implicit function theorem with the matrix-free
-  BiCGStab of `krylov` (`krylov.implicit_nodes`): the relaxation runs under
+  BiCGStab of `krylov` (`implicit.implicit_nodes`): the relaxation runs under
   ``stop_gradient`` and only its fixed point carries a tangent, so
   ``jax.grad``, ``jax.jacfwd`` and ``jax.vmap`` of either compose with
   ``jax.jit``.
@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from ._precision import float64_scope
-from .krylov import implicit_nodes
+from .implicit import implicit_nodes
 from .parameters import Parameters
 from .relax import MASS_SAFETY, relax_jit
 from .scene import Scene
@@ -69,7 +69,7 @@ def relaxed_nodes(x_init, geometry, params, rtol, bound, physics, chunk: int, ma
     """The relaxation from ``x_init`` as pure JAX, its fixed point differentiable in ``params``.
 
     The loop runs on ``stop_gradient`` values; only its fixed point carries a
-    tangent, by the implicit function theorem (`krylov.implicit_nodes`; NaN
+    tangent, by the implicit function theorem (`implicit.implicit_nodes`; NaN
     where the loop did not converge). Vmappable over ``geometry`` and
     ``bound`` too (`wing.solve_wing`).
 

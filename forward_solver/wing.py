@@ -7,7 +7,7 @@ one inflation pressure and one fabric. On a common grid shape their
 every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
 `relax`, as `traced` runs it under ``jax.vmap``) instead of a Python loop,
 and the result is differentiable in the shared `Parameters` by the implicit
-function theorem (`krylov.implicit_nodes`, per bay). Per-rib shapes
+function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 (``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
 the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
 and rib ``k + 1``'s, and they are differentiated like the parameters.
@@ -18,6 +18,16 @@ its earlier displacement added to this solve's mounted shape (as
 (`inverse_design.wing_design`) re-solves a nearby design in fewer steps.
 `WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
 wrinkles), for reports and for comparison with `solve_equilibrium`.
+
+One forward entry, two strategies (issue 18, item 2). `solve_bays` solves
+N >= 1 bays given as `Scene`s. Its "loop" strategy calls `solve_equilibrium`
+on each bay in turn (grid sequencing, half-bay symmetry, Newton and the
+factor reuse of a warm start, the host sparse LU adjoint): the faster way on
+a CPU (``benchmarks/wing_batch.py``). Its "batch" strategy is the one
+``jax.jit(jax.vmap(...))`` relaxation above with the matrix-free Krylov
+adjoint, for accelerators. "auto" picks the loop on a CPU backend and the
+batch elsewhere. Both give the same nodes within the solver tolerance.
+`solve_wing` builds the wing's scenes and calls `solve_bays`.
 """
 
 from __future__ import annotations
@@ -38,10 +48,15 @@ from .bay import Bay
 from .fabric import Fabric
 from .parameters import Parameters, as_parameters
 from .scene import Scene
-from .solution import Result, Solution, static_forces
+from .solution import ConvergenceError, Result, Solution, static_forces
+from .solve import METHODS, solve_equilibrium
 from .traced import relaxed_nodes
 
-__all__ = ["Wing", "WingSolution", "check_rib_gaps", "solve_wing"]
+__all__ = ["Wing", "WingSolution", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
+
+#: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
+#: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
+STRATEGIES = ("auto", "loop", "batch")
 
 #: Steps per chunk of the batched relaxation (as `solve.RELAX_CHUNK`).
 _CHUNK = 100
@@ -67,6 +82,8 @@ class Wing:
             close the open ones, as a fabric wing's seam is), "open" (open the
             closed ones to the largest gap) or "as-given" (refuse a mix);
             `targets.common_trailing_edge`.
+        fix_trailing_edge: hold every bay's trailing-edge line (a seam; see
+            `Bay.from_airfoil`).
 
     Attributes:
         sections: the rib sections the bays are built on: ``airfoils`` with
@@ -84,6 +101,7 @@ class Wing:
     chords: tuple
     stations: tuple
     trailing_edge: str = "close"
+    fix_trailing_edge: bool = True
 
     def __post_init__(self):
         n = len(self.airfoils)
@@ -109,9 +127,29 @@ class Wing:
         """The bays, root to tip, each between ribs k and k + 1, all on one grid shape."""
         return [Bay.from_airfoil(self.sections[k], chord=self.chords[k],
                                  rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
-                                 n_contour=n_contour, tip_airfoil=self.sections[k + 1],
-                                 tip_chord=self.chords[k + 1])
+                                 n_contour=n_contour, fix_trailing_edge=self.fix_trailing_edge,
+                                 tip_airfoil=self.sections[k + 1], tip_chord=self.chords[k + 1])
                 for k in range(self.n_bays)]
+
+    def scenes(self, fabric: Fabric, n_span: int = 17, n_contour: int = 64, **switches) -> list[Scene]:
+        """The bays as `Scene`s of one fabric and one set of physics switches (`Scene`'s keywords)."""
+        return [Scene(bay, fabric, **switches) for bay in self.bays(n_span, n_contour)]
+
+    @classmethod
+    def from_scene(cls, scene: Scene) -> "Wing":
+        """The one-bay wing of ``scene``'s bay (built with `Bay.from_airfoil`): its two ribs'
+        sections and chords at stations ``(0, rib_spacing)``; ``bays`` on the bay's grid rebuilds it.
+
+        Raises:
+            ValueError: for a bay not built from an airfoil (a flat panel).
+        """
+        bay = scene.bay if isinstance(scene, Scene) else scene
+        if getattr(bay, "airfoil", None) is None:
+            raise ValueError("Wing.from_scene needs a bay built with Bay.from_airfoil (it keeps the rib "
+                             "sections); solve a flat panel with solve_bays([scene]) or solve_equilibrium")
+        tip = bay.airfoil if bay.tip_airfoil is None else bay.tip_airfoil
+        return cls(airfoils=(bay.airfoil, tip), chords=(bay.chord_root, bay.chord_tip),
+                   stations=(0.0, bay.rib_spacing), fix_trailing_edge=bay.fix_trailing_edge)
 
 
 @dataclass(frozen=True)
@@ -133,6 +171,10 @@ class WingSolution:
             (nominal) shape in this solve (ribs with their scales and shapes).
         rib_shapes: ``(n_ribs, 2 K)`` per-rib shape coefficients it was
             solved with, or None (the ribs take ``parameters.rib_shape``).
+        solutions: the per-bay `Solution`s of the "loop" strategy (concrete:
+            under ``jax.grad`` their primal values, with the factor a warm
+            start reuses), or None (the "batch" strategy).
+        scenes: the `Scene` of each bay.
     """
 
     nodes: jnp.ndarray
@@ -145,6 +187,8 @@ class WingSolution:
     tension_only: bool = True
     mounted: jnp.ndarray | None = None
     rib_shapes: jnp.ndarray | None = None
+    solutions: list | None = None
+    scenes: list | None = None
 
     @property
     def converged(self) -> bool:
@@ -157,6 +201,8 @@ class WingSolution:
 
     def scene(self, bay: int) -> Scene:
         """The `Scene` of bay ``bay`` (its `Bay`, the wing's fabric and switches)."""
+        if self.scenes is not None:
+            return self.scenes[bay]
         return Scene(self.bays[bay], self.fabric, tension_only=self.tension_only)
 
     def bay_solution(self, bay: int) -> Solution:
@@ -164,8 +210,11 @@ class WingSolution:
 
         Its ``nodes`` are NaN where the bay did not converge (the implicit
         fixed point is undefined there); ``result``, ``steps`` and
-        ``residual`` say why.
+        ``residual`` say why. On the "loop" strategy it is that loop's own
+        `Solution` (its nodes as solved, its factor).
         """
+        if self.solutions is not None:
+            return self.solutions[bay]
         if self.fabric is None:
             raise ValueError("this WingSolution carries no fabric; solve it with solve_wing")
         scene = self.scene(bay)
@@ -257,8 +306,8 @@ def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> Non
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
                tension_only: bool = True, initial: WingSolution | None = None, rib_shapes=None,
-               **loose) -> WingSolution:
-    """Every bay of ``wing`` at one pressure, as one batched relaxation.
+               strategy: str = "auto", **loose) -> WingSolution:
+    """Every bay of ``wing`` at one pressure: `solve_bays` of ``wing.scenes(...)``.
 
     Args:
         wing: the ribs.
@@ -269,18 +318,17 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
             differentiates every bay implicitly).
         n_span, n_contour: the grid of every bay.
         rtol: relative residual each bay is solved to.
-        max_steps: step cap (the batch runs until its slowest bay stops).
+        max_steps: step cap (per bay, per grid level on the loop).
         tension_only: the scene switch (no compression, wrinkles).
-        initial: None (every bay from its mounted shape) or an earlier
-            `WingSolution` of this wing on this grid: each bay starts from its
-            displacement there, added to this solve's mounted shape (held
-            nodes stay mounted). Not differentiated.
+        initial: None or an earlier `WingSolution` of this wing on this grid
+            (a warm start, see `solve_bays`).
         rib_shapes: None, or ``(n_ribs, 2 K)`` rib-shape coefficients, one row
             per rib root to tip (`forward_solver.rib_shape`; K for the upper
             surface, then K for the lower): bay ``k`` is mounted between rib
             ``k``'s shape and rib ``k + 1``'s (its ``rib_shape`` and
             ``rib_shape_tip``). JAX values allowed (differentiated like the
             parameters). Without it every rib takes ``parameters.rib_shape``.
+        strategy: "auto", "loop" or "batch" (`solve_bays`).
 
     Returns:
         A `WingSolution`. A failed bay is reported by its result code, not
@@ -292,12 +340,81 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
             too close for the grid to reach ``rtol`` (`ROUNDING_MARGIN`; the
             message names the ribs, their gap and the least gap that works).
     """
-    parameters = as_parameters(parameters, prestrain, **loose).resolved(fabric).check()
+    given = as_parameters(parameters, prestrain, **loose)
+    if not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(given)):
+        check_rib_gaps(wing, fabric, given, n_span=n_span, n_contour=n_contour, rtol=rtol)  # (a design
+        # loop, whose solves are traced, checks its start itself)
+    return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given,
+                      rtol=rtol, max_steps=max_steps, initial=initial, rib_shapes=rib_shapes,
+                      strategy=strategy)
+
+
+def default_strategy() -> str:
+    """"loop" when JAX's default backend is the CPU, else "batch" (`solve_bays`)."""
+    return "loop" if jax.default_backend() == "cpu" else "batch"
+
+
+def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, max_steps: int = 200_000,
+               method: str = "relax", initial: WingSolution | None = None, rib_shapes=None,
+               strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
+               **loose) -> WingSolution:
+    """The equilibrium of N >= 1 bays sharing one `Parameters`; differentiable like `solve_equilibrium`.
+
+    Args:
+        scenes: one `Scene` per bay, root to tip: one fabric, the same physics
+            switches and the same grid shape.
+        parameters: a `Parameters`, or the pressure in Pa with ``prestrain``
+            and the loose values of `solve_equilibrium` (``**loose``); JAX
+            values allowed (``jax.grad``, ``jax.vjp``, ``jax.jvp``).
+        rtol: relative residual ``||R_free|| / (p A)`` each bay is solved to.
+        max_steps: step cap (per bay and grid level on the loop; for the
+            whole batch, which runs until its slowest bay stops).
+        method: as `solve_equilibrium`'s (the loop); the batch runs "relax".
+        initial: None, or an earlier `WingSolution` of these bays on this
+            grid (not differentiated). The loop passes each bay its earlier
+            `Solution` where it has one (so "relax+newton" first tries chord
+            Newton with its factor), else the earlier displacement added to
+            this solve's mounted shape, as the batch does.
+        rib_shapes: None, or ``(n_bays + 1, 2 K)`` rib-shape coefficients, one
+            row per rib: bay ``k`` lies between rows ``k`` and ``k + 1`` (its
+            ``rib_shape`` and ``rib_shape_tip``). JAX values allowed.
+        strategy: "loop" (per-bay `solve_equilibrium`: grid sequencing,
+            half-bay symmetry, Newton and factor reuse, host sparse LU
+            adjoint), "batch" (one ``jax.jit(jax.vmap(...))`` relaxation,
+            matrix-free Krylov adjoint), or "auto" (`default_strategy`).
+        throw: raise `ConvergenceError` (naming the first failed bay) instead
+            of returning the failure codes.
+        linear_solver: the loop's implicit-derivative solver ("lu",
+            "iterative" or None, as `solve_equilibrium`'s).
+
+    Returns:
+        A `WingSolution`; ``solutions`` holds the loop's per-bay `Solution`s.
+        A failed bay's nodes are NaN there (its result code says why).
+
+    Raises:
+        ValueError: for scenes that differ in fabric, switches or grid, bad
+            ``rtol``, ``max_steps``, ``method``, ``strategy``, ``initial`` or
+            ``rib_shapes``.
+        ConvergenceError: if ``throw`` and a bay failed.
+    """
+    scenes = list(scenes) if not isinstance(scenes, Scene) else [scenes]
+    _check_scenes(scenes)
+    first = scenes[0]
+    parameters = as_parameters(parameters, prestrain, **loose).resolved(first.fabric)
+    first.check_parameters(parameters)
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
         raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
     if not (isinstance(max_steps, int) and max_steps >= 1):
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if parameters.rib_shape_tip is not None:
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if strategy not in STRATEGIES:
+        raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+    strategy = default_strategy() if strategy == "auto" else strategy
+    if strategy == "batch" and method != "relax":
+        raise ValueError(f"the batch strategy runs method='relax' only, got {method!r}: use strategy='loop'")
+    n_bays = len(scenes)
+    if parameters.rib_shape_tip is not None and n_bays > 1:
         raise ValueError("rib_shape_tip has no meaning for a whole wing: give every rib's shape as "
                          "rib_shapes (n_ribs x 2K), or one rib_shape for all ribs")
     if rib_shapes is not None:
@@ -305,38 +422,149 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
             raise ValueError("give the rib shapes once: per rib as rib_shapes, or one parameters.rib_shape "
                              "for every rib, not both")
         size = np.shape(rib_shapes)
-        if len(size) != 2 or size[0] != len(wing.airfoils) or size[1] < 2 or size[1] % 2:
-            raise ValueError(f"rib_shapes must be an ({len(wing.airfoils)}, 2K) array, one row of 2K >= 2 "
+        if len(size) != 2 or size[0] != n_bays + 1 or size[1] < 2 or size[1] % 2:
+            raise ValueError(f"rib_shapes must be an ({n_bays + 1}, 2K) array, one row of 2K >= 2 "
                              f"coefficients per rib, got shape {size}")
         if not isinstance(rib_shapes, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(rib_shapes))):
             raise ValueError("rib_shapes must be finite")
-    bays = wing.bays(n_span, n_contour)
-    scene = Scene(bays[0], fabric, tension_only=tension_only)
-    physics = fk.static_physics(scene.physics(dynamic=False))
+        if not first.bay.periodic:
+            raise ValueError("rib_shapes offset airfoil ribs; these bays are flat panels: leave rib_shapes None")
+    shape = (n_bays,) + first.bay.shape + (3,)
+    if initial is not None:
+        if not isinstance(initial, WingSolution) or tuple(np.shape(initial.nodes)) != shape:
+            raise ValueError(f"initial must be a WingSolution of these bays on their {shape[1]}x{shape[2]} "
+                             f"grid ({n_bays} bays), got {type(initial).__name__}"
+                             + (f" of shape {tuple(np.shape(initial.nodes))}" if hasattr(initial, "nodes") else ""))
+        if not np.all(np.isfinite(np.asarray(initial.displacements()))):
+            raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
+                             "solve from the mounted shape (initial=None)")
+    solve = _loop if strategy == "loop" else _batch
     with float64_scope(parameters, rib_shapes):
-        params = scene.params(parameters)  # the fabric's constants: the same for every bay
-        if not isinstance(params.pressure, jax.core.Tracer):  # (a design checks its start: check_rib_gaps)
-            _check_rib_gaps(wing, bays, params, physics, rtol)
         shapes = None if rib_shapes is None else jnp.asarray(rib_shapes, jnp.float64)
-        geometries = _stack([bay.geometry() for bay in bays])
-        bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
-        shape = (len(bays), n_span, n_contour, 3)
+        sol = solve(scenes, parameters, shapes, rtol=rtol, max_steps=max_steps, method=method,
+                    initial=initial, linear_solver=linear_solver)
+    if throw and not isinstance(sol.result, jax.core.Tracer):
+        failed = sol.failed_bays()
+        if failed:
+            raise ConvergenceError(sol.bay_solution(failed[0]), (failed[0], len(failed), n_bays))
+    return sol
+
+
+def _check_scenes(scenes) -> None:
+    """One clear line for scenes that cannot share one solve."""
+    if not scenes:
+        raise ValueError("solve_bays needs at least one Scene (one per bay)")
+    for k, scene in enumerate(scenes):
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scenes must be forward_solver.Scene objects; item {k} is {type(scene).__name__}")
+    first = scenes[0]
+    for k, scene in enumerate(scenes[1:], start=1):
+        differs = [name for name in ("tension_only", "gravity", "gravity_acceleration", "aerodynamic_damping")
+                   if getattr(scene, name) != getattr(first, name)]
+        if scene.fabric != first.fabric:
+            differs.insert(0, "fabric")
+        if scene.bay.shape != first.bay.shape:
+            differs.append(f"grid {scene.bay.shape[0]}x{scene.bay.shape[1]} (bay 0: "
+                           f"{first.bay.shape[0]}x{first.bay.shape[1]})")
+        if scene.bay.periodic != first.bay.periodic:
+            differs.append("contour (closed airfoil against flat panel)")
+        if differs:
+            raise ValueError(f"the bays of one solve share one fabric, physics switches and grid; scene {k} "
+                             f"differs from scene 0 in: {', '.join(differs)}")
+
+
+def _bay_parameters(parameters: Parameters, shapes, k: int) -> Parameters:
+    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes``."""
+    if shapes is None:
+        return parameters
+    return parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
+
+
+def _mounted(scene: Scene, parameters: Parameters):
+    """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly)."""
+    geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+    return jax.lax.stop_gradient(fk.mounted_nodes(geometry, jax.lax.stop_gradient(scene.params(parameters))))
+
+
+def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
+    """A `Solution` returned under eager ``jax.grad`` with its primal (concrete) nodes and tensions."""
+    if not isinstance(solution.nodes, jax.core.Tracer) or "primal_nodes" not in solution.extra:
+        return solution
+    nodes = jnp.asarray(solution.extra["primal_nodes"], jnp.float64)
+    geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+    f = static_forces(nodes, geometry, scene.params(solution.parameters), scene.physics(dynamic=False))
+    extra = {k: v for k, v in solution.extra.items() if k != "primal_nodes"}
+    return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
+                    tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(solution.wrinkled),
+                    result=solution.result, steps=solution.steps, residual=solution.residual,
+                    wall_time=solution.wall_time, method=solution.method, parameters=solution.parameters,
+                    rib_spacing=solution.rib_spacing, history=solution.history, extra=extra,
+                    detail=solution.detail, factor=solution.factor)
+
+
+def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver) -> WingSolution:
+    """The "loop" strategy: `solve_equilibrium` on each bay (float64 scope on)."""
+    solutions, nodes, mounted = [], [], []
+    moved = None if initial is None or initial.solutions is not None else initial.displacements()
+    for k, scene in enumerate(scenes):
+        p = _bay_parameters(parameters, shapes, k)
+        rest = _mounted(scene, p)
         if initial is None:
-            displacements = jnp.zeros(shape, jnp.float64)
+            start = None
+        elif initial.solutions is not None:
+            start = initial.solutions[k]
+        else:  # a batch's solution: its displacement on this solve's mounted shape
+            start = rest + jnp.asarray(moved[k], jnp.float64)
+        sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
+                                throw=False, linear_solver=linear_solver)
+        traced = bool(sol.extra.get("traced"))
+        if traced:  # under jax.jit / vmap: result codes are arrays
+            x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
+        elif sol.converged:
+            x = sol.nodes
         else:
-            if not isinstance(initial, WingSolution) or tuple(initial.nodes.shape) != shape:
-                raise ValueError(f"initial must be a WingSolution of this wing on its {n_span}x{n_contour} "
-                                 f"grid ({shape[0]} bays), got {type(initial).__name__}"
-                                 + (f" of shape {tuple(initial.nodes.shape)}" if hasattr(initial, "nodes") else ""))
-            moved = initial.displacements()
-            if not np.all(np.isfinite(moved)):
-                raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
-                                 "solve from the mounted shape (initial=None)")
-            displacements = jnp.asarray(moved, jnp.float64)
-        nodes, result, residual, steps, mounted = _wing_equilibrium(
-            geometries, bounds, displacements, None if shapes is None else shapes[:-1],
-            None if shapes is None else shapes[1:], params, jnp.asarray(rtol, jnp.float64), physics,
-            -(-max_steps // _CHUNK))
+            x = np.full(np.shape(sol.nodes), np.nan)
+        nodes.append(x)
+        mounted.append(rest)
+        solutions.append(sol if traced else _concrete_solution(sol, scene))
+    if any(isinstance(x, jax.core.Tracer) for x in nodes):
+        stacked = jnp.stack([jnp.asarray(x, jnp.float64) for x in nodes])
+    else:
+        stacked = np.stack([np.asarray(x, np.float64) for x in nodes])
+    if any(isinstance(s.result, jax.core.Tracer) for s in solutions):
+        result = jnp.stack([jnp.asarray(s.result) for s in solutions])
+        residual = jnp.stack([jnp.asarray(s.residual) for s in solutions])
+        steps = jnp.stack([jnp.asarray(s.steps) for s in solutions])
+        rest = jnp.stack(mounted)
+    else:
+        result = np.asarray([int(s.result) for s in solutions], np.int32)
+        residual = np.asarray([float(s.residual) for s in solutions])
+        steps = np.asarray([int(s.steps) for s in solutions])
+        rest = np.stack([np.asarray(m) for m in mounted])
+    first = scenes[0]
+    return WingSolution(nodes=stacked, result=result, residual=residual, steps=steps,
+                        bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
+                        tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
+                        solutions=solutions, scenes=list(scenes))
+
+
+def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver) -> WingSolution:
+    """The "batch" strategy: one ``jit(vmap)`` relaxation of every bay (float64 scope on)."""
+    del method, linear_solver  # relax, and the matrix-free adjoint of `krylov`
+    first = scenes[0]
+    bays = [scene.bay for scene in scenes]
+    physics = fk.static_physics(first.physics(dynamic=False))
+    params = first.params(parameters)  # the fabric's constants: the same for every bay
+    geometries = _stack([bay.geometry() for bay in bays])
+    bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
+    if initial is None:
+        displacements = jnp.zeros((len(bays),) + first.bay.shape + (3,), jnp.float64)
+    else:
+        displacements = jnp.asarray(initial.displacements(), jnp.float64)
+    nodes, result, residual, steps, mounted = _wing_equilibrium(
+        geometries, bounds, displacements, None if shapes is None else shapes[:-1],
+        None if shapes is None else shapes[1:], params, jnp.asarray(rtol, jnp.float64), physics,
+        -(-max_steps // _CHUNK))
     return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
-                        parameters=parameters, fabric=fabric, tension_only=tension_only, mounted=mounted,
-                        rib_shapes=shapes)
+                        parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
+                        mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes))

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Parameters, Scene, Solution, solve_equilibrium
-from forward_solver.adjoint import DIFFERENTIABLE, _Linearisation
+from forward_solver.adjoint import DIFFERENTIABLE
+from forward_solver.implicit import HostLU
 from inverse_design.objectives import objective_residuals
 from targets import naca
 
@@ -187,12 +188,14 @@ def test_host_solve_returns_float64_on_a_thread_without_float64(scene, reference
     import threading
 
     with jax.enable_x64(True):
-        lin = _Linearisation(scene, reference, scene.params(THETA))
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        lin = HostLU.at(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
+                        scene.physics(dynamic=False))
     out = {}
 
     def worker():
         out["x64_before"] = bool(jax.config.jax_enable_x64)
-        solved = lin._host_solve(np.ones(lin.factor.shape[0]), trans="N")
+        solved = lin.host_solve(np.ones(lin.factor.shape[0]), trans="N")
         out["dtype"] = jnp.asarray(solved).dtype  # canonicalised as the callback result is
 
     thread = threading.Thread(target=worker)

@@ -1,0 +1,229 @@
+"""The implicit derivative of an equilibrium: one right-hand side, one linear solve, two linear solvers.
+
+At an equilibrium the static residual of eq. (10)-(15) vanishes on the free
+degrees of freedom, ``R(x*(theta), theta) = 0``, so (implicit function
+theorem) ``dx*/dtheta = -J^-1 dR/dtheta`` with ``J = dR/dx`` on the free
+dofs. `ImplicitAdjoint` is that rule at one equilibrium:
+
+* the right-hand side (`parameter_rhs`) is built here only: one ``jax.jvp``
+  of `forces.residual` in the kernel parameters, through `forces.prepare`
+  (the cut lengths see the prestrain) and through the held (rib) nodes,
+  which move with the rib scales and shapes; that motion is the tangent of
+  the held nodes;
+* the operator is ``J`` on the full node array with the held dofs mapped to
+  themselves (`jacobian_matvec`; the residual is zero there, so the held
+  part of the solution is zero and the held nodes' motion is added after);
+* the solve is one ``jax.lax.custom_linear_solve``, so reverse mode
+  transposes it into the adjoint system ``J^T lambda = xbar`` with the same
+  solver's transpose: one adjoint solve per gradient, whatever the number
+  of parameters; forward and reverse mode cannot disagree;
+* the linear solver is pluggable (``linear_solver``): "lu", the sparse LU
+  of ``J`` on the host (`HostLU`: scipy through ``jax.pure_callback``; a
+  Newton solve's own factor is reused), or "iterative", the matrix-free
+  block-Jacobi BiCGStab of `krylov` in JAX (`Krylov`: no host callback, so
+  it runs under ``jax.jit`` / ``jax.vmap`` and on any backend).
+
+`solve_equilibrium`'s custom JVP (`adjoint.differentiable_solution`) and the
+pure-JAX relaxation (`implicit_nodes`, used by `traced` and by the batched
+wing) both differentiate through this one object.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse.linalg as spla
+from jax.scipy.sparse.linalg import bicgstab
+
+from . import forces as fk
+from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
+from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
+
+__all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
+           "parameter_rhs", "jacobian_matvec", "implicit_nodes"]
+
+#: Linear solvers of the implicit derivative: the host sparse LU, or matrix-free BiCGStab in JAX.
+LINEAR_SOLVERS = ("lu", "iterative")
+
+
+def default_linear_solver() -> str:
+    """"lu" when JAX's default backend is the CPU, else "iterative".
+
+    The LU lives on the host and is reached through ``jax.pure_callback``,
+    which fails when JAX sees only an accelerator (``JAX_PLATFORMS=cuda``);
+    the iterative solve (`krylov`) is pure JAX and runs where the rest does.
+    """
+    return "lu" if jax.default_backend() == "cpu" else "iterative"
+
+
+def held_at_mounted(x, geometry: fk.Geometry, params: fk.Params):
+    """``x`` on the free nodes, the held nodes at the mounted (rib) position of ``params``."""
+    mounted = fk.mounted_nodes(geometry, params)
+    free = geometry.free[..., None]
+    return free * x + (1.0 - free) * mounted
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
+    """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
+
+    The first is zero on held nodes (the residual is); the second, the
+    motion of the held nodes with the rib parameters, is zero on free ones.
+    """
+    physics = fk.static_physics(physics)
+
+    def response(p):
+        nodes = held_at_mounted(x, geometry, p)
+        return fk.residual(nodes, fk.prepare(geometry, p, physics), p, physics), nodes
+
+    _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))
+    return -dr, (1.0 - geometry.free[..., None]) * dnodes
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def jacobian_matvec(x, geometry: fk.Geometry, params: fk.Params, v, physics: fk.Physics):
+    """``J v`` on the free dofs and ``v`` on the held ones (the operator of the linear solve)."""
+    physics = fk.static_physics(physics)
+    ref = fk.prepare(geometry, params, physics)
+    free = ref.free
+    return jax.jvp(lambda y: fk.residual(y, ref, params, physics), (x,), (free * v,))[1] + (1.0 - free) * v
+
+
+def _float64_on_this_thread() -> None:
+    """Let a host callback return float64 when XLA runs it on one of its own threads.
+
+    `_precision.float64_scope` turns float64 on for the calling thread only.
+    XLA may run a ``jax.pure_callback`` on a worker thread of its own, where
+    JAX then canonicalises the callback's float64 result to float32 and
+    rejects it ("Incorrect output dtype"). On such a thread (float64 off)
+    this turns float64 on for that thread, for good: it runs nothing but
+    callbacks. The caller's thread is inside its float64 scope already and
+    is left alone.
+    """
+    if not jax.config.jax_enable_x64:
+        jax.enable_x64(True).__enter__()
+
+
+class HostLU:
+    """The sparse LU of ``J`` on the host (scipy), reached through ``jax.pure_callback``.
+
+    Args:
+        factor: a ``scipy.sparse.linalg.SuperLU`` of ``J`` on the free dofs.
+        free: index of each free dof into ``x.reshape(-1)`` (its numbering).
+    """
+
+    name = "lu"
+
+    def __init__(self, factor, free):
+        self.factor = factor
+        self.free = jnp.asarray(free)
+
+    @classmethod
+    def at(cls, x, geometry, params, physics, factor=None) -> "HostLU":
+        """The LU at ``x``: ``factor`` (a `jacobian.JacobianFactor`) when it is current, else a fresh one."""
+        if factor is not None and factor.current:
+            return cls(factor.lu, np.asarray(factor.free_dofs))
+        ref = jax.jit(fk.prepare, static_argnames=("physics",))(geometry, params, fk.static_physics(physics))
+        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
+        return cls(lu, free_dofs(ref))
+
+    def host_solve(self, b, trans: str):
+        """``J^-1 b`` (``trans="N"``) or ``J^-T b`` ("T") for free-dof vectors ``b`` (leading batch axes allowed)."""
+        _float64_on_this_thread()
+        b = np.asarray(b, dtype=np.float64)
+        flat = b.reshape(-1, b.shape[-1]).T
+        out = self.factor.solve(np.ascontiguousarray(flat), trans=trans)
+        return out.T.reshape(b.shape)
+
+    def _apply(self, b, trans: str):
+        flat = b.reshape(-1)
+        shape = jax.ShapeDtypeStruct(flat[self.free].shape, jnp.float64)
+        solved = jax.pure_callback(partial(self.host_solve, trans=trans), shape, flat[self.free],
+                                   vmap_method="expand_dims")
+        return flat.at[self.free].set(solved, unique_indices=True).reshape(b.shape)
+
+    def solve(self, x, geometry, params, b, physics):
+        """``J^-1 b`` on full node arrays (held dofs: ``b`` itself), transposable."""
+        matvec = partial(jacobian_matvec, x, geometry, params, physics=physics)
+        return jax.lax.custom_linear_solve(matvec, b, solve=lambda _, r: self._apply(r, "N"),
+                                           transpose_solve=lambda _, r: self._apply(r, "T"))
+
+
+class Krylov:
+    """Matrix-free block-Jacobi BiCGStab in JAX (`krylov`); traceable under ``jax.jit`` and ``jax.vmap``."""
+
+    name = "iterative"
+
+    def solve(self, x, geometry, params, b, physics):
+        """``J^-1 b`` on full node arrays (held dofs: ``b`` itself), transposable."""
+        return _krylov_solve(x, geometry, params, b, fk.static_physics(physics))
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def _krylov_solve(x, geometry, params, b, physics):
+    matvec, preconditioner, transposed_preconditioner = jacobian_operator(x, geometry, params, physics)
+
+    def solver(precondition):
+        def solve(operator, r):
+            out, _ = bicgstab(operator, r, tol=KRYLOV_RTOL, atol=0.0, maxiter=KRYLOV_MAX_ITERATIONS,
+                              M=precondition)
+            return out
+        return solve
+
+    return jax.lax.custom_linear_solve(matvec, b, solve=solver(preconditioner),
+                                       transpose_solve=solver(transposed_preconditioner))
+
+
+class ImplicitAdjoint:
+    """The implicit derivative at one equilibrium, with a pluggable linear solver.
+
+    Args:
+        x: ``(n_span, n_contour, 3)`` equilibrium nodes, m (concrete, or
+            traced under ``jax.jit`` for the "iterative" solver).
+        geometry: the bay's `forces.Geometry`.
+        params: the kernel parameters of the equilibrium.
+        physics: static switches.
+        linear_solver: "lu" (`HostLU`) or "iterative" (`Krylov`).
+        factor: a `jacobian.JacobianFactor` of ``J`` at ``x`` to reuse ("lu").
+    """
+
+    def __init__(self, x, geometry, params, physics, linear_solver: str = "lu", factor=None):
+        if linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
+        self.x = x
+        self.geometry = geometry
+        self.params = params
+        self.physics = fk.static_physics(physics)
+        self.linear_solver = linear_solver
+        self.solver = (HostLU.at(x, geometry, params, self.physics, factor) if linear_solver == "lu"
+                       else Krylov())
+
+    def tangent(self, dparams: fk.Params):
+        """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
+        b, dheld = parameter_rhs(self.x, self.geometry, self.params, dparams, self.physics)
+        return self.solver.solve(self.x, self.geometry, self.params, b, self.physics) + dheld
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.Params, converged):
+    """The equilibrium ``x`` (returned as is), differentiable in ``params`` by `ImplicitAdjoint`
+    with the "iterative" solver (pure JAX: under ``jax.jit`` and ``jax.vmap``).
+
+    ``x`` must be the equilibrium at ``params`` computed without derivatives
+    (under ``jax.lax.stop_gradient``); its own tangent and the geometry's are
+    ignored (the geometry is the bay's, a constant). Where ``converged`` is
+    False there is no equilibrium and the tangent is NaN (the solve's result
+    code says why).
+    """
+    return x
+
+
+@implicit_nodes.defjvp
+def _implicit_nodes_jvp(physics, primals, tangents):
+    x, geometry, params, converged = primals
+    dx = ImplicitAdjoint(x, geometry, params, physics, "iterative").tangent(tangents[2])
+    return x, jnp.where(converged, dx, jnp.nan)
+
