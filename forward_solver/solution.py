@@ -43,9 +43,8 @@ RESULT_MESSAGES = {
         "spacing) from its mounted shape; the run was stopped there, before it could overflow"
     ),
     Result.stalled: (
-        "stalled: the relaxation's residual stopped falling (no 10% gain over the last 2000 steps "
-        "at its heaviest fictitious masses), so more steps would not reach the tolerance; it was "
-        "stopped early"
+        "stalled: the relaxation's residual stopped falling, or falls so slowly that it would need "
+        "more than 30,000 further steps, so it was stopped early"
     ),
 }
 
@@ -59,7 +58,8 @@ RESULT_ADVICE = {
         "is unstable"
     ),
     Result.stalled: (
-        "use method='newton' (or 'auto', which falls back to Newton); slack fabric (negative "
+        "use method='auto' or 'newton' (command: --equilibrium-method auto or newton): Newton's "
+        "method does not cycle; slack fabric (negative "
         "prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
         "stiffnesses make the relaxation cycle"
     ),
