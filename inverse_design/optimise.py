@@ -183,9 +183,11 @@ def optimise_pressure(
             part in a million of the mean square error, far below what the
             grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
             the relative pressure tolerance of brentq (1e-8), the scaled
-            gradient norm of optax (1e-8).
+            gradient norm of optax relative to its starting loss (1e-8; optax
+            also ends, converged, when its loss levels off: `methods.optax_descent`).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            default ``optax.adam(0.02)`` on the scaled variables).
+            default ``optax.adam(0.05)`` on the scaled variables, its step
+            halved whenever the loss stops falling).
         rtol: relative residual of the forward solves.
         progress: show a tqdm progress bar on stderr, one tick per iterate
             (off by default: library code prints nothing unless asked).
