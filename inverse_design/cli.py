@@ -211,7 +211,13 @@ OPTIONS = (
                                      help="only solve the equilibrium at the given values and report it "
                                      "(no optimisation, no history plot)")),
     ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
-                                      help="step cap of the equilibrium solve with --evaluate (default 200000)")),
+                                      help="step cap of each relaxation of every equilibrium solve, in every "
+                                      "mode (default 200000)")),
+    ("optimiser", "--equilibrium-method", dict(default="auto", choices=("auto", "relax", "newton", "relax+newton"),
+                                               help="equilibrium solver: auto tries relax+newton, then Newton from "
+                                               "where it stopped, then Newton with load continuation, before "
+                                               "failing; or one method alone (default auto; a wing: auto or "
+                                               "relax, its bays relaxed together)")),
     ("aero", "--aero", dict(action="store_true",
                             help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
                             "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
@@ -452,6 +458,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
         return run_wing(args, sources, progress=progress, started=start)
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
+    if args.max_steps < 1:
+        raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
@@ -476,7 +484,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
-        result = solve_equilibrium(scene, parameters, max_steps=args.max_steps, throw=False)
+        result = solve_equilibrium(scene, parameters, max_steps=args.max_steps, method=args.equilibrium_method,
+                                   throw=False)
         timings["equilibrium"] = time.perf_counter() - t
         if not result.converged:
             raise ConvergenceError(result)
@@ -484,7 +493,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
     options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
                    max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
-                   rib=rib, rib_limits=rib_limits)
+                   rib=rib, rib_limits=rib_limits,
+                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
     t = time.perf_counter()
     result = optimise_pressure(scene, target, variables=variables, initial=parameters,
                                objective=args.objective, method=args.method, **options)

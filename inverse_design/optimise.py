@@ -54,11 +54,12 @@ from tqdm import tqdm
 from forward_solver import ConvergenceError, Parameters, Scene, Solution
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
+from targets import Airfoil
 
 from .constraints import Constraints, cell_tensions, constraint_report
 from .methods import least_squares, optax_descent, root, slsqp
 from .objectives import check_objective, design_errors
-from .problem import DesignProblem
+from .problem import DesignProblem, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
 from .variables import DesignVariables
 
@@ -157,6 +158,7 @@ def optimise_pressure(
     callback=None,
     rib=None,
     rib_limits: RibLimits | None = RibLimits(),
+    solver_options: Mapping | None = None,
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring the inflated skin closest to ``target``.
 
@@ -181,9 +183,11 @@ def optimise_pressure(
             part in a million of the mean square error, far below what the
             grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
             the relative pressure tolerance of brentq (1e-8), the scaled
-            gradient norm of optax (1e-8).
+            gradient norm of optax relative to its starting loss (1e-8; optax
+            also ends, converged, when its loss levels off: `methods.optax_descent`).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            default ``optax.adam(0.02)`` on the scaled variables).
+            default ``optax.adam(0.05)`` on the scaled variables, its step
+            halved whenever the loss stops falling).
         rtol: relative residual of the forward solves.
         progress: show a tqdm progress bar on stderr, one tick per iterate
             (off by default: library code prints nothing unless asked).
@@ -197,11 +201,17 @@ def optimise_pressure(
             (`rib_design.RibLimits`: minimum thickness, curvature bound), SLSQP
             inequality constraints when ``rib_shape`` is a variable; None
             leaves the shape free within its bounds.
+        solver_options: ``{"method": ..., "max_steps": ...}`` of every
+            forward solve: method "auto" (default: relax+newton, then Newton
+            from where it stopped, then Newton with load continuation; see
+            `forward_solver.fallback`), "relax", "newton" or "relax+newton";
+            max_steps the step cap of each relaxation (default 200000).
 
     Returns:
         A `DesignResult`.
 
     Raises:
+        TypeError: if ``target`` is not a `targets.Airfoil` (None among them).
         ValueError: for an unknown method, objective, variable or condition,
             bad bounds, inconsistent tension limits, rib limits with a method
             other than SLSQP, or (``method="root"``) no sign change inside the
@@ -214,7 +224,11 @@ def optimise_pressure(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not isinstance(target, Airfoil):
+        raise TypeError(f"target must be a targets.Airfoil (e.g. targets.naca('2412') or "
+                        f"targets.load_airfoil('file.dat')), got {type(target).__name__}")
     check_objective(objective)
+    solver_options = check_solver_options(None if solver_options is None else dict(solver_options))
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     if tolerance is not None and not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
@@ -240,7 +254,8 @@ def optimise_pressure(
         tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
     with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
-        problem = DesignProblem(scene, target, design, objective, constraints, rtol, rib_geometry)
+        problem = DesignProblem(scene, target, design, objective, constraints, rtol, rib_geometry,
+                                solver_options=solver_options)
         problem.on_record = _notify(bar, callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.to_vector(design.start)

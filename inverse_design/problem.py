@@ -1,8 +1,10 @@
 """`DesignProblem`: the objective, the constraints and their derivatives for one design.
 
 Every forward solve warm-starts from the previous iterate's equilibrium
-(chord Newton with its LU factor; a failed warm solve is retried cold) and is
-solved to the optimiser's ``rtol``. The objective (`objectives.objective_value`)
+(chord Newton with its LU factor) and is solved to the optimiser's ``rtol``
+by the ``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm
+solve is retried cold, then by Newton; `forward_solver.fallback`) unless
+``solver_options`` name one method. The objective (`objectives.objective_value`)
 and the smooth tension constraints (`constraints.constraint_functions`) get
 their gradients by reverse mode through `forward_solver.solve_equilibrium`
 (one adjoint solve each); the penalty residuals their Jacobian by forward
@@ -24,14 +26,17 @@ from .constraints import cell_tensions, constraint_functions, penalty_residuals,
 from .objectives import objective_residuals, objective_value
 from .variables import DesignVariables
 
-__all__ = ["DesignProblem", "with_rib_rows"]
+__all__ = ["DesignProblem", "with_rib_rows", "check_solver_options"]
+
+#: The forward solves' options when none are given.
+DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
 
 
 class DesignProblem:
     """The objective, the constraints, their derivatives and the iterate history of one design."""
 
     def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol,
-                 rib_geometry=None):
+                 rib_geometry=None, solver_options=None):
         self.scene = scene
         self.target = target
         self.variables = variables
@@ -41,6 +46,8 @@ class DesignProblem:
         self.chord = scene.bay.chord
         # Small design grids: one relaxation loop to compile beats grid sequencing.
         self.sequencing = scene.bay.n_contour > 128
+        # {"method": ..., "max_steps": ...} of every forward solve (`check_solver_options`).
+        self.solver_options = check_solver_options(solver_options)
         self.previous: Solution | None = None  # warm start (and its LU factor)
         self.solves = 0
         self.history: list[dict] = []
@@ -59,7 +66,15 @@ class DesignProblem:
 
     # ------------------------------------------------------------ solves
     def _solve(self, parameters: Parameters) -> Solution:
-        options = dict(rtol=self.rtol, method="relax+newton", sequencing=self.sequencing)
+        options = dict(rtol=self.rtol, sequencing=self.sequencing, **self.solver_options)
+        if options["method"] == "auto":  # the chain retries cold itself, then falls back to Newton
+            try:
+                sol = solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
+            except ConvergenceError as failure:
+                self.solves += len(failure.solution.extra.get("attempts", [None]))
+                raise
+            self.solves += len(sol.extra.get("attempts", [None]))
+            return sol
         self.solves += 1
         try:
             return solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
@@ -186,6 +201,30 @@ def with_rib_rows(y, rows, rib_rows, u):
     """
     g_rib, jac_rib = (np.asarray(a) for a in rib_rows(jnp.asarray(u, jnp.float64)))
     return np.concatenate([y, g_rib]), np.vstack([rows, jac_rib]), g_rib
+
+
+def check_solver_options(options) -> dict:
+    """``{"method", "max_steps"}`` of the design's forward solves, checked, over the defaults.
+
+    ``method`` is one of `forward_solver.fallback.EQUILIBRIUM_METHODS` ("auto":
+    the fallback chain), ``max_steps`` the step cap of each relaxation.
+    """
+    from forward_solver.fallback import EQUILIBRIUM_METHODS
+
+    if options is None:
+        return dict(DEFAULT_SOLVER_OPTIONS)
+    if not isinstance(options, dict):
+        raise ValueError(f"solver_options must be a dict with keys method, max_steps, got {options!r}")
+    unknown = set(options) - set(DEFAULT_SOLVER_OPTIONS)
+    if unknown:
+        raise ValueError(f"solver_options: unknown key(s) {sorted(unknown)}; the keys are method, max_steps")
+    merged = {**DEFAULT_SOLVER_OPTIONS, **options}
+    if merged["method"] not in EQUILIBRIUM_METHODS:
+        raise ValueError(f"solver_options: method must be one of {EQUILIBRIUM_METHODS}, got {merged['method']!r}")
+    steps = merged["max_steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"solver_options: max_steps must be a positive integer, got {steps!r}")
+    return merged
 
 
 def key_of(u) -> tuple:

@@ -136,6 +136,11 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     if args.method != "slsqp":
         raise _error(f"method {args.method} is not available for a wing ([[rib]] tables in {args.config}); "
                      "use slsqp (the default)")
+    if args.equilibrium_method not in ("auto", "relax"):
+        raise _error(f"equilibrium-method {args.equilibrium_method} is not available for a wing ([[rib]] tables "
+                     f"in {args.config}): its bays are relaxed together; use auto or relax")
+    if args.max_steps < 1:
+        raise _error(f"max-steps must be a positive integer, got {args.max_steps}")
     check_grid(args.n_span, args.n_contour, allow_large=args.allow_large_grid)  # (per bay)
     where = args.config
     common = _airfoil(args.target, "--target") if "target" in sources else None
@@ -162,7 +167,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
                            objective=args.objective, constraints=constraints, rib_limits=rib_limits,
-                           n_span=args.n_span,
+                           n_span=args.n_span, max_steps=args.max_steps,
                            n_contour=args.n_contour, max_iterations=args.max_iterations,
                            **({} if args.tolerance is None else {"tolerance": args.tolerance}),
                            progress=progress)
