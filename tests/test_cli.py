@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import cli, export, resources
+from inverse_design.app import cli, export, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -44,7 +44,7 @@ def run_cli(cli_env):
     """Run the command in a subprocess: ``run_cli(*args, cwd=folder)``."""
 
     def run(*args, cwd, timeout=600):
-        return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+        return subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *args], cwd=cwd, env=cli_env,
                               capture_output=True, text=True, timeout=timeout)
 
     return run
@@ -55,7 +55,7 @@ def start_cli(cli_env):
     """Start the command in a subprocess and return at once: ``start_cli(*args, cwd=folder)``."""
 
     def start(*args, cwd):
-        return subprocess.Popen([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+        return subprocess.Popen([sys.executable, "-m", "inverse_design.app.cli", *args], cwd=cwd, env=cli_env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     return start

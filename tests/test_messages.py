@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import cli
+from inverse_design.app import cli
 from targets import Airfoil, AirfoilWarning, load_airfoil, naca
 
 UIUC = Path(__file__).parent / "data" / "uiuc"

@@ -8,7 +8,7 @@ import pytest
 import forward_solver
 import inverse_design.optimise
 from forward_solver import Bay, ConvergenceError, Fabric, Result, Scene, solve_equilibrium
-from inverse_design import cli, optimise_pressure
+from inverse_design.app import cli, optimise_pressure
 from targets import naca
 
 

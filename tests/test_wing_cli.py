@@ -12,8 +12,8 @@ import re
 import numpy as np
 import pytest
 
-from inverse_design import cli
-from inverse_design.wing_cli import EXAMPLE_CASE
+from inverse_design.app import cli
+from inverse_design.app.wing_cli import EXAMPLE_CASE
 
 RIBS = """
 [[rib]]

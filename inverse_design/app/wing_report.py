@@ -30,7 +30,7 @@ import numpy as np
 from .export import check_output_folder, staged_folder, write_obj, write_selig, write_stl
 from .plots import plot_history, plot_section
 from .summary import _jsonable, _version
-from .wing_design import WingDesignResult, _bay_distances, row_targets
+from ..wing_design import WingDesignResult, _bay_distances, row_targets
 
 __all__ = ["wing_deviation", "wing_nodes", "summarise_wing", "write_wing_report"]
 

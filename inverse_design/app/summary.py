@@ -6,10 +6,10 @@ into a folder::
     summary.json          inputs, results, errors before and after, constraints,
                           timings, package version, the files written (`summarise`)
     equilibrium.npz       nodes, tensions, wrinkled cells, deviation, target, parameters
-                          (`inverse_design.export.write_npz`)
+                          (`inverse_design.app.export.write_npz`)
     skin.obj, skin.stl    the equilibrium skin as a mesh (metres)
     mid_bay_section.png   the mid-bay section against the rib and the target,
-                          deviations magnified (`inverse_design.plots.plot_section`)
+                          deviations magnified (`inverse_design.app.plots.plot_section`)
     deviation.png         the deviation from the target over the whole bay (`plot_deviation`)
     tensions.png          fibre tensions with the wrinkled cells marked (`plot_tensions`)
     history.png           the optimiser's iterates (`plot_history`; skipped for a
@@ -17,13 +17,13 @@ into a folder::
     aero.png              lift, drag and moment against the target (`plot_aero`; only
                           with an `inverse_design.aero.AeroComparison`)
     cut_pattern.csv       the fabric's cut lengths along the contour and the span
-                          (`inverse_design.export.write_cut_pattern`)
+                          (`inverse_design.app.export.write_cut_pattern`)
     rib.dat               the designed rib as a Selig file (`export.write_selig`; only
                           for a shaped rib)
     rib_design.png        the rib's template offset and the thickness kept
                           (`plot_rib_design`; only for a shaped rib)
 
-The folder is written atomically (`inverse_design.export.staged_folder`).
+The folder is written atomically (`inverse_design.app.export.staged_folder`).
 """
 
 from __future__ import annotations
@@ -40,10 +40,10 @@ from forward_solver import Solution
 
 from .export import (check_output_folder, staged_folder, write_cut_pattern, write_npz, write_obj, write_selig,
                      write_stl)
-from .objectives import design_errors, section_errors
-from .optimise import DesignResult
+from ..objectives import design_errors, section_errors
+from ..optimise import DesignResult
 from .plots import plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions
-from .rib_design import RibGeometry, RibLimits, cut_lengths
+from ..rib_design import RibGeometry, RibLimits, cut_lengths
 
 __all__ = ["summarise", "write_report"]
 

@@ -50,7 +50,7 @@ __all__ = ["RIB_KEYS", "EXAMPLE_CASE", "describe_wing", "read_ribs", "run_wing"]
 #: Keys of a ``[[rib]]`` table: required, then optional.
 RIB_KEYS = (("section", "chord", "station"), ("target",))
 #: The built-in example: a 3-bay tapered NACA 2412 wing.
-EXAMPLE_CASE = Path(__file__).parent / "cases" / "wing_taper.toml"
+EXAMPLE_CASE = Path(__file__).parents[1] / "cases" / "wing_taper.toml"
 
 #: Options that mean nothing for a wing, and what to do instead.
 _NOT_FOR_A_WING = {
@@ -151,7 +151,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     from forward_solver.wing import Wing
 
     from .export import check_output_folder
-    from .wing_design import optimise_wing
+    from ..wing_design import optimise_wing
     from .wing_report import write_wing_report
 
     out = check_output_folder(args.out)

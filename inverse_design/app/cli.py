@@ -3,13 +3,13 @@
 It parses the options (and a TOML case file, ``--config``), builds the
 `forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
 ``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
-to `inverse_design.summary.write_report`, which writes the output folder. No
+to `inverse_design.app.summary.write_report`, which writes the output folder. No
 physics lives here.
 
 Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
 nothing written; or the optimiser stopped without converging: the folder is
 written and says so); 2 bad input (one line on stderr), a grid too large
-for the machine among it (`inverse_design.resources.check_grid`); 130
+for the machine among it (`inverse_design.app.resources.check_grid`); 130
 interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
 Ctrl-C, so the staging folder is removed).
 
@@ -465,7 +465,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
     from forward_solver import Bay, ConvergenceError, Fabric, Scene, solve_equilibrium
 
-    from .optimise import optimise_pressure, refine_design
+    from ..optimise import optimise_pressure, refine_design
     from .export import check_output_folder
     from .summary import write_report
 
@@ -523,8 +523,8 @@ def design_inputs(args: argparse.Namespace) -> tuple:
     """
     from forward_solver import Parameters
 
-    from .constraints import Constraints
-    from .rib_design import RibLimits
+    from ..constraints import Constraints
+    from ..rib_design import RibLimits
 
     initial = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
                          prestrain_chord=args.prestrain_chord, rib_thickness_scale=args.rib_thickness_scale,
@@ -551,7 +551,7 @@ def design_inputs(args: argparse.Namespace) -> tuple:
 
 def _aero_angles(args: argparse.Namespace):
     """The angles of ``--aero``, after checking that NeuralFoil is installed (`InputError` if not)."""
-    from .aero import AeroUnavailable, alpha_range, require_neuralfoil
+    from ..aero import AeroUnavailable, alpha_range, require_neuralfoil
 
     try:
         require_neuralfoil()
@@ -567,7 +567,7 @@ def _aero(args: argparse.Namespace, solution, target, alphas, timings: dict):
     """The `inverse_design.aero.AeroComparison` of ``--aero`` (None without it); times it."""
     if not args.aero:
         return None
-    from .aero import aerodynamic_cost
+    from ..aero import aerodynamic_cost
 
     t = time.perf_counter()
     comparison = aerodynamic_cost(solution, target, args.chord, reynolds=args.reynolds, alphas=alphas)
