@@ -256,12 +256,47 @@ def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 
-def test_an_output_folder_that_is_not_ours_is_never_replaced(run_cli, tmp_path):
+def test_a_file_of_a_report_name_that_no_report_wrote_is_never_overwritten(run_cli, tmp_path):
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "thesis.tex").write_text("precious")
+    (tmp_path / "notes" / "skin.stl").write_bytes(b"my own mesh")  # a report's name, not a report's file
     done = run_cli("--out", "notes", cwd=tmp_path)
-    _one_line_error(done, "notes", "summary.json")
+    _one_line_error(done, "notes", "skin.stl", "summary.json")
     assert (tmp_path / "notes" / "thesis.tex").read_text() == "precious"
+    assert (tmp_path / "notes" / "skin.stl").read_bytes() == b"my own mesh"
+    assert sorted(p.name for p in (tmp_path / "notes").iterdir()) == ["skin.stl", "thesis.tex"]
+
+
+def _snapshot(folder: Path) -> dict:
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+
+
+def test_out_dot_writes_beside_the_users_files_and_replaces_only_its_own(run_cli, tmp_path):
+    # Issue 19: --out . in a folder holding the case file, an airfoil and an earlier summary.json
+    # deleted the case file and the airfoil (the folder was replaced whole).
+    foreign = {"case.toml": b"n-span = 5\nn-contour = 32\n", "clarky.dat": bytes(range(256)),
+               "notes.txt": b"keep me\n"}
+    for name, data in foreign.items():
+        (tmp_path / name).write_bytes(data)
+    (tmp_path / "results").mkdir()  # a folder of the user's
+    (tmp_path / "results" / "a.csv").write_text("1,2\n")
+    done = run_cli("--config", "case.toml", "--quiet", "--out", ".", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    first = _snapshot(tmp_path)
+    assert set(first) == FOLDER | set(foreign) and _leftovers(tmp_path) == []
+    assert all(first[name] == data for name, data in foreign.items())
+    assert (tmp_path / "results" / "a.csv").read_text() == "1,2\n"
+    # Again, now a folder holding an earlier report: --evaluate writes no history.png, so the
+    # earlier run's history.png (listed in its summary.json) is removed; the rest is replaced.
+    done = run_cli("--config", "case.toml", "--evaluate", "--quiet", "--out", ".", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    second = _snapshot(tmp_path)
+    assert set(second) == (FOLDER - {"history.png"}) | set(foreign) and _leftovers(tmp_path) == []
+    assert all(second[name] == data for name, data in foreign.items())
+    summary = json.loads(second["summary.json"])
+    assert summary["mode"] == "evaluate" and set(summary["files"]) == FOLDER - {"history.png"}
+    assert second["equilibrium.npz"] != first["equilibrium.npz"]  # (the optimised design was another)
+    assert (tmp_path / "results" / "a.csv").read_text() == "1,2\n"
 
 
 def test_a_failed_solve_exits_1_with_the_reason_and_writes_nothing(run_cli, tmp_path):
@@ -282,20 +317,99 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
 
 
 # ------------------------------------------------------------------ the atomic folder
+def _report(folder: Path, files: dict, **extra) -> dict:
+    """Write ``files`` ({name: bytes}) and a summary.json of this package listing them, as a report does."""
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    summary = {"package": {"name": "inflatable-wing"}, "files": [*files, "summary.json"], **extra}
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return summary
+
+
 def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    (out / "summary.json").write_text("{}")
+    _report(out, {"skin.obj": b"old"})
+    before = _snapshot(out)
     for interruption in (RuntimeError("plot failed"), KeyboardInterrupt()):
         with pytest.raises(type(interruption)):
             with export.staged_folder(out) as staging:
-                (staging / "half.npz").write_bytes(b"partial")
+                (staging / "skin.obj").write_bytes(b"partial")
                 raise interruption
-        assert [p.name for p in out.iterdir()] == ["summary.json"] and _leftovers(tmp_path) == []
+        assert _snapshot(out) == before and _leftovers(tmp_path) == [] and _leftovers(out) == []
     with export.staged_folder(out) as staging:
-        (staging / "summary.json").write_text('{"new": true}')
-    assert json.loads((out / "summary.json").read_text()) == {"new": True}
-    assert _leftovers(tmp_path) == []
+        _report(staging, {"skin.obj": b"new"}, new=True)
+    assert json.loads((out / "summary.json").read_text())["new"] is True
+    assert (out / "skin.obj").read_bytes() == b"new"
+    assert _leftovers(tmp_path) == [] and _leftovers(out) == []
+
+
+@pytest.mark.parametrize("kind", ["bay", "wing"])
+def test_a_report_replaces_only_the_files_of_the_earlier_report(tmp_path, kind):
+    # The rule: the earlier report's files (its summary.json lists them) are replaced, or removed
+    # when the new report does not write them (a rib.dat of a rib-shape run, a wing's rib_K.dat and
+    # bay_K plots); every other file stays byte for byte; the folder itself is never removed.
+    out = tmp_path / "out"
+    out.mkdir()
+    if kind == "bay":
+        earlier = {"equilibrium.npz": b"e1", "skin.obj": b"o1", "rib.dat": b"r1", "rib_design.png": b"p1"}
+        new = {"equilibrium.npz": b"e2", "skin.obj": b"o2"}
+    else:
+        earlier = {"wing.npz": b"w1", "bay_0_mid_bay_section.png": b"b0", "bay_1_mid_bay_section.png": b"b1",
+                   "bay_2_mid_bay_section.png": b"b2", "rib_0.dat": b"r0", "rib_1.dat": b"r1", "rib_2.dat": b"r2"}
+        new = {"wing.npz": b"w2", "bay_0_mid_bay_section.png": b"c0", "bay_1_mid_bay_section.png": b"c1"}
+    _report(out, earlier)
+    foreign = {"case.toml": b"target = 'x'\n", "clarky.dat": b"\x00\xff", "rib.dat.bak": b"mine",
+               "rib_9.txt": b"mine too"}
+    for name, data in foreign.items():
+        (out / name).write_bytes(data)
+    (out / "plots").mkdir()
+    (out / "plots" / "bay_0_mid_bay_section.png").write_bytes(b"in a sub-folder: not the report's")
+    inode = out.stat().st_ino
+    with export.staged_folder(out) as staging:
+        assert staging.parent == out  # staged inside the existing folder, never beside it
+        written = _report(staging, new)
+    after = _snapshot(out)
+    assert after == {**foreign, **new, "summary.json": after["summary.json"]}
+    assert json.loads(after["summary.json"]) == written
+    assert (out / "plots" / "bay_0_mid_bay_section.png").read_bytes() == b"in a sub-folder: not the report's"
+    assert out.stat().st_ino == inode and _leftovers(out) == [] and _leftovers(tmp_path) == []
+
+
+def test_a_file_of_a_report_name_the_earlier_report_did_not_write_is_refused(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    _report(out, {"skin.obj": b"old"})
+    (out / "history.png").write_bytes(b"the user's own")  # not listed in the earlier summary.json
+    before = _snapshot(out)
+    with pytest.raises(ValueError, match="history.png"):
+        export.check_output_folder(out)
+    with pytest.raises(ValueError, match="history.png"):  # also when it appears during the run
+        (out / "history.png").unlink()
+        with export.staged_folder(out) as staging:
+            (out / "history.png").write_bytes(b"the user's own")
+            _report(staging, {"skin.obj": b"new", "history.png": b"plot"})
+    assert _snapshot(out) == before and _leftovers(out) == []
+    (out / "summary.json").write_text('{"files": ["summary.json", "history.png"]}')  # not this package's
+    with pytest.raises(ValueError, match="summary.json"):
+        export.check_output_folder(out)
+
+
+def test_a_run_killed_while_moving_its_files_in_is_finished_by_the_next(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    _report(out, {"skin.obj": b"old", "rib.dat": b"old rib"})
+    (out / "notes.txt").write_text("mine")
+    killed = out / ".report.partial-0123abcd"  # its moves had begun: skin.obj is in place already
+    killed.mkdir()
+    _report(killed, {"skin.obj": b"new", "history.png": b"plot"}, run=2)
+    (killed / ".moves.json").write_text(json.dumps({"files": ["history.png", "skin.obj", "summary.json"],
+                                                   "remove": ["rib.dat"]}))
+    os.replace(killed / "skin.obj", out / "skin.obj")
+    assert export.remove_stale_partials(out) == [killed]
+    assert _snapshot(out) == {"skin.obj": b"new", "history.png": b"plot", "notes.txt": b"mine",
+                              "summary.json": (out / "summary.json").read_bytes()}
+    assert json.loads((out / "summary.json").read_text())["run"] == 2 and _leftovers(out) == []
 
 
 def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_else(tmp_path):
@@ -313,10 +427,12 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_
         assert not stale.exists() and all((tmp_path / name).exists() for name in kept)
         with export.staged_folder(out) as second:  # a second writer of the same folder, meanwhile
             assert staging.is_dir()  # the first holds its lock: being written, not stale
-            (second / "summary.json").write_text('{"writer": 2}')
-        (staging / "summary.json").write_text('{"writer": 1}')
-    assert json.loads((out / "summary.json").read_text()) == {"writer": 1}
+            _report(second, {"skin.obj": b"2"}, writer=2)
+        _report(staging, {"skin.obj": b"1"}, writer=1)
+    assert json.loads((out / "summary.json").read_text())["writer"] == 1  # (merged into the second's)
+    assert (out / "skin.obj").read_bytes() == b"1"
     assert _leftovers(tmp_path) == sorted(kept)
+
 
 
 # ------------------------------------------------------------------ signals
