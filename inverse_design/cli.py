@@ -214,7 +214,7 @@ OPTIONS = (
                                 "command-line options override it")),
     ("output", "--out", dict(default="optimise-pressure-out", metavar="DIR",
                              help="output folder (may be . or hold other files, which are never touched): "
-                             "the files of the report and of an earlier one are replaced when the new "
+                             "an earlier report's files in it are replaced (or removed) when the new "
                              "report is complete (default optimise-pressure-out)")),
     ("output", "--magnification", dict(type=_number(positive=True), default=None, metavar="X",
                                        help="deviation factor of the section plot (default: automatic, "
