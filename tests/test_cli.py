@@ -7,6 +7,7 @@ cache (a temporary folder of this module), so later runs reuse the compiled
 solvers of earlier ones (about a third of the compute of a fresh run).
 """
 
+import gc
 import json
 import os
 import signal
@@ -20,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design.app import cli, export, resources
+from inverse_design.app import cli, export, interrupts, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -256,12 +257,47 @@ def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 
-def test_an_output_folder_that_is_not_ours_is_never_replaced(run_cli, tmp_path):
+def test_a_file_of_a_report_name_that_no_report_wrote_is_never_overwritten(run_cli, tmp_path):
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "thesis.tex").write_text("precious")
+    (tmp_path / "notes" / "skin.stl").write_bytes(b"my own mesh")  # a report's name, not a report's file
     done = run_cli("--out", "notes", cwd=tmp_path)
-    _one_line_error(done, "notes", "summary.json")
+    _one_line_error(done, "notes", "skin.stl", "summary.json")
     assert (tmp_path / "notes" / "thesis.tex").read_text() == "precious"
+    assert (tmp_path / "notes" / "skin.stl").read_bytes() == b"my own mesh"
+    assert sorted(p.name for p in (tmp_path / "notes").iterdir()) == ["skin.stl", "thesis.tex"]
+
+
+def _snapshot(folder: Path) -> dict:
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+
+
+def test_out_dot_writes_beside_the_users_files_and_replaces_only_its_own(run_cli, tmp_path):
+    # Issue 19: --out . in a folder holding the case file, an airfoil and an earlier summary.json
+    # deleted the case file and the airfoil (the folder was replaced whole).
+    foreign = {"case.toml": b"n-span = 5\nn-contour = 32\n", "clarky.dat": bytes(range(256)),
+               "notes.txt": b"keep me\n"}
+    for name, data in foreign.items():
+        (tmp_path / name).write_bytes(data)
+    (tmp_path / "results").mkdir()  # a folder of the user's
+    (tmp_path / "results" / "a.csv").write_text("1,2\n")
+    done = run_cli("--config", "case.toml", "--quiet", "--out", ".", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    first = _snapshot(tmp_path)
+    assert set(first) == FOLDER | set(foreign) and _leftovers(tmp_path) == []
+    assert all(first[name] == data for name, data in foreign.items())
+    assert (tmp_path / "results" / "a.csv").read_text() == "1,2\n"
+    # Again, now a folder holding an earlier report: --evaluate writes no history.png, so the
+    # earlier run's history.png (listed in its summary.json) is removed; the rest is replaced.
+    done = run_cli("--config", "case.toml", "--evaluate", "--quiet", "--out", ".", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    second = _snapshot(tmp_path)
+    assert set(second) == (FOLDER - {"history.png"}) | set(foreign) and _leftovers(tmp_path) == []
+    assert all(second[name] == data for name, data in foreign.items())
+    summary = json.loads(second["summary.json"])
+    assert summary["mode"] == "evaluate" and set(summary["files"]) == FOLDER - {"history.png"}
+    assert second["equilibrium.npz"] != first["equilibrium.npz"]  # (the optimised design was another)
+    assert (tmp_path / "results" / "a.csv").read_text() == "1,2\n"
 
 
 def test_a_failed_solve_exits_1_with_the_reason_and_writes_nothing(run_cli, tmp_path):
@@ -284,20 +320,99 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
 
 
 # ------------------------------------------------------------------ the atomic folder
+def _report(folder: Path, files: dict, **extra) -> dict:
+    """Write ``files`` ({name: bytes}) and a summary.json of this package listing them, as a report does."""
+    for name, data in files.items():
+        (folder / name).write_bytes(data)
+    summary = {"package": {"name": "inflatable-wing"}, "files": [*files, "summary.json"], **extra}
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return summary
+
+
 def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    (out / "summary.json").write_text("{}")
+    _report(out, {"skin.obj": b"old"})
+    before = _snapshot(out)
     for interruption in (RuntimeError("plot failed"), KeyboardInterrupt()):
         with pytest.raises(type(interruption)):
             with export.staged_folder(out) as staging:
-                (staging / "half.npz").write_bytes(b"partial")
+                (staging / "skin.obj").write_bytes(b"partial")
                 raise interruption
-        assert [p.name for p in out.iterdir()] == ["summary.json"] and _leftovers(tmp_path) == []
+        assert _snapshot(out) == before and _leftovers(tmp_path) == [] and _leftovers(out) == []
     with export.staged_folder(out) as staging:
-        (staging / "summary.json").write_text('{"new": true}')
-    assert json.loads((out / "summary.json").read_text()) == {"new": True}
-    assert _leftovers(tmp_path) == []
+        _report(staging, {"skin.obj": b"new"}, new=True)
+    assert json.loads((out / "summary.json").read_text())["new"] is True
+    assert (out / "skin.obj").read_bytes() == b"new"
+    assert _leftovers(tmp_path) == [] and _leftovers(out) == []
+
+
+@pytest.mark.parametrize("kind", ["bay", "wing"])
+def test_a_report_replaces_only_the_files_of_the_earlier_report(tmp_path, kind):
+    # The rule: the earlier report's files (its summary.json lists them) are replaced, or removed
+    # when the new report does not write them (a rib.dat of a rib-shape run, a wing's rib_K.dat and
+    # bay_K plots); every other file stays byte for byte; the folder itself is never removed.
+    out = tmp_path / "out"
+    out.mkdir()
+    if kind == "bay":
+        earlier = {"equilibrium.npz": b"e1", "skin.obj": b"o1", "rib.dat": b"r1", "rib_design.png": b"p1"}
+        new = {"equilibrium.npz": b"e2", "skin.obj": b"o2"}
+    else:
+        earlier = {"wing.npz": b"w1", "bay_0_mid_bay_section.png": b"b0", "bay_1_mid_bay_section.png": b"b1",
+                   "bay_2_mid_bay_section.png": b"b2", "rib_0.dat": b"r0", "rib_1.dat": b"r1", "rib_2.dat": b"r2"}
+        new = {"wing.npz": b"w2", "bay_0_mid_bay_section.png": b"c0", "bay_1_mid_bay_section.png": b"c1"}
+    _report(out, earlier)
+    foreign = {"case.toml": b"target = 'x'\n", "clarky.dat": b"\x00\xff", "rib.dat.bak": b"mine",
+               "rib_9.txt": b"mine too"}
+    for name, data in foreign.items():
+        (out / name).write_bytes(data)
+    (out / "plots").mkdir()
+    (out / "plots" / "bay_0_mid_bay_section.png").write_bytes(b"in a sub-folder: not the report's")
+    inode = out.stat().st_ino
+    with export.staged_folder(out) as staging:
+        written = _report(staging, new)
+    after = _snapshot(out)
+    assert after == {**foreign, **new, "summary.json": after["summary.json"]}
+    assert staging.parent == out  # staged inside the existing folder, never beside it
+    assert json.loads(after["summary.json"]) == written
+    assert (out / "plots" / "bay_0_mid_bay_section.png").read_bytes() == b"in a sub-folder: not the report's"
+    assert out.stat().st_ino == inode and _leftovers(out) == [] and _leftovers(tmp_path) == []
+
+
+def test_a_file_of_a_report_name_the_earlier_report_did_not_write_is_refused(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    _report(out, {"skin.obj": b"old"})
+    (out / "history.png").write_bytes(b"the user's own")  # not listed in the earlier summary.json
+    before = _snapshot(out)
+    with pytest.raises(ValueError, match="history.png"):
+        export.check_output_folder(out)
+    with pytest.raises(ValueError, match="history.png"):  # also when it appears during the run
+        (out / "history.png").unlink()
+        with export.staged_folder(out) as staging:
+            (out / "history.png").write_bytes(b"the user's own")
+            _report(staging, {"skin.obj": b"new", "history.png": b"plot"})
+    assert _snapshot(out) == before and _leftovers(out) == []
+    (out / "summary.json").write_text('{"files": ["summary.json", "history.png"]}')  # not this package's
+    with pytest.raises(ValueError, match="summary.json"):
+        export.check_output_folder(out)
+
+
+def test_a_run_killed_while_moving_its_files_in_is_finished_by_the_next(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    _report(out, {"skin.obj": b"old", "rib.dat": b"old rib"})
+    (out / "notes.txt").write_text("mine")
+    killed = out / ".report.partial-0123abcd"  # its moves had begun: skin.obj is in place already
+    killed.mkdir()
+    _report(killed, {"skin.obj": b"new", "history.png": b"plot"}, run=2)
+    (killed / ".moves.json").write_text(json.dumps({"files": ["history.png", "skin.obj", "summary.json"],
+                                                   "remove": ["rib.dat"]}))
+    os.replace(killed / "skin.obj", out / "skin.obj")
+    assert export.remove_stale_partials(out) == [killed]
+    assert _snapshot(out) == {"skin.obj": b"new", "history.png": b"plot", "notes.txt": b"mine",
+                              "summary.json": (out / "summary.json").read_bytes()}
+    assert json.loads((out / "summary.json").read_text())["run"] == 2 and _leftovers(out) == []
 
 
 def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_else(tmp_path):
@@ -315,10 +430,12 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_
         assert not stale.exists() and all((tmp_path / name).exists() for name in kept)
         with export.staged_folder(out) as second:  # a second writer of the same folder, meanwhile
             assert staging.is_dir()  # the first holds its lock: being written, not stale
-            (second / "summary.json").write_text('{"writer": 2}')
-        (staging / "summary.json").write_text('{"writer": 1}')
-    assert json.loads((out / "summary.json").read_text()) == {"writer": 1}
+            _report(second, {"skin.obj": b"2"}, writer=2)
+        _report(staging, {"skin.obj": b"1"}, writer=1)
+    assert json.loads((out / "summary.json").read_text())["writer"] == 1  # (merged into the second's)
+    assert (out / "skin.obj").read_bytes() == b"1"
     assert _leftovers(tmp_path) == sorted(kept)
+
 
 
 # ------------------------------------------------------------------ signals
@@ -339,42 +456,145 @@ def _wait_for(condition, process, what: str, limit: float = 300.0):
         time.sleep(0.01)
 
 
-@pytest.mark.skipif(not Path("/proc/self/status").exists() or export.fcntl is None,
-                    reason="reads /proc (Linux) and needs flock")
-@pytest.mark.parametrize("moment", ["solving", "writing the folder"])
-def test_sigterm_stops_the_run_like_ctrl_c_and_leaves_nothing(start_cli, tmp_path, moment):
-    stale = tmp_path / ".out.partial-0badc0de"  # from an earlier, killed run
-    stale.mkdir()
-    (tmp_path / "out").mkdir()
-    (tmp_path / "out" / "summary.json").write_text('{"earlier": true}')
+def _swallowed(signum: int) -> None:
+    """Send ``signum`` to this process from inside a garbage-collection callback, as when it arrives
+    while JAX's ``_xla_gc_callback`` runs: the exception its handler raises there is lost ("Exception
+    ignored in ..."), and the code that called the collection goes on."""
+    fired = []
+
+    def callback(phase, info):
+        if not fired:
+            fired.append(phase)
+            signal.raise_signal(signum)
+
+    gc.callbacks.append(callback)
+    try:
+        gc.collect()
+    finally:
+        gc.callbacks.remove(callback)
+    assert fired
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_lost_in_a_gc_callback_is_raised_again_at_the_next_safe_point(signum, capsys):
+    stop = cli.Terminated if signum == signal.SIGTERM else KeyboardInterrupt
+    state = interrupts.install()
+    try:
+        interrupts.check()  # nothing recorded: nothing raised
+        with pytest.raises(stop):
+            signal.raise_signal(signum)  # raised where it arrives...
+        with pytest.raises(stop):
+            interrupts.check()  # ...and at every safe point after it
+        interrupts.restore(interrupts.install())  # (a fresh record)
+        _swallowed(signum)  # lost where it arrives
+        assert interrupts.received() == signum
+        with pytest.raises(stop):
+            interrupts.check()
+    finally:
+        interrupts.restore(state)
+    assert "Exception ignored" not in capsys.readouterr().err  # the lost one printed nothing
+    assert interrupts.received() is None and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_stop_inside_a_deferred_section_waits_for_its_end():
+    state = interrupts.install()
+    try:
+        with interrupts.deferred():
+            signal.raise_signal(signal.SIGTERM)  # recorded, not raised
+            interrupts.check()
+            finished = True
+        assert finished
+        with pytest.raises(cli.Terminated):
+            interrupts.check()
+        with pytest.raises(cli.Terminated), interrupts.deferred():  # raised on entry: never started
+            pytest.fail("a deferred section started after a stop")
+    finally:
+        interrupts.restore(state)
+
+
+@pytest.mark.parametrize("signum, where", [(signal.SIGINT, "solving"), (signal.SIGTERM, "report")])
+def test_a_stop_lost_in_a_gc_callback_still_ends_the_run_and_writes_nothing(tmp_path, capsys, monkeypatch,
+                                                                           signum, where):
+    # Issue 19: a Ctrl-C or SIGTERM arriving while JAX's gc callback ran was lost; the run wrote its
+    # folder and exited 0. Here the stop is sent from inside a gc callback at the start of the run
+    # (before the solve) or while the report is being written (inside its staging folder).
+    from inverse_design.app import summary
+
+    name, module = ("check_grid", cli) if where == "solving" else ("plot_section", summary)
+    original = getattr(module, name)
+
+    def lose_a_stop(*args, **kwargs):
+        _swallowed(signum)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, lose_a_stop)
+    out = tmp_path / "out"
+    code = cli.main([*SMALL, "--evaluate", "--no-compilation-cache", "--quiet", "--out", str(out)])
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    assert code == (143 if signum == signal.SIGTERM else 130)
+    assert capsys.readouterr().err == f"optimise-pressure: {word}; nothing was written to {out}\n"
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+@pytest.fixture(scope="module")
+def run_seconds(default_run, start_cli, tmp_path_factory):
+    """Seconds from the command's signal handlers being in place to its end, its compiled functions
+    cached (as in the signal tests below, which run after it)."""
+    process = start_cli(*SMALL, "--quiet", "--out", "out", cwd=tmp_path_factory.mktemp("timed"))
+    _wait_for(lambda: _sigterm_handler_installed(process.pid), process, "the SIGTERM handler")
+    start = time.monotonic()
+    _, stderr = process.communicate(timeout=600)
+    assert process.returncode == 0, stderr
+    return time.monotonic() - start
+
+
+# (moment: a fraction of `run_seconds` after the handlers are in place, or "report": as soon as the
+# report's staging folder appears; signal; whether --out holds an earlier report and a file of the user's)
+STOPS = [(0.0, signal.SIGINT, False), (0.1, signal.SIGTERM, True), (0.2, signal.SIGINT, True),
+         (0.35, signal.SIGTERM, False), (0.5, signal.SIGINT, True), (0.65, signal.SIGTERM, True),
+         ("report", signal.SIGINT, False), ("report", signal.SIGTERM, True)]
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc (Linux)")
+@pytest.mark.parametrize("moment, signum, earlier", STOPS)
+def test_every_stop_ends_the_run_with_its_code_and_writes_nothing(start_cli, run_seconds, tmp_path, moment,
+                                                                   signum, earlier):
+    out = tmp_path / "out"
+    if earlier:
+        out.mkdir()
+        _report(out, {"skin.obj": b"earlier"})
+        (out / "notes.txt").write_text("mine")
+    before = _snapshot(out) if earlier else None
     process = start_cli(*SMALL, "--out", "out", cwd=tmp_path)
     try:
         _wait_for(lambda: _sigterm_handler_installed(process.pid), process, "the SIGTERM handler")
-        if moment == "solving":
-            time.sleep(1.0)  # into the JIT compilation and the solves (a run takes 10 s or more)
+        if moment == "report":
+            place, pattern = (out, ".report.partial-*") if earlier else (tmp_path, ".out.partial-*")
+            _wait_for(lambda: list(place.glob(pattern)), process, "a staging folder")
         else:
-            def staging():
-                return [p for p in tmp_path.glob(".out.partial-*") if p != stale]
-
-            _wait_for(staging, process, "a staging folder")
-            assert not stale.exists()  # removed by this run, before it made its own
-        process.send_signal(signal.SIGTERM)
-        stdout, stderr = process.communicate(timeout=60)
+            time.sleep(moment * run_seconds)
+        assert process.poll() is None, f"the run ended before the signal: {process.communicate()}"
+        process.send_signal(signum)
+        stdout, stderr = process.communicate(timeout=120)
     finally:
         if process.poll() is None:
             process.kill()
             process.communicate()
-    assert process.returncode == 143, stderr
-    assert stderr == "optimise-pressure: terminated; nothing was written to out\n" and stdout == ""
-    assert json.loads((tmp_path / "out" / "summary.json").read_text()) == {"earlier": True}
-    assert [p.name for p in (tmp_path / "out").iterdir()] == ["summary.json"]
-    assert _leftovers(tmp_path) == ([] if moment != "solving" else [stale.name])
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    assert process.returncode == (143 if signum == signal.SIGTERM else 130), stderr
+    assert stdout == "" and len(stderr.splitlines()) == 1 and stderr.endswith("\n"), stderr
+    assert stderr.startswith(f"optimise-pressure: {word}") and "after" not in stderr, stderr
+    if earlier:
+        assert _snapshot(out) == before and _leftovers(out) == []
+    else:
+        assert not out.exists()
+    assert _leftovers(tmp_path) == []
 
 
-def test_main_installs_its_sigterm_handler_only_while_it_runs(tmp_path, capsys):
-    before = signal.getsignal(signal.SIGTERM)
+def test_main_installs_its_signal_handlers_only_while_it_runs(tmp_path, capsys):
+    before = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)] + [sys.unraisablehook]
     assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
-    assert signal.getsignal(signal.SIGTERM) is before
+    assert [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)] + [sys.unraisablehook] == before
     assert "NACA" in capsys.readouterr().err
 
 

@@ -52,9 +52,21 @@ def _run(tmp_path, text, *extra):
 
 
 def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, capsys):
+    # Into the folder of an earlier wing report with rib shapes (rib_K.dat) and more bays, beside
+    # the user's files: the earlier report's files go, the user's stay byte for byte.
+    out = tmp_path / "out"
+    out.mkdir()
+    earlier = ["rib_0.dat", "rib_1.dat", "rib_2.dat", "rib_3.dat", "bay_3_mid_bay_section.png", "wing.npz"]
+    for name in earlier:
+        (out / name).write_text("earlier")
+    (out / "summary.json").write_text(json.dumps({"package": {"name": "inflatable-wing"},
+                                                  "files": earlier + ["summary.json"]}))
+    (out / "rib_0.dat.orig").write_bytes(b"the user's rib")
+    (out / "wing.toml").write_bytes(b"# the user's case")
     code, _ = _run(tmp_path, CASE)
     assert code == 0, capsys.readouterr().err
-    out = tmp_path / "out"
+    assert (out / "rib_0.dat.orig").read_bytes() == b"the user's rib"
+    assert (out / "wing.toml").read_bytes() == b"# the user's case"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["mode"] == "wing" and summary["results"]["success"]
     assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
@@ -65,6 +77,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
                                      "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
                                      "bay_2_mid_bay_section.png"}
+    assert {p.name for p in out.iterdir()} == set(summary["files"]) | {"rib_0.dat.orig", "wing.toml"}
     with np.load(out / "wing.npz") as npz:
         assert npz["nodes"].shape == (3, 9, 32, 3) and npz["deviation"].shape == (3, 9, 32)
         assert float(npz["pressure"]) == pytest.approx(summary["results"]["values"]["pressure_pa"])

@@ -11,7 +11,10 @@ nothing written; or the optimiser stopped without converging: the folder is
 written and says so); 2 bad input (one line on stderr), a grid too large
 for the machine among it (`inverse_design.app.resources.check_grid`); 130
 interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
-Ctrl-C, so the staging folder is removed).
+Ctrl-C, so the staging folder is removed). A stop that Python loses (raised
+inside a garbage-collection callback) is recorded and raised again at the
+next safe point (`inverse_design.app.interrupts`), at the latest before the
+folder's files are put in place.
 
 The solvers run in their own thread-local float64 scope. Unlike the
 library, the command turns on JAX's persistent compilation cache for its own
@@ -29,12 +32,12 @@ import json
 import math
 import os
 import re
-import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
+from . import interrupts
+from .interrupts import Terminated
 from .resources import MAX_NODES, check_grid
 
 __all__ = ["InputError", "Terminated", "build_parser", "main", "parse_arguments", "read_config", "run"]
@@ -232,8 +235,9 @@ OPTIONS = (
                                 help="read options from a TOML file (keys: the long option names); "
                                 "command-line options override it")),
     ("output", "--out", dict(default="optimise-pressure-out", metavar="DIR",
-                             help="output folder, replaced as a whole when the new one is complete "
-                             "(default optimise-pressure-out)")),
+                             help="output folder (may be . or hold other files, which are never touched): "
+                             "an earlier report's files in it are replaced (or removed) when the new "
+                             "report is complete (default optimise-pressure-out)")),
     ("output", "--magnification", dict(type=_number(positive=True), default=None, metavar="X",
                                        help="deviation factor of the section plot (default: automatic, "
                                        "1, 2, 5, 10, ...)")),
@@ -257,9 +261,13 @@ every section from rib to rib matches the target, with a wrinkle-free skin.
 """
 
 _EPILOG = """\
-output folder (--out DIR, written to a temporary folder .DIR.partial-XXXXXXXX next
-to DIR and renamed into place when complete; an earlier DIR is replaced only then;
-such temporary folders left by a killed run are removed by the next run to DIR):
+output folder (--out DIR): the report is written to a temporary folder (beside a new
+DIR, inside an existing one) and put in place when complete. DIR may be . or hold
+other files: only the report's files are written, each replacing only a file of an
+earlier report (one its summary.json lists); the earlier report's files this run
+does not write (e.g. rib.dat) are removed; nothing else is touched. A DIR holding a
+file of a report's name that no report wrote is refused (exit 2). Temporary folders
+left by a killed run are removed by the next run to DIR:
   summary.json          inputs, results, errors before/after, active constraints,
                         timings, package version, the files written
   equilibrium.npz       nodes (n_span, n_contour, 3) m, tensions N/m, wrinkled
@@ -490,10 +498,11 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         if not result.converged:
             raise ConvergenceError(result)
         aero = _aero(args, result, target, alphas, timings)
+        interrupts.check()
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
     options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
                    max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
-                   rib=rib, rib_limits=rib_limits,
+                   rib=rib, rib_limits=rib_limits, callback=_safe_point,
                    solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
     t = time.perf_counter()
     result = optimise_pressure(scene, target, variables=variables, initial=parameters,
@@ -503,6 +512,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         result = refine_design(result, scene, target, **options)
     timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result.solution, target, alphas, timings)
+    interrupts.check()
     return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
 
 
@@ -625,25 +635,9 @@ def _describe(summary: dict) -> list[str]:
     return lines
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM received while `main` runs: unwinds like Ctrl-C (staging folders are removed), exit 143."""
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated()
-
-
-def _handle_sigterm():
-    """Make SIGTERM raise `Terminated` in the main thread; returns the handler to restore, or None.
-
-    Only `main` installs it (importing this module changes nothing), and only
-    from the main thread (where Python runs signal handlers).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    previous = signal.getsignal(signal.SIGTERM)
-    signal.signal(signal.SIGTERM, _raise_terminated)
-    return signal.SIG_DFL if previous is None else previous  # None: installed outside Python
+def _safe_point(entry=None) -> None:
+    """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
+    interrupts.check()
 
 
 def _exit_now(code: int) -> None:
@@ -667,13 +661,15 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``optimise-pressure`` console script; returns the exit code.
 
     While it runs, SIGTERM raises `Terminated`, which unwinds like Ctrl-C
-    (the staging folder is removed): exit code 143, or 130 for Ctrl-C. The
-    previous SIGTERM handler is restored on return. Run as the command
+    (the staging folder is removed): exit code 143, or 130 for Ctrl-C. Both
+    are recorded too (`interrupts.install`), so that one lost inside a
+    callback is raised again at the next safe point. The previous handlers
+    are restored on return. Run as the command
     (``argv`` None), an interrupted or terminated run ends the process
     itself with that code (see `_exit_now`); called with ``argv`` it returns.
     """
     started = time.perf_counter()
-    previous = _handle_sigterm()
+    previous = interrupts.install()
     try:
         code = _main(argv, started)
     except Terminated:  # before the run (importing JAX) or after its folder was written
@@ -683,8 +679,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         code = EXIT_INTERRUPTED
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        interrupts.restore(previous)
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
@@ -744,6 +739,13 @@ def _main(argv: list[str] | None, started: float) -> int:
     except OSError as exc:  # input files are read (and checked) before: this is the output
         print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
         return 1
+    try:
+        interrupts.check()  # a stop that arrived while the files were put in place
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
+              f"in {summary['out']}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     if args.json:
         print(json.dumps(summary, indent=2))
     elif not args.quiet:

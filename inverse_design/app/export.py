@@ -1,17 +1,21 @@
 """Files of a design: the equilibrium as ``.npz``, the skin as OBJ and STL, and the atomic output folder.
 
-`write_npz`, `write_obj` and `write_stl` write one file each. The output
-folder is written atomically (`staged_folder`): into a hidden temporary
-folder next to the destination, renamed into place when complete. An
-earlier folder of the same name is replaced only then, and only if it is
-empty or holds a ``summary.json`` (so a mistyped ``out_dir`` never deletes
-unrelated files; `check_output_folder`). Temporary folders that a killed
-writer left behind are removed by the next `staged_folder` of the same
-destination (`remove_stale_partials`).
+`write_npz`, `write_obj` and `write_stl` write one file each. A report is
+written atomically (`staged_folder`): into a hidden temporary folder, whose
+files are put in place only when all are written. The output folder may
+hold other files: only the report's own files are written, replacing only
+the files of an earlier report there (those its ``summary.json`` lists:
+`written_files`); the earlier report's files that the new one does not
+write are removed; nothing else in the folder is touched, and the folder is
+never removed (`check_output_folder` refuses a folder holding a file of a
+report's name that no report wrote). Temporary folders that a killed writer
+left behind are removed (or their moves finished) by the next
+`staged_folder` of the same destination (`remove_stale_partials`).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -24,6 +28,7 @@ import numpy as np
 
 from forward_solver import Solution
 
+from . import interrupts
 from ..optimise import DesignResult
 
 try:
@@ -32,6 +37,7 @@ except ImportError:  # pragma: no cover - Windows: no flock, stale folders are l
     fcntl = None
 
 __all__ = [
+    "REPORT_FILES",
     "check_output_folder",
     "deviation",
     "remove_stale_partials",
@@ -41,6 +47,7 @@ __all__ = [
     "write_obj",
     "write_selig",
     "write_stl",
+    "written_files",
 ]
 
 
@@ -219,24 +226,79 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     return path
 
 
+#: Names of the files a report writes (`summary.write_report`, `wing_report.write_wing_report`). An
+#: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
+#: that no earlier report there wrote (`written_files`), before the long work.
+REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|cut_pattern\.csv|"
+                          r"rib(_[0-9]+)?\.dat|(bay_[0-9]+_)?mid_bay_section\.png|"
+                          r"(deviation|tensions|history|aero|rib_design)\.png")
+#: The summary of a report, whose ``files`` list the files that report wrote.
+SUMMARY = "summary.json"
+#: Name (then 8 hex digits) of a staging folder inside an existing output folder.
+_INSIDE = ".report.partial-"
+#: The list of moves of a staging folder whose files are being moved into the output folder.
+_JOURNAL = ".moves.json"
+
+
+def written_files(out_dir) -> set[str]:
+    """The files that the earlier report in ``out_dir`` wrote: the ``files`` of its ``summary.json``.
+
+    Empty if there is no ``summary.json``, or it is not one of this
+    package's (not JSON, or no ``package.name`` "inflatable-wing" and
+    ``files`` list naming itself). Only plain names in the folder count.
+    """
+    path = Path(out_dir) / SUMMARY
+    if path.is_symlink() or not path.is_file():
+        return set()
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return set()
+    if not (isinstance(data, dict) and isinstance(data.get("package"), dict)
+            and data["package"].get("name") == "inflatable-wing" and isinstance(data.get("files"), list)):
+        return set()
+    files = {f for f in data["files"] if isinstance(f, str) and f == os.path.basename(f) and f[:1] not in ("", ".")}
+    return files if SUMMARY in files else set()
+
+
+def _not_ours(out: Path, names, owned: set[str]) -> list[str]:
+    """The ``names`` present in ``out`` that no earlier report wrote (a link or a folder never is ours)."""
+    return sorted(n for n in names if (out / n).exists() or (out / n).is_symlink()
+                  if n not in owned or (out / n).is_symlink() or not (out / n).is_file())
+
+
+def _refuse(out: Path, clash: list[str]) -> ValueError:
+    return ValueError(f"refusing to overwrite {out / clash[0]}"
+                      + (f" (and {len(clash) - 1} more: {', '.join(clash[1:])})" if len(clash) > 1 else "")
+                      + f": no earlier report wrote it (the {SUMMARY} there does not list it); "
+                      f"move it away or choose another output folder")
+
+
 def check_output_folder(out_dir) -> Path:
-    """The absolute output path, after checking that `write_report` may write (and replace) it.
+    """The absolute output path, after checking that `write_report` may write into it.
+
+    The folder may hold other files (they are never touched); it must not
+    hold a file of a report's name (`REPORT_FILES`) that no earlier report
+    there wrote (`written_files`).
 
     Raises:
-        ValueError: if ``out_dir`` is a file, or a non-empty folder that holds
-            no ``summary.json`` of an earlier report (it is never replaced), or
-            its nearest existing parent is not a writable folder.
+        ValueError: if ``out_dir`` is a file, or holds such a file, or is
+            not a writable folder (or, when it does not exist, its nearest
+            existing parent is not).
     """
     out = Path(os.path.abspath(os.fspath(out_dir)))
     if out.exists() or out.is_symlink():
         if not out.is_dir():
             raise ValueError(f"the output folder {out} exists and is not a folder; choose another path")
-        if any(out.iterdir()) and not (out / "summary.json").is_file():
-            raise ValueError(f"refusing to replace {out}: it is not empty and holds no summary.json of "
-                             f"an earlier report; choose another output folder or empty this one")
-    parent = out.parent
-    while not parent.exists():
-        parent = parent.parent
+        clash = _not_ours(out, [p.name for p in out.iterdir() if REPORT_FILES.fullmatch(p.name)],
+                          written_files(out))
+        if clash:
+            raise _refuse(out, clash)
+        parent = out
+    else:
+        parent = out.parent
+        while not parent.exists():
+            parent = parent.parent
     try:  # a real probe: permission bits do not tell everything (read-only mounts, /proc)
         os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
     except OSError as exc:
@@ -245,9 +307,10 @@ def check_output_folder(out_dir) -> Path:
     return out
 
 
-def _partial_pattern(out: Path) -> re.Pattern:
-    """Names of the temporary folders of ``out``: ``.NAME.partial-`` and 8 hex digits (`staged_folder`)."""
-    return re.compile(re.escape(f".{out.name}.partial-") + "[0-9a-f]{8}")
+def _partial_pattern(out: Path, inside: bool = False) -> re.Pattern:
+    """Names of the staging folders of ``out`` (`staged_folder`): ``.NAME.partial-`` and 8 hex digits
+    beside it, or ``.report.partial-`` and 8 hex digits inside it."""
+    return re.compile(re.escape(_INSIDE if inside else f".{out.name}.partial-") + "[0-9a-f]{8}")
 
 
 def _try_lock(folder: Path) -> int | None:
@@ -273,59 +336,122 @@ def _try_lock(folder: Path) -> int | None:
 
 
 def remove_stale_partials(out_dir) -> list[Path]:
-    """Remove the temporary folders that killed writers of ``out_dir`` left beside it.
+    """Finish or remove the staging folders that killed writers of ``out_dir`` left.
 
     Only folders named exactly as `staged_folder` names those of this
-    ``out_dir`` (``.NAME.partial-`` and 8 hex digits) whose writer is gone:
-    a writer holds a lock on its folder until it ends, so a folder still being
-    written (by another run to the same ``out_dir``) is left alone, and so is
-    every folder where locks are not available (Windows, some network file
-    systems).
+    ``out_dir`` (beside it, or inside it) whose writer is gone: a writer holds
+    a lock on its folder until it ends, so a folder still being written (by
+    another run to the same ``out_dir``) is left alone, and so is every
+    folder where locks are not available (Windows, some network file
+    systems). A folder killed while its files were being moved into
+    ``out_dir`` (it holds their list) is finished: its remaining files are
+    moved in; any other is removed.
 
     Returns:
-        The folders removed.
+        The folders finished or removed.
     """
     out = Path(os.path.abspath(os.fspath(out_dir)))
-    if not out.parent.is_dir():
-        return []
-    pattern, removed = _partial_pattern(out), []
-    for entry in sorted(out.parent.iterdir()):
-        if not pattern.fullmatch(entry.name) or entry.is_symlink() or not entry.is_dir():
+    places = [(out.parent, False)] + ([(out, True)] if out.is_dir() and not out.is_symlink() else [])
+    removed = []
+    for place, inside in places:
+        if not place.is_dir():
             continue
-        fd = _try_lock(entry)
-        if fd is None:
-            continue
-        try:
-            shutil.rmtree(entry, ignore_errors=True)
-        finally:
-            os.close(fd)
-        removed.append(entry)
+        pattern = _partial_pattern(out, inside)
+        for entry in sorted(place.iterdir()):
+            if not pattern.fullmatch(entry.name) or entry.is_symlink() or not entry.is_dir():
+                continue
+            fd = _try_lock(entry)
+            if fd is None:
+                continue
+            try:
+                moves = _read_moves(entry)
+                if moves is not None and out.is_dir():
+                    _move_in(entry, out, *moves)
+                shutil.rmtree(entry, ignore_errors=True)
+            finally:
+                os.close(fd)
+            removed.append(entry)
     return removed
+
+
+def _read_moves(staging: Path):
+    """``(names, stale)`` of a staging folder's move list, or None if it has none (or it is unreadable)."""
+    try:
+        moves = json.loads((staging / _JOURNAL).read_text(encoding="utf-8"))
+        names, stale = moves["files"], moves["remove"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    ok = all(isinstance(n, str) and n == os.path.basename(n) and n[:1] not in ("", ".") for n in names + stale)
+    return (names, stale) if ok else None
+
+
+def _move_in(staging: Path, out: Path, names: list[str], stale: list[str]) -> None:
+    """Move the files ``names`` of ``staging`` into ``out`` (each replacing its namesake: a file of an
+    earlier report), remove the earlier report's files ``stale``; the summary last, so that until then
+    the earlier summary lists every report file in ``out``. Repeating it finishes an interrupted one."""
+    for name in sorted(names, key=lambda n: n == SUMMARY):
+        if name == SUMMARY:
+            for old in stale:
+                path = out / old
+                if path.is_file() and not path.is_symlink():
+                    path.unlink()
+        source = staging / name
+        if source.is_file():
+            os.replace(source, out / name)
+
+
+def _commit(staging: Path, out: Path) -> None:
+    """Put the finished ``staging`` folder's files in place (`staged_folder`)."""
+    if not (out.exists() or out.is_symlink()):
+        try:
+            os.rename(staging, out)  # a new folder: one atomic rename
+            return
+        except OSError:
+            if not out.is_dir():  # (else another run created it meanwhile: merge into it)
+                raise
+    names = sorted(p.name for p in staging.iterdir())
+    owned = written_files(out)
+    clash = _not_ours(out, names, owned)
+    if clash:
+        raise _refuse(out, clash)
+    stale = sorted(n for n in owned - set(names) if (out / n).is_file() and not (out / n).is_symlink())
+    (staging / _JOURNAL).write_text(json.dumps({"files": names, "remove": stale}))
+    _move_in(staging, out, names, stale)
+    shutil.rmtree(staging, ignore_errors=True)
 
 
 @contextmanager
 def staged_folder(out_dir):
-    """Write a folder atomically: yield a temporary folder, rename it to ``out_dir`` on success.
+    """Write a report's files atomically: yield a temporary folder, put its files in place on success.
 
-    The temporary folder (``.NAME.partial-`` and 8 hex digits) sits next to
-    ``out_dir``, so the final rename stays on one file system. An existing
-    ``out_dir`` (checked by `check_output_folder`) is moved aside and deleted
-    only after the new folder is in place. On any exception, KeyboardInterrupt
-    included, the temporary folder is removed and ``out_dir`` is left as it
-    was. A temporary folder that a killed process (SIGKILL, power loss) left
-    behind is removed here by the next writer of the same ``out_dir``
-    (`remove_stale_partials`); the writer locks its own until it ends.
+    A new ``out_dir`` is the temporary folder (``.NAME.partial-`` and 8 hex
+    digits, beside it) renamed. Into an existing one (checked by
+    `check_output_folder`), the temporary folder (``.report.partial-`` and 8
+    hex digits, inside it) has its files moved one by one, each replacing
+    only its namesake of an earlier report; the earlier report's files that
+    this one does not write (listed in its ``summary.json``, e.g. ``rib.dat``
+    of a rib-shape run) are removed, and ``summary.json`` comes last. Every
+    other file in ``out_dir`` is left as it is; ``out_dir`` itself is never
+    removed. On any exception before that, KeyboardInterrupt included, the
+    temporary folder is removed and ``out_dir`` is left as it was; a stop
+    (`interrupts`) that arrives while the files move is held until they are
+    in place. A temporary folder that a killed process (SIGKILL, power loss)
+    left behind is removed, or its moves finished, by the next writer of the
+    same ``out_dir`` (`remove_stale_partials`); the writer locks its own
+    until it ends.
     """
     out = check_output_folder(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_partials(out)
+    inside = out.is_dir() and not out.is_symlink()
+    place, prefix = (out, _INSIDE) if inside else (out.parent, f".{out.name}.partial-")
     tag = uuid.uuid4().hex[:8]
     # Created under a name outside the pattern and renamed once locked, so that a concurrent
     # `remove_stale_partials` never sees it unlocked.
-    creating = out.parent / f".{out.name}.creating-{tag}"
+    creating = place / f"{prefix.replace('.partial-', '.creating-')}{tag}"
     creating.mkdir()  # (not mkdtemp: the folder keeps the user's umask permissions)
     lock = _try_lock(creating)
-    staging = out.parent / f".{out.name}.partial-{tag}"
+    staging = place / f"{prefix}{tag}"
     try:
         os.rename(creating, staging)
     except BaseException:
@@ -335,23 +461,11 @@ def staged_folder(out_dir):
         raise
     try:
         yield staging
-        old = None
-        if out.exists() or out.is_symlink():
-            old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
-            os.rename(out, old)
-        try:
-            os.rename(staging, out)
-        except BaseException:
-            if old is not None:
-                os.rename(old, out)
-            raise
-        if old is not None:
-            if old.is_dir() and not old.is_symlink():
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                old.unlink()
+        with interrupts.deferred():  # a stop recorded until now is raised here, before anything moves
+            _commit(staging, out)
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        if _read_moves(staging) is None:  # (with its list of moves, the next writer finishes it)
+            shutil.rmtree(staging, ignore_errors=True)
         raise
     finally:
         if lock is not None:

@@ -203,7 +203,8 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
-        out_dir: the folder to create (or replace: see `staged_folder`).
+        out_dir: the folder to create, or to write into (replacing only an earlier
+            report's files: `staged_folder`).
         result: a `DesignResult` from `optimise_pressure`, or a `Solution`.
         target: the target `targets.Airfoil` (chord-normalised).
         scene: the `forward_solver.Scene` it was solved on.

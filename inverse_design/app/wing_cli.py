@@ -125,7 +125,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
         ValueError: bad input (`cli.InputError` among them).
         forward_solver.ConvergenceError: a bay's solve at the start failed (nothing written).
     """
-    from .cli import _airfoil, design_inputs
+    from .cli import _airfoil, _safe_point, design_inputs
 
     start = time.perf_counter() if started is None else started
     sources = dict(sources or {})
@@ -170,9 +170,10 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
                            n_span=args.n_span, max_steps=args.max_steps,
                            n_contour=args.n_contour, max_iterations=args.max_iterations,
                            **({} if args.tolerance is None else {"tolerance": args.tolerance}),
-                           progress=progress)
+                           progress=progress, callback=_safe_point)
     timings["optimisation"] = time.perf_counter() - t
     inputs = {**vars(args), "sources": sources}
+    _safe_point()
     return write_wing_report(out, result, bounds=bounds, inputs=inputs, timings=timings,
                              magnification=args.magnification)
 

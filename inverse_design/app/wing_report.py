@@ -155,7 +155,8 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     """Write the output folder of a wing design and return its summary (module docstring).
 
     Args:
-        out_dir: the folder to create (or replace: `export.staged_folder`).
+        out_dir: the folder to create, or to write into (replacing only an earlier
+            report's files: `export.staged_folder`).
         result: the `wing_design.WingDesignResult`.
         bounds: variable bounds to draw in the history plot.
         inputs: the caller's options (stored as given).
