@@ -163,12 +163,12 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 
 
 def design_case(fabric, variables=("pressure",)) -> dict:
-    from inverse_design.app import cli
+    from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
-    from inverse_design.app.wing_cli import EXAMPLE_CASE
+    from inverse_design.app.case import EXAMPLE_CASE
     from inverse_design.wing_design import optimise_wing
 
-    values = cli.read_config(EXAMPLE_CASE)
+    values = case_reader.read_config(EXAMPLE_CASE)
     ribs = values["wing"]
     af = naca("2412")
     wing = Wing(airfoils=(af,) * len(ribs), chords=tuple(r["chord"] for r in ribs),

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design.app import cli, export, interrupts, resources
+from inverse_design.app import case as case_reader, cli, export, interrupts, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -202,7 +202,7 @@ def test_case_file_values_are_checked_like_options(tmp_path):
     case = tmp_path / "case.toml"
     case.write_text('variables = ["pressure", "prestrain_span"]\npressure-bounds = [2e3, 5e4]\n'
                     'no_tension_constraints = true\nmax-iterations = 7\n')
-    args, sources = cli.parse_arguments(["--config", str(case), "--max-iterations", "9"])
+    args, sources = case_reader.parse_arguments(["--config", str(case), "--max-iterations", "9"])
     assert args.variables == "pressure,prestrain_span" and args.pressure_bounds == (2e3, 5e4)
     assert args.no_tension_constraints is True and args.max_iterations == 9
     assert sources["max_iterations"] == "command line" and sources["pressure_bounds"] == "config"
@@ -211,7 +211,7 @@ def test_case_file_values_are_checked_like_options(tmp_path):
                            ('method = "newton"\n', "method")]:
         case.write_text(text)
         with pytest.raises(cli.InputError, match=fragment):
-            cli.parse_arguments(["--config", str(case)])
+            case_reader.parse_arguments(["--config", str(case)])
 
 
 @pytest.mark.parametrize(

@@ -12,8 +12,8 @@ import re
 import numpy as np
 import pytest
 
-from inverse_design.app import cli
-from inverse_design.app.wing_cli import EXAMPLE_CASE
+from inverse_design.app import case as case_reader, cli
+from inverse_design.app.case import EXAMPLE_CASE
 
 RIBS = """
 [[rib]]
@@ -89,7 +89,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
 
 
 def test_the_built_in_example_is_a_valid_wing_case():
-    values = cli.read_config(EXAMPLE_CASE)
+    values = case_reader.read_config(EXAMPLE_CASE)
     assert len(values["wing"]) == 4 and values["n_span"] == 17
 
 

@@ -1,0 +1,86 @@
+"""What the command prints when a run ends: a few lines from its summary."""
+
+from __future__ import annotations
+
+__all__ = ["describe", "describe_wing"]
+
+def _value_text(name: str, value) -> str:
+    """``name value`` for the console (a vector variable as its rounded components)."""
+    if isinstance(value, list):
+        return f"{name} [{', '.join(f'{v:.4f}' for v in value)}]"
+    return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
+
+
+def describe(summary: dict) -> list[str]:
+    """The console lines of a finished run."""
+    if summary["mode"] == "wing":
+        return describe_wing(summary)
+    case, res, err = summary["case"], summary["results"], summary["errors"]
+    v = res["values"]
+    lines = [f"{case['target']}, {case['grid'][0]}x{case['grid'][1]} grid, {err['objective']} objective"]
+    if summary["mode"] == "evaluate":
+        eq = res["equilibrium"]
+        lines.append(f"  equilibrium at {v['pressure_pa']:.6g} Pa: {eq['result']} in {eq['steps']} steps")
+        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} chord "
+                     f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
+    else:
+        chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n]) for n in res["variables"])
+        lines.append(f"  {res['method']}: {chosen}")
+        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} chord, "
+                     f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
+        violated = summary["constraints"]["violated"] or {}
+        lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
+                     f"violated: {', '.join(f'{k} by {v:.4g} N/m' for k, v in violated.items()) or 'none'}; "
+                     f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+        grid = res.get("grid_change")
+        if grid:
+            moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
+                              for n, c in grid["change"].items())  # a vector: its largest move
+            lines.append(f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> "
+                         f"{grid['grids'][1][0]}x{grid['grids'][1][1]}: {moves}")
+    aero = summary.get("aero")
+    if aero:
+        worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
+        lines.append(f"  aerodynamics at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: mid-bay "
+                     f"max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
+                     f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
+    wrinkled = res["equilibrium"]["wrinkled_fraction"]
+    if wrinkled:
+        lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
+    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    return lines
+
+
+def describe_wing(summary: dict) -> list[str]:
+    """The console lines of a finished wing run."""
+    res, err = summary["results"], summary["errors"]
+    v = res["values"]
+    ribs = summary["case"]["ribs"]
+    lines = [f"wing of {len(ribs) - 1} bays ({ribs[0]['chord_m']:g} to {ribs[-1]['chord_m']:g} m chord, "
+             f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
+             f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
+    chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}" + (" Pa" if n == "pressure" else "")
+                       for n in res["variables"] if n != "rib_shape")
+    if "rib_shape" in res["variables"]:
+        chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
+    trailing = summary["case"].get("trailing_edge") or {}
+    for change in trailing.get("changed", []):
+        source = change.get("file") or change["section"]
+        lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
+                     f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
+                     f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
+    lines.append(f"  {res['method']}: {chosen}")
+    lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
+    for bay in res["bays"]:
+        lines.append(f"  bay {bay['bay']}: {bay['result']}, rms {bay['errors_before']['rms']:.3e} -> "
+                     f"{bay['errors_after']['rms']:.3e}, max {bay['errors_after']['max']:.3e} chord, "
+                     f"tension {bay['min_tension_n_per_m']:.4g} to {bay['max_tension_n_per_m']:.4g} N/m")
+    violated = summary["constraints"]["violated"] or {}
+    shown = ", ".join(f"{name} in {bay} by {amount:.4g} N/m" for name, per_bay in violated.items()
+                      for bay, amount in per_bay.items())
+    lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
+                 f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
+    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    return lines
