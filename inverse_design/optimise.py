@@ -59,7 +59,7 @@ import jax
 import numpy as np
 from tqdm import tqdm
 
-from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing
+from forward_solver import Fabric, Parameters, Scene, Solution, Wing
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result

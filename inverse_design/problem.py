@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from forward_solver import ConvergenceError, Parameters, solve_bays
+from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.wing import WingSolution, default_strategy
 

@@ -181,3 +181,25 @@ def test_bad_wing_designs_are_refused(wing):
         optimise_wing(wing, Fabric(), objective="tip", **GRID)
     with pytest.raises(ValueError, match="unknown design variable"):
         optimise_wing(wing, Fabric(), variables=("stiffness_span",), **GRID)
+
+
+def test_every_method_designs_a_wing_or_says_why_not(wing):
+    # least_squares and optax run on the wing as on a bay (the bays' residuals weighted by the square
+    # root of their area); brentq's mid-bay condition has no meaning over several bays: refused.
+    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares", max_iterations=4,
+                        constraints=None, **GRID)
+    assert res.rms_error < res.initial_rms_error and res.bay_rms_error.shape == (3,)
+    assert res.pressure < START["pressure"] and res.solves == len(res.history)
+    steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax", max_iterations=2,
+                          constraints=None, **GRID)
+    assert len(steps.history) == 2 and steps.pressure != START["pressure"]
+    with pytest.raises(ValueError, match="method='root' solves one scalar condition at one bay's mid-bay"):
+        optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="root", **GRID)
+
+
+def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(design):
+    # One result class: a wing's solution is its WingSolution (per-bay Solutions inside), its
+    # violations one format ({name: Violation}) whether one bay or three.
+    assert design.n_bays == 3 and design.solution is design.wing_solution
+    assert design.solution.bay_solution(2).converged
+    assert design.max_error == pytest.approx(float(np.max(design.bay_max_error)))
