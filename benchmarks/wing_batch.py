@@ -36,11 +36,26 @@ slowest stops). The 3-bay design at 17x64: pressure alone 7686 Pa in 4
 solves, 21 s, rms 8.62e-3 -> 7.12e-3, wrinkle floor active; with a rib
 shape per rib 2.98e-3 after 60 solves (139 s) at SLSQP's 50-iteration cap.
 
+``--strategies`` times `forward_solver.solve_bays`'s two strategies on
+tapered wings of 3 and 8 bays at 17x64 (same wings and tolerance): "loop"
+(per-bay `solve_equilibrium`: grid sequencing, the default on a CPU) and
+"batch" (the one ``jit(vmap)`` relaxation, the default on an accelerator),
+cold (first call in the run, compilation included) and warm (median of
+``--repeats``); writes ``benchmarks/results/wing_strategies.json``.
+Measured 2026-11-23 (same machine, load average about 3 on the 2 cores,
+``--repeats 3``): 3 bays loop cold 9.94 s, warm 0.29 s; batch cold 3.38 s,
+warm 0.49 s; 8 bays loop 0.76 s cold (the per-bay code was compiled by the
+3-bay run: same grid), 0.75 s warm; batch cold 4.69 s (a new batch size
+recompiles), warm 1.74 s. Warm, the loop is 1.70x (3 bays) and 2.33x (8
+bays) faster than the batch, which is why "auto" picks the loop on a CPU;
+cold, the loop's first call compiles its grid levels (about 3x the batch's
+compile for 3 bays) but only once per grid shape, whatever the bay count.
+
 ``--rib-shapes`` (with ``--design``) designs the same wing again with a
 rib shape per rib (``variables=("pressure", "rib_shape")``, 4 Bernstein
 terms per surface, the default rib limits).
 
-Usage: python benchmarks/wing_batch.py [--quick] [--repeats 3] [--design [--rib-shapes]] [--no-batch]
+Usage: python benchmarks/wing_batch.py [--quick] [--repeats 3] [--design [--rib-shapes]] [--no-batch] [--strategies]
 """
 
 from __future__ import annotations
@@ -60,7 +75,7 @@ import numpy as np
 
 from forward_solver import Fabric, Parameters, Scene, forces, solve_equilibrium
 from forward_solver._precision import float64_scope
-from forward_solver.wing import _CHUNK, Wing, _stack, _wing_equilibrium, solve_wing
+from forward_solver.wing import _CHUNK, Wing, _stack, _wing_equilibrium, solve_bays, solve_wing
 from targets import naca
 
 RTOL = 1e-10
@@ -89,7 +104,7 @@ def _median_time(run, repeats: int) -> tuple[float, float]:
 
 
 def batch(wing, fabric, grid):
-    sol = solve_wing(wing, fabric, PARAMETERS, rtol=RTOL, max_steps=MAX_STEPS, **grid)
+    sol = solve_wing(wing, fabric, PARAMETERS, rtol=RTOL, max_steps=MAX_STEPS, strategy="batch", **grid)
     jax.block_until_ready(sol.nodes)
     assert sol.converged, sol.result
     return sol
@@ -122,6 +137,29 @@ def eager_loop(wing, fabric, grid):
         sol = solve_equilibrium(Scene(bay, fabric), PARAMETERS, rtol=RTOL, max_steps=MAX_STEPS)
         steps.append(int(sol.steps))
     return steps
+
+
+def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
+    """`solve_bays` "loop" against "batch" on tapered wings: first call (cold) and median warm call."""
+    rows = []
+    for n in counts:
+        scenes = tapered_wing(n).scenes(fabric, *grid)
+        row = {"grid": list(grid), "bays": n}
+        for strategy in ("loop", "batch"):
+            def run():
+                sol = solve_bays(scenes, PARAMETERS, rtol=RTOL, max_steps=MAX_STEPS, strategy=strategy)
+                jax.block_until_ready(sol.nodes)
+                assert sol.converged, sol.result
+                row[f"{strategy}_steps"] = np.asarray(sol.steps).tolist()
+            row[f"{strategy}_cold_s"], row[f"{strategy}_warm_s"] = _median_time(run, repeats)
+        row["batch_over_loop_cold"] = row["batch_cold_s"] / row["loop_cold_s"]
+        row["batch_over_loop_warm"] = row["batch_warm_s"] / row["loop_warm_s"]
+        print(f"solve_bays {grid[0]}x{grid[1]} {n} bays: loop cold {row['loop_cold_s']:.2f} s, warm "
+              f"{row['loop_warm_s']:.2f} s; batch cold {row['batch_cold_s']:.2f} s, warm {row['batch_warm_s']:.2f} s; "
+              f"batch/loop {row['batch_over_loop_cold']:.2f} cold, {row['batch_over_loop_warm']:.2f} warm",
+              file=sys.stderr)
+        rows.append(row)
+    return rows
 
 
 def design_case(fabric, variables=("pressure",)) -> dict:
@@ -162,7 +200,17 @@ def main(argv=None) -> int:
     parser.add_argument("--rib-shapes", action="store_true",
                         help="with --design, also design the same wing with a rib shape per rib (4 terms per surface)")
     parser.add_argument("--no-batch", action="store_true", help="skip the batch timings")
+    parser.add_argument("--strategies", action="store_true",
+                        help="only solve_bays' loop against batch strategies, 3 and 8 bays at 17x64")
     args = parser.parse_args(argv)
+    if args.strategies:
+        rows = strategies(Fabric(), args.repeats)
+        record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "cpus": os.cpu_count(),
+                  "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "rtol": RTOL,
+                  "repeats": args.repeats, "strategies": rows}
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "wing_strategies.json").write_text(json.dumps(record, indent=2, default=str) + "\n")
+        return 0
     grids = [(9, 32)] if args.quick else [(9, 32), (17, 64)]
     counts = [2, 4] if args.quick else [2, 4, 8]
     repeats = 1 if args.quick else args.repeats

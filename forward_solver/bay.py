@@ -19,6 +19,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from targets.airfoil import common_trailing_edge
+
 from ._precision import float64_scope
 from .forces import Geometry, nominal_nodes, surface_area
 
@@ -72,6 +74,9 @@ class Bay:
         periodic: True for a closed contour.
         fixed: ``(n_span, n_contour)`` bool, nodes held by ribs and seams.
         name: a label for reports.
+        trailing_edge_changes: the ribs whose trailing edge :meth:`from_airfoil`
+            changed to the other's form (`targets.common_trailing_edge`'s notes,
+            labels "root (name)" / "tip (name)"); empty when none was.
         airfoil: the root rib's section (`targets.Airfoil`) of a bay built
             with :meth:`from_airfoil`, else None (a flat panel).
         tip_airfoil: the tip rib's section as given to :meth:`from_airfoil`
@@ -89,6 +94,7 @@ class Bay:
     periodic: bool
     fixed: np.ndarray
     name: str = "bay"
+    trailing_edge_changes: tuple = ()
     airfoil: object = None
     tip_airfoil: object = None
     fix_trailing_edge: bool = True
@@ -131,6 +137,7 @@ class Bay:
         fix_trailing_edge: bool = True,
         tip_airfoil=None,
         tip_chord: float | None = None,
+        trailing_edge: str = "close",
     ) -> "Bay":
         """A closed bay between two airfoil-shaped ribs.
 
@@ -145,24 +152,34 @@ class Bay:
                 for a smooth closed contour such as a circle.
             tip_airfoil: tip rib section for a tapered bay (default: the root's).
             tip_chord: tip rib chord, m (default: the root's).
+            trailing_edge: what to do when one rib's trailing edge is closed
+                and the other's open (the grid has one seam form):
+                "close" closes the open one, "open" opens the closed one to
+                the other's gap, "as-given" refuses
+                (`targets.common_trailing_edge`, which says why closing is the
+                default); ``trailing_edge_changes`` records a change.
 
         Raises:
-            ValueError: for a non-positive length or a grid too coarse.
+            ValueError: for a non-positive length or a grid too coarse, or
+                ribs of both trailing-edge forms with ``"as-given"``.
         """
         _check_length("chord", chord)
         _check_length("rib_spacing", rib_spacing)
         tip_chord = chord if tip_chord is None else tip_chord
         _check_length("tip_chord", tip_chord)
         _check_grid(n_span, n_contour, _MIN_CONTOUR_CLOSED, "closed contour")
+        changes = []
+        if tip_airfoil is not None:
+            labels = [f"{end} ({getattr(a, 'name', 'airfoil')})"
+                      for end, a in (("root", airfoil), ("tip", tip_airfoil))]
+            (airfoil, tip_airfoil), changes = common_trailing_edge(
+                (airfoil, tip_airfoil), trailing_edge, labels
+            )
         root, camber_root, closed = _contour_nodes(airfoil, n_contour)
         if tip_airfoil is None:
             tip, camber_tip = root, camber_root
         else:
-            tip, camber_tip, tip_closed = _contour_nodes(tip_airfoil, n_contour)
-            if tip_closed != closed:
-                raise ValueError(
-                    "root and tip airfoils must both have a closed or both an open trailing edge"
-                )
+            tip, camber_tip, _ = _contour_nodes(tip_airfoil, n_contour)
         fixed = np.zeros((n_span, n_contour), dtype=bool)
         fixed[0, :] = fixed[-1, :] = True
         if fix_trailing_edge:
@@ -181,6 +198,7 @@ class Bay:
             periodic=True,
             fixed=fixed,
             name=str(name),
+            trailing_edge_changes=tuple(changes),
             airfoil=airfoil,
             tip_airfoil=tip_airfoil,
             fix_trailing_edge=bool(fix_trailing_edge),

@@ -23,6 +23,8 @@ velocity terms):
   ``divergence_bound`` from its mounted position,
 * ``converged`` if ``||R_free||_2 / (p A) <= rtol`` and the kinetic test of
   the solver passes,
+* ``stalled`` if the solver's ``give_up`` test says the residual stopped
+  falling (a hopeless run ends early instead of spending its step cap),
 * ``max_steps_reached`` once ``max_chunks`` chunks have run.
 
 The solver supplies ``step(state) -> state`` and ``at_rest(state) -> bool``;
@@ -67,6 +69,7 @@ def run_chunks(
     record: Callable | None = None,
     n_record: int = 0,
     begin_chunk: Callable | None = None,
+    give_up: Callable | None = None,
 ) -> LoopOutput:
     """Run ``step`` in chunks until the state is at rest, fails, or hits the cap.
 
@@ -85,6 +88,8 @@ def run_chunks(
         begin_chunk: ``(state, residual) -> state`` run before each chunk with
             the relative residual after the previous one (inf before the
             first), e.g. to rescale fictitious masses, or None.
+        give_up: ``(state, residual) -> bool`` after each chunk that has not
+            converged: True ends the run ``stalled``; or None.
     """
     dtype = jax.eval_shape(relative_residual, state.x).dtype  # float64 even for a float32 state
     history0 = None
@@ -130,7 +135,8 @@ def run_chunks(
                 jnp.where(
                     moved > divergence_bound,
                     Result.diverged,
-                    jnp.where((res <= rtol) & at_rest(s, res), Result.converged, -1),
+                    jnp.where((res <= rtol) & at_rest(s, res), Result.converged,
+                              -1 if give_up is None else jnp.where(give_up(s, res), Result.stalled, -1)),
                 ),
             ),
         ).astype(jnp.int32)

@@ -264,7 +264,8 @@ def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_s
             return _Stage(x, Result.diverged, k + 1, rel, factor, jac, factor_x, shift,
                           "diverged: a node moved further than the divergence bound")
     code = Result.converged if rel <= rtol else Result.max_steps_reached
-    message = "converged" if code == Result.converged else "the iteration cap was hit"
+    message = ("converged" if code == Result.converged else
+               f"the iteration cap ({max_iterations} per pressure level) was hit")
     return _Stage(x, code, max_iterations, rel, factor, jac, factor_x, shift, message)
 
 

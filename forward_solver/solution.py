@@ -25,6 +25,7 @@ class Result(enum.IntEnum):
     max_steps_reached = 1
     nonfinite = 2
     diverged = 3
+    stalled = 4
 
 
 #: What each result code means.
@@ -41,6 +42,10 @@ RESULT_MESSAGES = {
         "diverged: a node moved further than the divergence bound (by default chord + rib "
         "spacing) from its mounted shape; the run was stopped there, before it could overflow"
     ),
+    Result.stalled: (
+        "stalled: the relaxation's residual stopped falling, or falls so slowly that it would need "
+        "more than 30,000 further steps, so it was stopped early"
+    ),
 }
 
 #: What to change, when the solver has nothing more specific to say (`Solution.detail`).
@@ -51,6 +56,12 @@ RESULT_ADVICE = {
     Result.diverged: (
         "the pressure is beyond what the fabric can hold at this prestrain, or the iteration "
         "is unstable"
+    ),
+    Result.stalled: (
+        "use method='auto' or 'newton' (command: --equilibrium-method auto or newton): Newton's "
+        "method does not cycle; slack fabric (negative "
+        "prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
+        "stiffnesses make the relaxation cycle"
     ),
 }
 
@@ -152,7 +163,12 @@ class Solution(ParameterViews):
         """Why the solve stopped, and for a failure what to change (one solve, not a batch)."""
         code = Result(int(np.asarray(self.result)))
         advice = self.detail or RESULT_ADVICE[code]
-        return f"{RESULT_MESSAGES[code]}; {advice}" if advice else RESULT_MESSAGES[code]
+        head = RESULT_MESSAGES[code]
+        if code == Result.max_steps_reached and "newton_iterations" in (self.extra or {}):
+            # Newton stops on its own iteration cap, a stalled line search or slow progress, never
+            # on max_steps: the detail says which.
+            head = "max_steps_reached: the Newton iteration stopped before the residual fell below the tolerance"
+        return f"{head}; {advice}" if advice else head
 
     @property
     def wrinkled_fraction(self) -> float:

@@ -12,6 +12,7 @@ from . import forces as fk
 from ._precision import float32_floor, precision_extra
 from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .explicit import simulate
+from .fallback import run_chain
 from .loop import LoopOutput
 from .newton import chord_newton, newton
 from .parameters import Parameters, as_parameters
@@ -22,7 +23,7 @@ from .traced import has_abstract_values, traced_solution
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 
-METHODS = ("relax", "newton", "relax+newton", "explicit")
+METHODS = ("relax", "newton", "relax+newton", "explicit", "auto")
 #: Methods that may iterate in float32 (Newton's LU and the adjoint need float64).
 FLOAT32_METHODS = ("relax", "explicit")
 
@@ -119,7 +120,10 @@ def solve_equilibrium(
             adjoint solves; warm-started from such a solution it first tries
             chord Newton with that factor, see `newton.chord_newton`); or
             "explicit" (the paper's physical-mass scheme via `simulate`; it
-            needs the scene's viscosity or aerodynamic damping to come to rest).
+            needs the scene's viscosity or aerodynamic damping to come to rest);
+            or "auto": "relax+newton", then Newton from where it stopped,
+            then Newton with load continuation from the mounted shape, until
+            one converges (`fallback`; a failure's message names every try).
         initial: warm start, a `Solution` (or nodes array) on the same grid.
         throw: raise `ConvergenceError` if the solve fails; else return the
             `Solution` with its failure code.
@@ -181,6 +185,9 @@ def solve_equilibrium(
         if method == "explicit":
             return simulate(scene, concrete, rtol=rtol, max_steps=max_steps, initial=initial,
                             precision=precision, throw=False)
+        if method == "auto":
+            return run_chain(lambda m, start: _solve(scene, concrete, rtol, max_steps, m, start, sequencing,
+                                                     symmetry, precision), initial)
         return _solve(scene, concrete, rtol, max_steps, method, initial, sequencing, symmetry, precision)
 
     if parameters.is_traced():
@@ -317,7 +324,11 @@ def _newton_solution(result, steps, *, start, parameters, bay, params, geometry,
     out = LoopOutput(None, int(result.result), 0, result.residual, None)
     extra = dict(extra, newton_iterations=result.iterations)
     method = "relax+newton" if "relax_steps" in extra else "newton"
-    detail = "" if int(result.result) == Result.converged else result.message
+    detail = ""
+    if int(result.result) != Result.converged:  # the real cause and the counts (not max_steps)
+        relax = extra.get("relax_steps")
+        detail = (f"Newton stopped after {result.iterations} iterations"
+                  + (f" (following {relax} relaxation steps)" if relax else "") + f": {result.message}")
     return make_solution(out, f, steps + result.iterations, time.perf_counter() - start, method,
                          parameters, bay, extra=extra, nodes=x, detail=detail,
                          factor=result.jacobian_factor())

@@ -33,11 +33,14 @@ batch elsewhere. Both give the same nodes within the solver tolerance.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from targets.airfoil import common_trailing_edge
 
 from . import forces as fk
 from ._precision import float64_scope
@@ -49,7 +52,7 @@ from .solution import ConvergenceError, Result, Solution, static_forces
 from .solve import METHODS, solve_equilibrium
 from .traced import relaxed_nodes
 
-__all__ = ["Wing", "WingSolution", "solve_wing", "solve_bays", "STRATEGIES"]
+__all__ = ["Wing", "WingSolution", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
 
 #: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
 #: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
@@ -57,6 +60,13 @@ STRATEGIES = ("auto", "loop", "batch")
 
 #: Steps per chunk of the batched relaxation (as `solve.RELAX_CHUNK`).
 _CHUNK = 100
+
+#: A bay is refused when rounding its node positions to float64 can leave a relative residual
+#: (`forces.rounding_residual_floor`) above this many times ``rtol``. Measured on 5x32 NACA 2412
+#: bays at 1e4 Pa: the relaxation stalls at 0.005-0.006 times that estimate, so ribs 1e-6 m and
+#: 3e-5 m apart (estimates 7.5e3 and 830 times rtol = 1e-8) ran their 200,000 and 50,000 steps
+#: without converging, while 1e-4 m (75 times) converged in 600 steps.
+ROUNDING_MARGIN = 100.0
 
 
 @dataclass(frozen=True)
@@ -67,17 +77,30 @@ class Wing:
         airfoils: the rib sections (`targets.Airfoil`), root to tip, N + 1 >= 2.
         chords: the rib chords, m, one per rib.
         stations: the ribs' span positions y, m, strictly increasing.
+        trailing_edge: how ribs with open and closed trailing edges are brought
+            to one form (every bay runs one seam form): "close" (default:
+            close the open ones, as a fabric wing's seam is), "open" (open the
+            closed ones to the largest gap) or "as-given" (refuse a mix);
+            `targets.common_trailing_edge`.
         fix_trailing_edge: hold every bay's trailing-edge line (a seam; see
             `Bay.from_airfoil`).
 
+    Attributes:
+        sections: the rib sections the bays are built on: ``airfoils`` with
+            their trailing edges brought to one form.
+        trailing_edge_changes: a note per changed rib (``index`` = the rib,
+            ``label``, ``gap_before``, ``gap_after`` in chord units, ``blend``).
+
     Raises:
         ValueError: for fewer than two ribs, lists of different lengths,
-            stations that do not increase or a non-positive chord.
+            stations that do not increase or a non-positive chord, or ribs of
+            both trailing-edge forms with ``trailing_edge="as-given"``.
     """
 
     airfoils: tuple
     chords: tuple
     stations: tuple
+    trailing_edge: str = "close"
     fix_trailing_edge: bool = True
 
     def __post_init__(self):
@@ -91,6 +114,10 @@ class Wing:
             raise ValueError(f"rib chords must be positive lengths in m, got {self.chords}")
         if not (np.all(np.isfinite(self.stations)) and np.all(np.diff(self.stations) > 0)):
             raise ValueError(f"rib stations must increase strictly from root to tip (m), got {self.stations}")
+        labels = [f"rib {k} ({getattr(a, 'name', 'airfoil')})" for k, a in enumerate(self.airfoils)]
+        sections, changes = common_trailing_edge(self.airfoils, self.trailing_edge, labels)
+        object.__setattr__(self, "sections", tuple(sections))
+        object.__setattr__(self, "trailing_edge_changes", tuple(changes))
 
     @property
     def n_bays(self) -> int:
@@ -98,10 +125,10 @@ class Wing:
 
     def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
         """The bays, root to tip, each between ribs k and k + 1, all on one grid shape."""
-        return [Bay.from_airfoil(self.airfoils[k], chord=self.chords[k],
+        return [Bay.from_airfoil(self.sections[k], chord=self.chords[k],
                                  rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
                                  n_contour=n_contour, fix_trailing_edge=self.fix_trailing_edge,
-                                 tip_airfoil=self.airfoils[k + 1], tip_chord=self.chords[k + 1])
+                                 tip_airfoil=self.sections[k + 1], tip_chord=self.chords[k + 1])
                 for k in range(self.n_bays)]
 
     def scenes(self, fabric: Fabric, n_span: int = 17, n_contour: int = 64, **switches) -> list[Scene]:
@@ -241,6 +268,41 @@ def _wing_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip
                                                                  shapes_tip, params, rtol)
 
 
+def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, n_contour: int = 64,
+                   rtol: float = 1e-8) -> None:
+    """Refuse ribs too close for the grid: a bay whose float64 rounding floor is above `ROUNDING_MARGIN`
+    times ``rtol`` at these (concrete) parameters. `solve_wing` checks every concrete solve; a design
+    loop, whose solves are traced, checks its start with this.
+
+    Raises:
+        ValueError: naming the two ribs, their gap and the least gap that works.
+    """
+    parameters = as_parameters(parameters).resolved(fabric).check()
+    bays = wing.bays(n_span, n_contour)
+    scene = Scene(bays[0], fabric)
+    physics = fk.static_physics(scene.physics(dynamic=False))
+    with float64_scope():
+        _check_rib_gaps(wing, bays, scene.params(parameters), physics, rtol)
+
+
+def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> None:
+    from ._precision import _rounding_floor
+
+    eps = float(np.finfo(np.float64).eps)
+    for k, bay in enumerate(bays):
+        geometry = jax.tree_util.tree_map(jnp.asarray, bay.geometry())
+        floor = float(_rounding_floor(geometry, params, physics, eps))
+        if floor > ROUNDING_MARGIN * rtol:
+            gap = bay.rib_spacing
+            needed = gap * math.sqrt(floor / (ROUNDING_MARGIN * rtol))  # the floor falls as 1/gap^2
+            raise ValueError(
+                f"ribs {k} and {k + 1} (stations {wing.stations[k]:g} and {wing.stations[k + 1]:g} m) are "
+                f"only {gap:.3g} m apart: on the {bay.n_span}x{bay.n_contour} grid (rows {gap / (bay.n_span - 1):.3g} "
+                f"m apart) rounding the node positions alone leaves bay {k} a relative residual of about "
+                f"{floor:.2g} (estimate), far above rtol={rtol:g}, so it cannot converge; place the ribs at "
+                f"least {needed:.2g} m apart, or merge them")
+
+
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
                tension_only: bool = True, initial: WingSolution | None = None, rib_shapes=None,
@@ -274,11 +336,17 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
 
     Raises:
         ValueError: for a bad ``rtol`` or ``max_steps``, an ``initial`` of
-            another wing or grid, or ``rib_shapes`` of the wrong shape.
+            another wing or grid, ``rib_shapes`` of the wrong shape, or ribs
+            too close for the grid to reach ``rtol`` (`ROUNDING_MARGIN`; the
+            message names the ribs, their gap and the least gap that works).
     """
-    return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), parameters,
-                      prestrain, rtol=rtol, max_steps=max_steps, initial=initial, rib_shapes=rib_shapes,
-                      strategy=strategy, **loose)
+    given = as_parameters(parameters, prestrain, **loose)
+    if not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(given)):
+        check_rib_gaps(wing, fabric, given, n_span=n_span, n_contour=n_contour, rtol=rtol)  # (a design
+        # loop, whose solves are traced, checks its start itself)
+    return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given,
+                      rtol=rtol, max_steps=max_steps, initial=initial, rib_shapes=rib_shapes,
+                      strategy=strategy)
 
 
 def default_strategy() -> str:

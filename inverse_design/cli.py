@@ -28,6 +28,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -51,8 +52,18 @@ class InputError(ValueError):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Anything that reads as a negative number (-2e5, -.5, -inf, not only argparse's -4 and -0.5) is a
+        # value, so that it reaches the option's own check ("must be a positive number") instead of
+        # argparse's "expected one argument"; no option of ours looks like a number.
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
     def error(self, message):  # one line, no usage block: the caller prints it and exits 2
         raise InputError(f"{message} (see {PROG} --help)")
+
+
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
 
 
 # ------------------------------------------------------------------ option types
@@ -106,6 +117,11 @@ OPTIONS = (
     ("target", "--rib-chord-scale", dict(type=_number(positive=True), default=1.0, metavar="X",
                                          help="rib chord over --chord: the start if optimised, else fixed "
                                          "(default 1.0)")),
+    ("target", "--trailing-edge", dict(default="close", choices=("close", "open", "as-given"),
+                                       help="a wing ([[rib]] tables) whose ribs mix closed and open trailing "
+                                       "edges: close the open ones over the last 5%% of chord (a fabric "
+                                       "seam), open the closed ones to the largest gap, or refuse the mix "
+                                       "(default close; a single bay has one rib section)")),
     ("bay", "--chord", dict(type=_number("m", positive=True), default=1.0, metavar="M",
                             help="chord of the ribs, m (default 1.0)")),
     ("bay", "--rib-spacing", dict(type=_number("m", positive=True), default=0.25, metavar="M",
@@ -195,7 +211,13 @@ OPTIONS = (
                                      help="only solve the equilibrium at the given values and report it "
                                      "(no optimisation, no history plot)")),
     ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
-                                      help="step cap of the equilibrium solve with --evaluate (default 200000)")),
+                                      help="step cap of each relaxation of every equilibrium solve, in every "
+                                      "mode (default 200000)")),
+    ("optimiser", "--equilibrium-method", dict(default="auto", choices=("auto", "relax", "newton", "relax+newton"),
+                                               help="equilibrium solver: auto tries relax+newton, then Newton from "
+                                               "where it stopped, then Newton with load continuation, before "
+                                               "failing; or one method alone (default auto; a wing: auto or "
+                                               "relax, its bays relaxed together)")),
     ("aero", "--aero", dict(action="store_true",
                             help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
                             "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
@@ -252,8 +274,8 @@ such temporary folders left by a killed run are removed by the next run to DIR):
   rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
                         (with --variables ...,rib_shape)
 
-case file (--config case.toml; keys are the long option names, with - or _; paths in it
-are relative to the current folder; options on the command line override it):
+case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
+it are relative to the case file's folder; options on the command line override it):
   target = "naca4415"
   chord = 0.8                      # m
   variables = ["pressure", "prestrain_span", "prestrain_chord"]
@@ -354,7 +376,24 @@ def read_config(path) -> dict:
         if dest in values:
             raise InputError(f"{path}: {key!r} is given twice (with - and _)")
         values[dest] = _toml_value(str(path), key, value)
+        if dest in ("target", "rib"):
+            values[dest] = case_path(path, values[dest])
     return values
+
+
+def case_path(case_file, spec: str) -> str:
+    """A section of a case file (a NACA code or a .dat path) with a relative path made relative to the
+    case file's folder (not the current one); NACA codes and absolute paths are returned as they are.
+
+    A spec is a path when it ends in ``.dat`` or names a file in the case file's folder.
+    """
+    path = Path(spec)
+    if path.is_absolute():
+        return spec
+    beside = Path(case_file).parent / path
+    if path.suffix.lower() == ".dat" or beside.exists():
+        return str(beside)
+    return spec
 
 
 def parse_arguments(argv: list[str] | None = None) -> tuple[argparse.Namespace, dict]:
@@ -419,6 +458,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
         return run_wing(args, sources, progress=progress, started=start)
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
+    if args.max_steps < 1:
+        raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     target = _airfoil(args.target, "--target")  # (before importing JAX: bad input fails fast)
     rib = target if args.rib is None else _airfoil(args.rib, "--rib")
@@ -443,7 +484,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
-        result = solve_equilibrium(scene, parameters, max_steps=args.max_steps, throw=False)
+        result = solve_equilibrium(scene, parameters, max_steps=args.max_steps, method=args.equilibrium_method,
+                                   throw=False)
         timings["equilibrium"] = time.perf_counter() - t
         if not result.converged:
             raise ConvergenceError(result)
@@ -451,7 +493,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
     options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
                    max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
-                   rib=rib, rib_limits=rib_limits)
+                   rib=rib, rib_limits=rib_limits,
+                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
     t = time.perf_counter()
     result = optimise_pressure(scene, target, variables=variables, initial=parameters,
                                objective=args.objective, method=args.method, **options)

@@ -63,12 +63,13 @@ from forward_solver import Fabric, Parameters, Scene, Solution, Wing
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
-from forward_solver.wing import WingSolution
+from forward_solver.wing import WingSolution, check_rib_gaps
+from targets import Airfoil
 
 from .constraints import UNMET_ADVICE, Constraints, constraint_report
 from .methods import least_squares, optax_descent, root, slsqp
 from .objectives import check_objective, same_section
-from .problem import DesignProblem, WingConvergenceError
+from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
 from .variables import VARIABLES, DesignVariables
 
@@ -214,7 +215,8 @@ def optimise_wing(
     tolerance: float | None = None,
     optimiser=None,
     rtol: float = GRADIENT_RTOL,
-    max_steps: int = 200_000,
+    max_steps: int | None = None,
+    solver_options: Mapping | None = None,
     rib_limits: RibLimits | None = RibLimits(),
     rib_shape: str = "per_rib",
     n_span: int = 17,
@@ -250,12 +252,19 @@ def optimise_wing(
             part in a million of the mean square error, far below what the
             grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
             the relative pressure tolerance of brentq (1e-8), the scaled
-            gradient norm of optax (1e-8).
+            gradient norm of optax relative to its starting loss (1e-8; optax
+            also ends, converged, when its loss levels off: `methods.optax_descent`).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            default ``optax.adam(0.02)`` on the scaled variables).
+            default ``optax.adam(0.05)`` on the scaled variables, its step
+            halved whenever the loss stops falling).
         rtol: relative residual every bay is solved to (the implicit gradient
             is only as good as the equilibrium).
-        max_steps: step cap of each bay's solve.
+        max_steps: step cap of each bay's relaxation (``solver_options``'s
+            ``max_steps``; default 200000).
+        solver_options: ``{"method": ..., "max_steps": ...}`` of every
+            forward solve: method "auto" (default: relax+newton, then Newton
+            from where it stopped, then Newton with load continuation; see
+            `forward_solver.fallback`), "relax", "newton" or "relax+newton".
         rib_limits: manufacturability limits of every shaped rib against its
             own starting section (`rib_design.RibLimits`: minimum thickness,
             curvature bound), SLSQP inequality constraints when ``rib_shape``
@@ -273,9 +282,10 @@ def optimise_wing(
         A `DesignResult`.
 
     Raises:
+        TypeError: for a target that is not a `targets.Airfoil`.
         ValueError: for an unknown method, objective or variable, bad bounds,
-            targets or limits, rib limits with a method other than SLSQP, or
-            ``method="root"``.
+            targets or limits, ribs too close for the grid, rib limits with a
+            method other than SLSQP, or ``method="root"``.
         WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
             solve at the start (or the final solve at a clipped design never
             solved before) does not converge; a failure in between ends the
@@ -294,13 +304,16 @@ def optimise_wing(
             raise ValueError(f"give one target section per rib: the wing has {len(wing.airfoils)} ribs, got "
                              f"{len(targets)} targets (or one Airfoil for all, or None for the ribs' own)")
         for k, t in enumerate(targets):
-            if not hasattr(t, "distance"):
-                raise ValueError(f"target {k} must be a targets.Airfoil, got {type(t).__name__}")
-    return _optimise(wing.scenes(fabric, n_span, n_contour), targets, list(wing.airfoils), wing, variables,
+            if not isinstance(t, Airfoil):
+                raise TypeError(f"target {k} must be a targets.Airfoil, got {type(t).__name__}")
+    solver_options = check_solver_options({**(solver_options or {}),
+                                           **({} if max_steps is None else {"max_steps": max_steps})})
+    return _optimise(wing.scenes(fabric, n_span, n_contour), targets, list(wing.sections), wing, variables,
                      initial=initial, bounds=bounds, objective=objective, constraints=constraints, method=method,
                      root_condition="thickness", max_iterations=max_iterations, tolerance=tolerance,
-                     optimiser=optimiser, rtol=rtol, max_steps=max_steps, progress=progress, callback=callback,
-                     rib_limits=rib_limits, rib_shape=rib_shape, name="optimise_wing")
+                     optimiser=optimiser, rtol=rtol, solver_options=solver_options, progress=progress,
+                     callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, name="optimise_wing",
+                     check_gaps=True)
 
 
 def optimise_pressure(
@@ -322,6 +335,7 @@ def optimise_pressure(
     callback=None,
     rib=None,
     rib_limits: RibLimits | None = RibLimits(),
+    solver_options: Mapping | None = None,
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring one bay's inflated skin closest to ``target``.
 
@@ -343,6 +357,7 @@ def optimise_pressure(
         A `DesignResult` (its ``solution`` the bay's `Solution`).
 
     Raises:
+        TypeError: if ``target`` is not a `targets.Airfoil` (None among them).
         ValueError: as `optimise_wing`; for ``method="root"`` also variables
             other than the pressure, an unknown condition, or no sign change
             inside the pressure bounds.
@@ -351,23 +366,28 @@ def optimise_pressure(
     """
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a forward_solver.Scene, got {type(scene).__name__}")
+    if not isinstance(target, Airfoil):
+        raise TypeError(f"target must be a targets.Airfoil (e.g. targets.naca('2412') or "
+                        f"targets.load_airfoil('file.dat')), got {type(target).__name__}")
     bay = scene.bay
     wing = Wing.from_scene(scene) if getattr(bay, "airfoil", None) is not None else None
     ribs = [target if rib is None else rib] * 2
     return _optimise([scene], [target, target], ribs, wing, variables, initial=initial, bounds=bounds,
                      objective=objective, constraints=constraints, method=method, root_condition=root_condition,
                      max_iterations=max_iterations, tolerance=tolerance, optimiser=optimiser, rtol=rtol,
-                     max_steps=200_000, progress=progress, callback=callback, rib_limits=rib_limits,
-                     rib_shape="shared", name="optimise_pressure")
+                     solver_options=solver_options, progress=progress, callback=callback,
+                     rib_limits=rib_limits, rib_shape="shared", name="optimise_pressure", check_gaps=False)
 
 
 def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, objective, constraints, method,
-              root_condition, max_iterations, tolerance, optimiser, rtol, max_steps, progress, callback,
-              rib_limits, rib_shape, name) -> DesignResult:
-    """The design of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``)."""
+              root_condition, max_iterations, tolerance, optimiser, rtol, solver_options, progress, callback,
+              rib_limits, rib_shape, name, check_gaps) -> DesignResult:
+    """The design of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
+    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     check_objective(objective)
+    solver_options = check_solver_options(None if solver_options is None else dict(solver_options))
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     if tolerance is not None and not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
@@ -379,6 +399,9 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         constraints.check(fabric)
     n_bays = len(scenes)
     design = DesignVariables.build(variables, initial, bounds, n_ribs=n_bays + 1, rib_shape=rib_shape)
+    if check_gaps:
+        check_rib_gaps(wing, fabric, design.start, n_span=scenes[0].bay.n_span, n_contour=scenes[0].bay.n_contour,
+                       rtol=rtol)
     if method == "root":
         if n_bays > 1:
             raise ValueError(f"method='root' solves one scalar condition at one bay's mid-bay section; this "
@@ -403,7 +426,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
     with jax.enable_x64(True), _progress_bar(progress, max_iterations, name) as bar:
-        problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol, max_steps=max_steps,
+        problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol,
+                                solver_options=solver_options,
                                 rib_geometries=[g for _, g in geometries],
                                 rib_indices=[k for k, _ in geometries])
         problem.on_record = _notify(bar, callback, method)

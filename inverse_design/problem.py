@@ -4,8 +4,11 @@ The bays are `forward_solver.Scene`s sharing one fabric and grid (a single
 bay, or the bays of a `forward_solver.Wing`), solved together by
 `forward_solver.solve_bays` (on a CPU a loop of `solve_equilibrium`, chord
 Newton with its LU factor). Every forward solve warm-starts from the previous
-iterate's equilibrium (a failed warm solve is retried cold) and is solved to
-the optimiser's ``rtol``. The objective (`objectives.mean_square` of each bay,
+iterate's equilibrium and is solved to the optimiser's ``rtol`` by the
+``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm solve is
+retried cold, then by Newton; `forward_solver.fallback`) unless
+``solver_options`` name one method (then a failed warm solve is retried cold
+here). The objective (`objectives.mean_square` of each bay,
 weighted by `objectives.bay_weights`) and the smooth tension constraints
 (`constraints.constraint_functions` over every cell of every bay) get their
 gradients by reverse mode through the N-bay forward solve (one adjoint solve
@@ -33,7 +36,10 @@ from .objectives import (bay_distances, bay_weights, distance_errors, distance_r
                          mean_square, row_targets, station_etas)
 from .variables import DesignVariables
 
-__all__ = ["DesignProblem", "WingConvergenceError", "key_of"]
+__all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
+
+#: The forward solves' options when none are given.
+DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
 
 
 class WingConvergenceError(ConvergenceError):
@@ -65,7 +71,8 @@ class DesignProblem:
         objective: one of `objectives.OBJECTIVES` (per bay).
         constraints: the tension limits, or None.
         rtol: relative residual of every bay's solve.
-        max_steps: step cap of each bay's solve.
+        solver_options: ``{"method", "max_steps"}`` of every bay's solve
+            (`check_solver_options`).
         rib_geometries: the `rib_design.RibGeometry` whose limits are SLSQP
             rows (empty: none): one per rib for a shape per rib, else one per
             distinct starting section of a shared shape.
@@ -77,8 +84,7 @@ class DesignProblem:
     """
 
     def __init__(self, scenes, targets, variables: DesignVariables, objective, constraints, *,
-                 rtol=GRADIENT_RTOL, max_steps: int = 200_000, rib_geometries=(),
-                 rib_indices=None):
+                 rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None):
         self.scenes = list(scenes)
         self.bays = [scene.bay for scene in self.scenes]
         self.fabric = self.scenes[0].fabric
@@ -86,7 +92,9 @@ class DesignProblem:
         self.variables = variables
         self.objective = objective
         self.constraints = constraints
-        self.rtol, self.max_steps = rtol, max_steps
+        self.rtol = rtol
+        # {"method": ..., "max_steps": ...} of every forward solve (`check_solver_options`).
+        self.solver_options = check_solver_options(solver_options)
         self.weights = bay_weights(self.bays)
         self.etas = station_etas(objective, self.bays[0].n_span)
         self.chords = [local_chords(bay, self.etas) for bay in self.bays]
@@ -94,9 +102,11 @@ class DesignProblem:
                      for k, bay in enumerate(self.bays)]
         self.chord = max(bay.chord for bay in self.bays)
         self.tension_scale = tension_scale(variables.start, self.chord)
-        # The loop (CPU): chord Newton with factor reuse; small design grids: one relaxation loop to
-        # compile beats grid sequencing. The batch (accelerators) relaxes.
-        self.method = "relax+newton" if default_strategy() == "loop" else "relax"
+        # The loop (CPU): the chain, or the method named; the batch (accelerators) relaxes.
+        self.method = self.solver_options["method"]
+        if self.method == "auto" and default_strategy() == "batch":
+            self.method = "relax"
+        # Small design grids: one relaxation loop to compile beats grid sequencing.
         self.sequencing = self.bays[0].n_contour > 128
         self.previous: WingSolution | None = None  # warm start (and its LU factors)
         self.solves = 0
@@ -133,10 +143,12 @@ class DesignProblem:
 
     # ------------------------------------------------------------ solves
     def _solve(self, u, initial) -> WingSolution:
-        self.solves += 1
-        return solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol, max_steps=self.max_steps,
-                          method=self.method, initial=initial, rib_shapes=self.variables.rib_shapes_at(u),
-                          sequencing=self.sequencing)
+        sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol,
+                         max_steps=self.solver_options["max_steps"], method=self.method, initial=initial,
+                         rib_shapes=self.variables.rib_shapes_at(u), sequencing=self.sequencing)
+        # The chain's tries count as solves (of its slowest bay); a named method's solve is one.
+        self.solves += max([len(s.extra.get("attempts", [None])) for s in sol.solutions or []], default=1)
+        return sol
 
     def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
         """``sol`` with the concrete arrays of ``aux`` (a JAX transformation's auxiliary output)."""
@@ -155,7 +167,9 @@ class DesignProblem:
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
         """
-        for initial in ([self.previous, None] if self.previous is not None else [None]):
+        # The chain retries cold itself; a named method is retried cold here.
+        retry = self.previous is not None and self.method != "auto"
+        for initial in ([self.previous, None] if retry else [self.previous]):
             held = {}
 
             def wrapped(v):
@@ -319,6 +333,30 @@ class DesignProblem:
         self.history.append(entry)
         if self.on_record is not None:
             self.on_record(entry)
+
+
+def check_solver_options(options) -> dict:
+    """``{"method", "max_steps"}`` of the design's forward solves, checked, over the defaults.
+
+    ``method`` is one of `forward_solver.fallback.EQUILIBRIUM_METHODS` ("auto":
+    the fallback chain), ``max_steps`` the step cap of each relaxation.
+    """
+    from forward_solver.fallback import EQUILIBRIUM_METHODS
+
+    if options is None:
+        return dict(DEFAULT_SOLVER_OPTIONS)
+    if not isinstance(options, dict):
+        raise ValueError(f"solver_options must be a dict with keys method, max_steps, got {options!r}")
+    unknown = set(options) - set(DEFAULT_SOLVER_OPTIONS)
+    if unknown:
+        raise ValueError(f"solver_options: unknown key(s) {sorted(unknown)}; the keys are method, max_steps")
+    merged = {**DEFAULT_SOLVER_OPTIONS, **options}
+    if merged["method"] not in EQUILIBRIUM_METHODS:
+        raise ValueError(f"solver_options: method must be one of {EQUILIBRIUM_METHODS}, got {merged['method']!r}")
+    steps = merged["max_steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"solver_options: max_steps must be a positive integer, got {steps!r}")
+    return merged
 
 
 def key_of(u) -> tuple:

@@ -11,7 +11,7 @@ other ``variables``, for every bay) and `wing_report.write_wing_report`::
     n-contour = 64
 
     [[rib]]
-    section = "naca2412"   # a NACA code or a Selig/Lednicer .dat path (relative to the current folder)
+    section = "naca2412"   # a NACA code or a Selig/Lednicer .dat path (relative to the case file's folder)
     chord = 1.0            # m
     station = 0.0          # m, span position
     [[rib]]
@@ -29,7 +29,10 @@ coefficients per surface within ``rib-shape-bounds``, each rib held to the
 rib limits ``min-rib-thickness`` and ``min-rib-radius`` against its own
 section unless ``no-rib-limits``); those that do not
 (``chord``, ``rib-spacing``, ``rib``, ``method`` other than slsqp,
-``refine``, ``evaluate``, ``aero``) are refused with what to change. Bad
+``refine``, ``evaluate``, ``aero``) are refused with what to change.
+``trailing-edge`` (close, open, as-given) says how ribs with closed and
+open trailing edges are brought to one form (`forward_solver.wing.Wing`);
+a changed rib is noted in the summary and on the console. Bad
 wing input exits 2 with one line naming the file and the rib. An example:
 ``inverse_design/cases/wing_taper.toml``.
 """
@@ -75,7 +78,7 @@ def read_ribs(path: str, tables) -> list[dict]:
     Raises:
         cli.InputError: one line naming the file, the rib (0 is the root) and what to change.
     """
-    from .cli import _airfoil
+    from .cli import _airfoil, case_path
 
     required, optional = RIB_KEYS
     if not isinstance(tables, list) or len(tables) < 2:
@@ -109,8 +112,8 @@ def read_ribs(path: str, tables) -> list[dict]:
             if not isinstance(table[key], str):
                 raise _error(f"{where}: {key} must be a NACA code such as \"naca2412\" or a .dat path, "
                              f"got {table[key]!r}")
-            _airfoil(table[key], f"{where}: {key}")  # refuses an unknown section now
-            rib[key] = table[key]
+            rib[key] = case_path(path, table[key])  # a relative .dat path: beside the case file
+            _airfoil(rib[key], f"{where}: {key}")  # refuses an unknown section now
         ribs.append(rib)
     return ribs
 
@@ -133,6 +136,11 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     if args.method != "slsqp":
         raise _error(f"method {args.method} is not available for a wing ([[rib]] tables in {args.config}); "
                      "use slsqp (the default)")
+    if args.equilibrium_method not in ("auto", "relax"):
+        raise _error(f"equilibrium-method {args.equilibrium_method} is not available for a wing ([[rib]] tables "
+                     f"in {args.config}): its bays are relaxed together; use auto or relax")
+    if args.max_steps < 1:
+        raise _error(f"max-steps must be a positive integer, got {args.max_steps}")
     check_grid(args.n_span, args.n_contour, allow_large=args.allow_large_grid)  # (per bay)
     where = args.config
     common = _airfoil(args.target, "--target") if "target" in sources else None
@@ -147,8 +155,11 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     from .wing_report import write_wing_report
 
     out = check_output_folder(args.out)
-    wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in args.wing),
-                stations=tuple(r["station"] for r in args.wing))
+    try:
+        wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in args.wing),
+                    stations=tuple(r["station"] for r in args.wing), trailing_edge=args.trailing_edge)
+    except ValueError as exc:
+        raise _error(f"{where}: {exc}") from None
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
                     poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)  # (one shape per rib)
@@ -156,7 +167,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
                            objective=args.objective, constraints=constraints, rib_limits=rib_limits,
-                           n_span=args.n_span,
+                           n_span=args.n_span, max_steps=args.max_steps,
                            n_contour=args.n_contour, max_iterations=args.max_iterations,
                            **({} if args.tolerance is None else {"tolerance": args.tolerance}),
                            progress=progress)
@@ -178,6 +189,12 @@ def describe_wing(summary: dict) -> list[str]:
                        for n in res["variables"] if n != "rib_shape")
     if "rib_shape" in res["variables"]:
         chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
+    trailing = summary["case"].get("trailing_edge") or {}
+    for change in trailing.get("changed", []):
+        source = change.get("file") or change["section"]
+        lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
+                     f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
+                     f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
     lines.append(f"  {res['method']}: {chosen}")
     lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
     for bay in res["bays"]:

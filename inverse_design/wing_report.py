@@ -72,6 +72,7 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
     sol = result.wing_solution
     params = result.parameters.resolved(sol.fabric).as_dict()
     stations = np.asarray(result.wing.stations, np.float64)
+    specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
     bays = []
     for k, bay in enumerate(sol.bays):
         solution = sol.bay_solution(k)
@@ -97,6 +98,11 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
                      for af, t, c, y in zip(result.wing.airfoils, result.targets, result.wing.chords,
                                             result.wing.stations)],
             "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
+            "trailing_edge": {"option": result.wing.trailing_edge, "unit": "chord",
+                              "changed": [{"rib": c["index"], "section": result.wing.airfoils[c["index"]].name,
+                                           **({"file": specs[c["index"]]} if c["index"] < len(specs) else {}),
+                                           "gap_before": c["gap_before"], "gap_after": c["gap_after"],
+                                           "blend": c["blend"]} for c in result.wing.trailing_edge_changes]},
             "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
                        "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
         },
@@ -205,7 +211,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
         if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
             from forward_solver import rib_section
 
-            for k, (airfoil, row) in enumerate(zip(result.wing.airfoils, np.asarray(result.rib_shapes))):
+            for k, (airfoil, row) in enumerate(zip(result.wing.sections, np.asarray(result.rib_shapes))):
                 section = rib_section(airfoil, row, float(result.parameters.rib_thickness_scale),
                                       name=f"{airfoil.name} rib {k}")
                 write_selig(staging / f"rib_{k}.dat", section, comment=f"chord {result.wing.chords[k]:g} m")

@@ -11,6 +11,8 @@ Public names:
 * :func:`parse_naca`, :class:`NacaSection`: the analytic section behind
   :func:`naca` (mean line, thickness, surface).
 * :class:`Projection`: closest points returned by :meth:`Airfoil.project`.
+* :func:`common_trailing_edge`: sections with open and closed trailing edges
+  brought to one form (closed by default), for a bay or a wing.
 
 The submodule ``targets.naca`` is shadowed by the function of the same name;
 import its other names with ``from targets.naca import ...``.
@@ -18,6 +20,7 @@ import its other names with ``from targets.naca import ...``.
 
 from .airfoil import Airfoil as Airfoil
 from .airfoil import Projection as Projection
+from .airfoil import common_trailing_edge as common_trailing_edge
 from .dat import AirfoilWarning as AirfoilWarning
 from .dat import load_airfoil as load_airfoil
 from .naca import NacaSection as NacaSection
@@ -29,6 +32,7 @@ __all__ = [
     "AirfoilWarning",
     "NacaSection",
     "Projection",
+    "common_trailing_edge",
     "load_airfoil",
     "naca",
     "parse_naca",

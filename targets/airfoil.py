@@ -61,6 +61,24 @@ _NEWTON_STEPS = 50  # cap on the projection iterations
 _BISECTION_STEPS = 64  # halvings of a parameter interval: below float64 spacing
 _STATION_TOLERANCE = 1e-6  # chord; stations this close outside the chord are clipped
 
+TRAILING_EDGE_BLEND = 0.05
+"""Chord fraction ahead of the trailing edge over which :meth:`Airfoil.with_trailing_edge`
+blends a change of the trailing-edge gap (the section ahead of it is kept)."""
+
+TRAILING_EDGE_MODES = ("close", "open", "as-given")
+"""How :func:`common_trailing_edge` brings sections with open and closed trailing
+edges to one form."""
+
+ZERO_AREA = 1e-9
+"""Enclosed area (chord^2) at or below which a contour has zero thickness: a 0.01%-thick
+section encloses about 7e-5."""
+
+ORDER_TOLERANCE = 0.02
+"""Chord fraction by which x must turn back to count as a turn of the contour (see
+:func:`x_turns`): far above the small reversals beside a rounded nose or trailing edge."""
+
+_BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend is applied to
+
 
 class Projection(NamedTuple):
     """Closest points of the contour to a set of query points.
@@ -83,6 +101,48 @@ class Projection(NamedTuple):
 
 def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
+
+
+def x_turns(x: np.ndarray, tolerance: float = ORDER_TOLERANCE) -> list[int]:
+    """Indices of the points where x turns back by more than ``tolerance`` (a falling run becomes a rising one
+    or the reverse).
+
+    A section in contour order (Selig: trailing edge, upper surface, leading
+    edge, lower surface, trailing edge) turns once, at the leading edge;
+    shuffled or merged points turn many times.
+    """
+    turns: list[int] = []
+    direction = 0  # +1 rising, -1 falling, 0 not known yet
+    low = high = 0  # index of the lowest / highest x of the current run
+    for i in range(1, len(x)):
+        if x[i] < x[low]:
+            low = i
+        if x[i] > x[high]:
+            high = i
+        if direction >= 0 and x[i] < x[high] - tolerance:
+            if direction > 0:
+                turns.append(high)
+            direction, low = -1, i
+        elif direction <= 0 and x[i] > x[low] + tolerance:
+            if direction < 0:
+                turns.append(low)
+            direction, high = 1, i
+    return turns
+
+
+def order_error(x: np.ndarray, where=None) -> str | None:
+    """Why points are not in contour order (more than two turns of x, :func:`x_turns`), or None.
+
+    ``where(i)`` names point ``i`` in the message (e.g. its line in a file).
+    """
+    turns = x_turns(np.asarray(x, dtype=np.float64))
+    if len(turns) <= 2:  # one at the leading edge (two: a surface missing or reversed, said elsewhere)
+        return None
+    name = where or (lambda i: f"point {i}")
+    shown = ", ".join(name(i) for i in turns[:4]) + (", ..." if len(turns) > 4 else "")
+    return (f"the points are not in contour order: x turns back {len(turns)} times (at {shown}), where a "
+            f"section turns once, at the leading edge; order them trailing edge, upper surface, leading "
+            f"edge, lower surface, trailing edge (Selig), as the file's source lists them")
 
 
 def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -111,6 +171,9 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
     if not_finite.any():
         i = int(np.argmax(not_finite))
         raise ValueError(f"{what}: point {i} is not finite (x={x[i]}, z={z[i]}); fix or remove it")
+    disorder = order_error(x)
+    if disorder is not None:
+        raise ValueError(f"{what}: {disorder}")
     segment = np.hypot(np.diff(x), np.diff(z))
     if (segment == 0.0).any():
         i = int(np.argmax(segment == 0.0))
@@ -139,7 +202,13 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
         )
     # Shoelace area of the polygon closed by the trailing-edge base.
     area = 0.5 * float(np.sum(x * np.roll(z, -1) - np.roll(x, -1) * z))
-    if area <= 0.0:
+    if abs(area) <= ZERO_AREA:
+        raise ValueError(
+            f"{what} has zero thickness: its contour encloses no area (signed area {area:.3g}), as a flat "
+            f"plate or a camber line alone does; a bay's rib needs a section with thickness: give both "
+            f"surfaces"
+        )
+    if area < 0.0:
         raise ValueError(
             f"{what} runs clockwise (signed area {area:.3g}); Selig order runs counter-clockwise "
             f"(trailing edge, upper surface, leading edge, lower surface): reverse the points"
@@ -435,6 +504,11 @@ class Airfoil:
         return bool(self.x[0] == self.x[-1] and self.z[0] == self.z[-1])
 
     @property
+    def trailing_edge_gap(self) -> float:
+        """Distance between the first and last nodes (chord units): 0 for a closed trailing edge."""
+        return float(np.hypot(self.x[0] - self.x[-1], self.z[0] - self.z[-1]))
+
+    @property
     def points(self) -> np.ndarray:
         """Nodes as an array of shape ``(n_points, 2)`` of (x, z), chord units."""
         return np.column_stack([self.x, self.z])
@@ -613,6 +687,78 @@ class Airfoil:
         points[0], points[-1] = contour.start, contour.end
         return Airfoil._on_contour(points[:, 0], points[:, 1], self.name, contour)
 
+    def with_trailing_edge(self, gap: float, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
+        """The section with its trailing-edge gap changed to ``gap``, blended over the last ``blend``.
+
+        The contour is resampled at :data:`_BLEND_NODES` cosine-spaced nodes
+        (:meth:`resample`); each surface's node at chordwise distance ``d``
+        ahead of that surface's trailing-edge point moves by ``w(d) (e' - e)``,
+        where ``e`` is its trailing-edge point, ``e'`` the new one and
+        ``w = 1 - S(d / blend)`` with ``S(t) = 10 t^3 - 15 t^4 + 6 t^5`` for
+        ``t < 1`` (0 beyond): the blend is C2 where it starts and moves
+        nothing ahead of ``1 - blend``, where the section is the original's to
+        the resampling error (below 1e-5 chord on the UIUC test files, 1e-4 over
+        the whole database). The new trailing-edge points
+        lie ``gap / 2`` either side of the old mid-point, along the old base
+        (vertically for a closed trailing edge), so the chord stays unit.
+
+        Narrowing the gap from ``g`` to ``g'`` lowers the thickness by
+        ``w (g - g') min(1, t(x) / (g - g'))``: the gap change itself where the
+        section is thicker than that (nearly everywhere), and never more than
+        ``w t(x)``, so the surfaces cannot cross where a section thickens
+        towards its trailing edge (35 of the 895 open sections of the UIUC
+        database do, within the last 1%). No point moves further than half
+        the gap change.
+
+        Args:
+            gap: the new gap, chord units, >= 0 (0 closes the trailing edge).
+            blend: chord fraction over which the change is blended, in (0, 0.5].
+
+        Returns:
+            A new :class:`Airfoil` of the same name (``self`` when the gap is
+            already ``gap``).
+
+        Raises:
+            ValueError: for a bad ``gap`` or ``blend``.
+        """
+        if isinstance(gap, bool) or not isinstance(gap, (int, float, np.floating)) or not (
+            math.isfinite(gap) and 0.0 <= gap < 0.1
+        ):
+            raise ValueError(f"trailing-edge gap must be a number in [0, 0.1) chord, got {gap!r}")
+        if isinstance(blend, bool) or not isinstance(blend, (int, float, np.floating)) or not (
+            0.0 < blend <= 0.5
+        ):
+            raise ValueError(f"trailing-edge blend must be a chord fraction in (0, 0.5], got {blend!r}")
+        old_gap = self.trailing_edge_gap
+        if old_gap == gap:
+            return self
+        dense = self.resample(_BLEND_NODES)
+        x, z = dense.x.copy(), dense.z.copy()
+        first, last = np.array([x[0], z[0]]), np.array([x[-1], z[-1]])
+        middle = 0.5 * (first + last)
+        base = (first - last) / old_gap if old_gap > 0.0 else np.array([0.0, 1.0])
+        new_first, new_last = middle + 0.5 * gap * base, middle - 0.5 * gap * base
+        if gap == 0.0:
+            new_first = new_last = middle
+        i_le = int(np.argmin(x))
+        narrowing = old_gap - gap
+        for nodes, end, moved in ((slice(0, i_le), first, new_first),
+                                  (slice(i_le + 1, x.size), last, new_last)):
+            t = np.clip((end[0] - x[nodes]) / blend, 0.0, 1.0)
+            weight = 1.0 - t**3 * (10.0 - 15.0 * t + 6.0 * t**2)
+            if narrowing > 0.0:  # never take more thickness than there is (see the docstring)
+                inside = weight > 0.0
+                local = self.thickness(np.clip(x[nodes][inside], self._contour.x_le, 1.0))
+                weight[inside] *= np.clip(local / narrowing, 0.0, 1.0)
+            x[nodes] += weight * (moved[0] - end[0])
+            z[nodes] += weight * (moved[1] - end[1])
+        (x[0], z[0]), (x[-1], z[-1]) = new_first, new_last
+        return Airfoil(x, z, name=self.name)
+
+    def with_closed_trailing_edge(self, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
+        """The section with its trailing edge closed (see :meth:`with_trailing_edge`, gap 0)."""
+        return self.with_trailing_edge(0.0, blend)
+
     def scaled(self, chord: float) -> tuple[np.ndarray, np.ndarray]:
         """Node coordinates scaled to a physical chord.
 
@@ -686,3 +832,70 @@ def _checked_n_points(n_points: int) -> int:
     if n_points < MIN_POINTS:
         raise ValueError(f"n_points must be at least {MIN_POINTS}, got {n_points}")
     return int(n_points)
+
+
+def common_trailing_edge(
+    airfoils, mode: str = "close", labels=None, blend: float = TRAILING_EDGE_BLEND
+) -> tuple[list, list[dict]]:
+    """Sections brought to one trailing-edge form, open or closed, and what was changed.
+
+    A skin between two ribs, and a wing of bays, runs one grid whose
+    trailing-edge seam is either one line (closed) or two with a base
+    between them (open), so its sections must share the form. NACA codes are
+    closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
+
+    Modes:
+
+    * ``"close"`` (the default): close every open trailing edge
+      (:meth:`Airfoil.with_closed_trailing_edge`). A fabric wing's trailing
+      edge is a seam where the upper and lower skins meet, so a shop builds
+      it closed whatever the section's file says; closing moves the section
+      by at most half the gap, only over the last ``blend`` of chord.
+    * ``"open"``: open every closed trailing edge to the largest gap among
+      the open ones (:meth:`Airfoil.with_trailing_edge`), for a wing whose
+      trailing edge is a rigid (blunt) spar.
+    * ``"as-given"``: change nothing; a mix raises ValueError naming a closed
+      and an open section and the modes that fix it.
+
+    Sections that already share a form are returned unchanged in every mode.
+
+    Args:
+        airfoils: the sections (:class:`Airfoil`).
+        mode: one of :data:`TRAILING_EDGE_MODES`.
+        labels: a name per section for the notes and messages (default: the
+            airfoil names).
+        blend: chord fraction of the blend.
+
+    Returns:
+        ``(sections, changes)``: the sections, and per changed one a dict with
+        ``index``, ``label``, ``gap_before``, ``gap_after`` (chord units) and
+        ``blend``.
+
+    Raises:
+        ValueError: for an unknown mode, or a mix with ``"as-given"``.
+    """
+    if mode not in TRAILING_EDGE_MODES:
+        raise ValueError(f"trailing_edge must be one of {', '.join(TRAILING_EDGE_MODES)}, got {mode!r}")
+    airfoils = list(airfoils)
+    labels = [a.name for a in airfoils] if labels is None else list(labels)
+    closed = [a.closed_te for a in airfoils]
+    if all(closed) or not any(closed):
+        return airfoils, []
+    if mode == "as-given":
+        i, j = closed.index(True), closed.index(False)
+        raise ValueError(
+            f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
+            f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
+            f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
+            f"(open the closed ones to the largest gap)"
+        )
+    gap = 0.0 if mode == "close" else max(a.trailing_edge_gap for a in airfoils)
+    sections, changes = [], []
+    for k, airfoil in enumerate(airfoils):
+        if airfoil.closed_te == (mode == "close"):
+            sections.append(airfoil)
+            continue
+        sections.append(airfoil.with_trailing_edge(gap, blend))
+        changes.append({"index": k, "label": labels[k], "gap_before": airfoil.trailing_edge_gap,
+                        "gap_after": gap, "blend": blend})
+    return sections, changes

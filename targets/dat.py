@@ -26,13 +26,14 @@ see :func:`load_airfoil`.
 
 from __future__ import annotations
 
+import errno
 import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil
+from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil, order_error
 
 RENORMALISE_LIMIT = 5e-3
 """Largest chord error (chord units) that :func:`load_airfoil` renormalises: the
@@ -44,6 +45,13 @@ measured to a tab (VR-8 with tab, 1.01) stay refused."""
 
 class AirfoilWarning(UserWarning):
     """An airfoil file was read with a correction (see :func:`load_airfoil`)."""
+
+
+class NotAFileError(IsADirectoryError, ValueError):
+    """:func:`load_airfoil` was given a directory: bad input (a ValueError) and an IsADirectoryError."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 def _numbers(line: str) -> list[float] | None:
@@ -137,6 +145,13 @@ def _lednicer(
     return upper[::-1] + lower
 
 
+def _check_order(where: str, points: list[tuple[int, float, float]]) -> None:
+    """Refuse points that are not in contour order (shuffled or merged), naming the lines where x turns."""
+    disorder = order_error(np.array([p[1] for p in points]), lambda i: f"line {points[i][0]}")
+    if disorder is not None:
+        raise ValueError(f"{where}: {disorder}")
+
+
 def _renormalised(
     where: str, label: str, x: np.ndarray, z: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, str | None]:
@@ -215,10 +230,15 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
         ValueError: If the file is malformed; the message names the file and
             the offending line: a line that is not two numbers (text between
             points included), a non-finite coordinate, a missing surface,
-            wrong Lednicer counts, a chord error above the limit, or a contour
-            that :class:`~targets.Airfoil` rejects.
+            wrong Lednicer counts, points not in contour order, a chord error
+            above the limit, or a contour that :class:`~targets.Airfoil`
+            rejects. A directory raises :class:`NotAFileError`, both a
+            ValueError and an IsADirectoryError.
     """
     where = str(path)
+    if Path(path).is_dir():
+        raise NotAFileError(errno.EISDIR, f"{where} is a directory; load_airfoil needs an airfoil file "
+                            f"(Selig or Lednicer .dat): give the file's path", where)
     text = Path(path).read_text(encoding="utf-8", errors="replace")
     lines = [(number, line) for number, line in enumerate(text.splitlines(), start=1)]
     content = [(number, line) for number, line in lines if line.strip()]
@@ -268,6 +288,7 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     blocks = _read_points(where, body)
     if counts is not None:
         points = _lednicer(where, header_line, counts, blocks)
+        _check_order(where, points)
     else:
         points = [point for block in blocks for point in block]
         if len(points) < MIN_POINTS:
@@ -276,6 +297,7 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
                 f"is the file complete?"
             )
         x = np.array([p[1] for p in points])
+        _check_order(where, points)
         i_le = int(np.argmin(x))
         if i_le == len(points) - 1:
             raise ValueError(

@@ -265,9 +265,11 @@ def test_an_output_folder_that_is_not_ours_is_never_replaced(run_cli, tmp_path):
 
 
 def test_a_failed_solve_exits_1_with_the_reason_and_writes_nothing(run_cli, tmp_path):
-    # 60 steps cannot reach equilibrium: the command reports the failure code, no traceback,
-    # and leaves neither the output folder nor a staging folder behind.
-    done = run_cli("--evaluate", *SMALL, "--max-steps", "60", "--out", "out", cwd=tmp_path)
+    # 60 steps of relaxation alone cannot reach equilibrium (the default 'auto' would go on to
+    # Newton): the command reports the failure code, no traceback, and leaves neither the output
+    # folder nor a staging folder behind.
+    done = run_cli("--evaluate", *SMALL, "--equilibrium-method", "relax", "--max-steps", "60", "--out", "out",
+                   cwd=tmp_path)
     assert done.returncode == 1
     assert "max_steps_reached" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []

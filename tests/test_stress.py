@@ -53,7 +53,7 @@ GRIDS = ((5, 17), (9, 32), (17, 64), (33, 128))
 _SECTIONS = {}
 OUTCOMES = collections.Counter()
 EXPLICIT_OUTCOMES = collections.Counter()
-FAILURES = (Result.max_steps_reached, Result.diverged, Result.nonfinite)
+FAILURES = (Result.max_steps_reached, Result.diverged, Result.nonfinite, Result.stalled)
 
 
 @pytest.fixture(scope="module", autouse=True)

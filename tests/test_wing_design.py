@@ -43,7 +43,7 @@ def test_objective_and_constraint_gradients_match_central_differences(wing):
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
         problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-12, max_steps=200_000)
+                                Constraints(), rtol=1e-12)
         u = np.array([1.0])
         f, grad, g, dg, _ = problem.evaluate(u)
         h = 1e-4
@@ -68,7 +68,7 @@ def test_per_rib_shape_gradients_match_central_differences(wing):
         variables = DesignVariables.build(("pressure", "rib_shape"), {**START, "rib_shape": shapes}, BOUNDS,
                                           n_ribs=4, rib_shape="per_rib")
         problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-13, max_steps=400_000,
+                                Constraints(), rtol=1e-13, solver_options={"max_steps": 400_000},
                                 rib_geometries=[RibGeometry(af, RibLimits()) for af in wing.airfoils])
         u = variables.start_vector()
         assert u.size == 1 + 16
@@ -163,7 +163,8 @@ def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
         problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-11, max_steps=100)
+                                Constraints(), rtol=1e-11,
+                                solver_options={"method": "relax", "max_steps": 100})
         with pytest.raises(WingConvergenceError, match=r"bay 0 \(ribs 0 and 1.*max_steps_reached") as failure:
             problem.solve(np.array([1.0]))
     assert failure.value.bay == 0 and failure.value.failed == [0, 1, 2]
