@@ -166,7 +166,7 @@ def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design import cli
     from inverse_design.constraints import Constraints
     from inverse_design.wing_cli import EXAMPLE_CASE
-    from inverse_design.wing_design import optimise_wing
+    from inverse_design import optimise_wing
 
     values = cli.read_config(EXAMPLE_CASE)
     ribs = values["wing"]

@@ -2,7 +2,7 @@
 
 A case file with ``[[rib]]`` tables (two or more, root to tip) describes a
 wing; `cli.read_config` hands them to `read_ribs` and `cli.run` to
-`run_wing`, which calls `wing_design.optimise_wing` (one pressure, and the
+`run_wing`, which calls `optimise.optimise_wing` (one pressure, and the
 other ``variables``, for every bay) and `wing_report.write_wing_report`::
 
     variables = ["pressure"]
@@ -151,7 +151,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     from forward_solver.wing import Wing
 
     from .export import check_output_folder
-    from .wing_design import optimise_wing
+    from .optimise import optimise_wing
     from .wing_report import write_wing_report
 
     out = check_output_folder(args.out)
