@@ -165,8 +165,8 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
+    from inverse_design import optimise_wing
     from inverse_design.app.case import EXAMPLE_CASE
-    from inverse_design.wing_design import optimise_wing
 
     values = case_reader.read_config(EXAMPLE_CASE)
     ribs = values["wing"]

@@ -15,7 +15,7 @@ and rib ``k + 1``'s, and they are differentiated like the parameters.
 A warm start (``initial``: an earlier `WingSolution`) starts every bay from
 its earlier displacement added to this solve's mounted shape (as
 `solution.initial_nodes` does for one bay), so the design loop
-(`inverse_design.wing_design`) re-solves a nearby design in fewer steps.
+(`inverse_design.problem`) re-solves a nearby design in fewer steps.
 `WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
 wrinkles), for reports and for comparison with `solve_equilibrium`.
 
@@ -357,7 +357,7 @@ def default_strategy() -> str:
 def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, max_steps: int = 200_000,
                method: str = "relax", initial: WingSolution | None = None, rib_shapes=None,
                strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
-               **loose) -> WingSolution:
+               sequencing: bool = True, **loose) -> WingSolution:
     """The equilibrium of N >= 1 bays sharing one `Parameters`; differentiable like `solve_equilibrium`.
 
     Args:
@@ -386,6 +386,8 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
             of returning the failure codes.
         linear_solver: the loop's implicit-derivative solver ("lu",
             "iterative" or None, as `solve_equilibrium`'s).
+        sequencing: the loop's grid sequencing of cold starts (as
+            `solve_equilibrium`'s; small grids compile faster without).
 
     Returns:
         A `WingSolution`; ``solutions`` holds the loop's per-bay `Solution`s.
@@ -442,7 +444,7 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
     with float64_scope(parameters, rib_shapes):
         shapes = None if rib_shapes is None else jnp.asarray(rib_shapes, jnp.float64)
         sol = solve(scenes, parameters, shapes, rtol=rtol, max_steps=max_steps, method=method,
-                    initial=initial, linear_solver=linear_solver)
+                    initial=initial, linear_solver=linear_solver, sequencing=sequencing)
     if throw and not isinstance(sol.result, jax.core.Tracer):
         failed = sol.failed_bays()
         if failed:
@@ -502,7 +504,8 @@ def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
                     detail=solution.detail, factor=solution.factor)
 
 
-def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver) -> WingSolution:
+def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver,
+          sequencing=True) -> WingSolution:
     """The "loop" strategy: `solve_equilibrium` on each bay (float64 scope on)."""
     solutions, nodes, mounted = [], [], []
     moved = None if initial is None or initial.solutions is not None else initial.displacements()
@@ -516,7 +519,7 @@ def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linea
         else:  # a batch's solution: its displacement on this solve's mounted shape
             start = rest + jnp.asarray(moved[k], jnp.float64)
         sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
-                                throw=False, linear_solver=linear_solver)
+                                throw=False, linear_solver=linear_solver, sequencing=sequencing)
         traced = bool(sol.extra.get("traced"))
         if traced:  # under jax.jit / vmap: result codes are arrays
             x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
@@ -548,9 +551,10 @@ def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linea
                         solutions=solutions, scenes=list(scenes))
 
 
-def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver) -> WingSolution:
+def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver,
+           sequencing=True) -> WingSolution:
     """The "batch" strategy: one ``jit(vmap)`` relaxation of every bay (float64 scope on)."""
-    del method, linear_solver  # relax, and the matrix-free adjoint of `krylov`
+    del method, linear_solver, sequencing  # relax, and the matrix-free adjoint of `krylov`
     first = scenes[0]
     bays = [scene.bay for scene in scenes]
     physics = fk.static_physics(first.physics(dynamic=False))

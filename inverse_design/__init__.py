@@ -4,11 +4,13 @@ Public names::
 
     optimise_pressure, refine_design, DesignResult, Constraints, section_errors,
     objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits,
-    optimise_wing, WingDesignResult (a whole wing: one pressure for every bay)
+    optimise_wing, WingDesignResult (an alias of DesignResult)
 
-``optimise_pressure`` wraps scipy's SLSQP (default), ``least_squares`` and
-``brentq`` and optax around the differentiable
-``forward_solver.solve_equilibrium`` (DESIGN sections 5-7).
+One design over a wing of N >= 1 bays: ``optimise_wing`` wraps scipy's SLSQP
+(default), ``least_squares`` and optax around the differentiable N-bay
+forward solve ``forward_solver.solve_bays``; ``optimise_pressure`` is its
+one-bay case (and adds ``brentq`` on one bay's mid-bay condition). The
+packages and the data flow: ``docs/architecture.md``.
 """
 
 from .constraints import Constraints as Constraints
@@ -17,12 +19,12 @@ from .objectives import design_errors as design_errors
 from .objectives import objective_residuals as objective_residuals
 from .objectives import section_errors as section_errors
 from .optimise import DesignResult as DesignResult
+from .optimise import WingDesignResult as WingDesignResult
+from .optimise import optimise_wing as optimise_wing
 from .optimise import optimise_pressure as optimise_pressure
 from .optimise import refine_design as refine_design
 from .rib_design import RibLimits as RibLimits
 from .variables import VARIABLES as VARIABLES
-from .wing_design import WingDesignResult as WingDesignResult
-from .wing_design import optimise_wing as optimise_wing
 
 __all__ = [
     "Constraints",

@@ -1,4 +1,4 @@
-"""Constraints an engineer sets on the design (DESIGN section 6).
+"""Constraints an engineer sets on the design: tension limits over every cell of every bay.
 
 * Bounds on pressure, prestrain and rib scales (`variables.DesignVariables`).
 * A wrinkle-free skin: the smallest fibre tension of any cell, computed
@@ -16,12 +16,17 @@ most ``log(n_cells) / KS_SHARPNESS`` tension scales, and in practice the log
 of the number of cells near the extreme. ``"least_squares"`` and
 ``"optax"`` use exterior penalties instead (`penalty_residuals`).
 
+On a wing the cell tensions of all bays are joined before they are
+aggregated (one row per limit), with the tension scale ``p c / 2`` of the
+widest bay.
+
 Whatever the method, the result is checked against the true extreme
 tensions (`constraint_report`): a constraint is *active* when the true
 extreme, or the smooth aggregate the optimiser saw, lies within
 `ACTIVE_TOLERANCE` of its limit, and *violated* when the true extreme is
 beyond it by more than `VIOLATION_TOLERANCE` (both fractions of the tension
-scale ``p * chord / 2``); a violated design is not a success.
+scale ``p * chord / 2``), reported per bay as a `Violation`; a violated
+design is not a success.
 """
 
 from __future__ import annotations
@@ -37,8 +42,9 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver import forces as fk
 
-__all__ = ["Constraints", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS", "cell_tensions",
-           "constraint_functions", "constraint_report", "tension_scale"]
+__all__ = ["Constraints", "Violation", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS",
+           "cell_tensions", "constraint_functions", "penalty_residuals", "constraint_report", "tension_scale",
+           "UNMET_ADVICE"]
 
 #: A constraint is reported active when within this fraction of its scale of
 #: its limit (bounds: of the bound interval; tensions: of the tension scale).
@@ -167,51 +173,94 @@ def penalty_residuals(constraints: Constraints | None, tensions, fabric, scale: 
     return jnp.concatenate(parts) if parts else jnp.zeros(0)
 
 
-def constraint_report(constraints: Constraints | None, variables, parameters: Parameters,
-                      tensions: np.ndarray, fabric, scale: float) -> tuple[list[str], dict, dict]:
+class Violation(float):
+    """How far a limit is broken: the largest amount (this float), and where.
+
+    ``where`` maps each bay (tension limits, N/m beyond the limit) or rib (rib
+    limits, `rib_design.rib_report`'s amounts) that breaks it to its amount;
+    iterating a `Violation`, indexing it and ``items()`` go through ``where``.
+    """
+
+    def __new__(cls, where: dict):
+        value = super().__new__(cls, max(where.values()))
+        value.where = {int(k): float(v) for k, v in where.items()}
+        return value
+
+    def __iter__(self):
+        return iter(self.where)
+
+    def __getitem__(self, index):
+        return self.where[index]
+
+    def __len__(self):
+        return len(self.where)
+
+    def items(self):
+        return self.where.items()
+
+    def __reduce__(self):
+        return Violation, (self.where,)
+
+
+#: What a message about unmet limits suggests.
+UNMET_ADVICE = (" (no design within the bounds meets the limits, or the optimiser stopped early: widen the "
+                "bounds or relax the limits)")
+
+
+def constraint_report(constraints: Constraints | None, variables, parameters: Parameters, tensions: list,
+                      fabric, scale: float, rib_shapes=None) -> tuple[list[str], dict, dict, list[str]]:
     """Active and violated constraints at a design, and the measured extremes.
 
     Args:
         constraints: the tension limits, or None.
         variables: the `DesignVariables` (bounds).
-        parameters: the design's `Parameters`.
-        tensions: unclamped cell tensions, N/m (`cell_tensions`).
+        parameters: the design's shared `Parameters`.
+        tensions: per bay, its unclamped cell tensions, N/m (`cell_tensions`).
         fabric: the `Fabric` (default ceiling).
         scale: the tension scale, N/m.
+        rib_shapes: the design's per-rib shapes, if any (their bounds).
 
     Returns:
-        ``(active, violated, values)``: names such as ``"pressure>=lower"``,
-        ``"min_tension"``, ``"max_tension"`` at their limit (module
-        docstring); ``{name: amount}`` of each tension limit broken by more
-        than `VIOLATION_TOLERANCE` (N/m beyond it); and the measured minimum
-        and maximum tension (N/m) with each limit.
+        ``(active, violated, values, messages)``: names such as
+        ``"pressure>=lower"``, ``"min_tension"``, ``"max_tension"`` at their
+        limit (module docstring); ``{name: Violation}`` of each tension limit
+        broken by more than `VIOLATION_TOLERANCE` in some bay (N/m beyond
+        it); the measured minimum and maximum tension over all bays (N/m)
+        with each limit; and one sentence per broken limit and bay.
     """
     active = []
-    for name, value, lo, hi in variables.components(parameters):
+    for name, value, lo, hi in variables.components(parameters, rib_shapes):
         width = hi - lo
         if value - lo <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}>=lower")
         if hi - value <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}<=upper")
-    t_min, t_max = float(np.min(tensions)), float(np.max(tensions))
+    joined = np.concatenate([np.reshape(t, -1) for t in tensions])
+    t_min, t_max = float(np.min(joined)), float(np.max(joined))
     report = {"min_tension": t_min, "max_tension": t_max}
-    violated = {}
     if constraints is None:
-        return active, violated, report
+        return active, {}, report, []
     smooth = dict(zip(constraints.names(fabric),
-                      np.asarray(constraint_functions(constraints, jnp.asarray(tensions), fabric, scale))))
-    if constraints.min_tension is not None:
-        floor = constraints.min_tension
+                      np.asarray(constraint_functions(constraints, jnp.asarray(joined), fabric, scale))))
+    floor, ceiling = constraints.min_tension, constraints.ceiling(fabric)
+    if floor is not None:
         report["min_tension_floor"] = floor
         if min(abs(t_min - floor) / scale, abs(smooth["min_tension"])) <= ACTIVE_TOLERANCE:
             active.append("min_tension")
-        if floor - t_min > VIOLATION_TOLERANCE * scale:
-            violated["min_tension"] = floor - t_min
-    ceiling = constraints.ceiling(fabric)
     report["max_tension_ceiling"] = ceiling
-    if math.isfinite(ceiling):
-        if min(abs(ceiling - t_max) / scale, abs(smooth["max_tension"])) <= ACTIVE_TOLERANCE:
-            active.append("max_tension")
-        if t_max - ceiling > VIOLATION_TOLERANCE * scale:
-            violated["max_tension"] = t_max - ceiling
-    return active, violated, report
+    if math.isfinite(ceiling) and min(abs(ceiling - t_max) / scale, abs(smooth["max_tension"])) <= ACTIVE_TOLERANCE:
+        active.append("max_tension")
+    where, messages = {}, []
+    one = len(tensions) == 1
+    for k, t in enumerate(tensions):
+        low, high = float(np.min(t)), float(np.max(t))
+        at, its = ("", "the") if one else (f" in bay {k}", "its")
+        if floor is not None and floor - low > VIOLATION_TOLERANCE * scale:
+            where.setdefault("min_tension", {})[k] = floor - low
+            messages.append(f"min_tension violated{at}: {its} smallest fibre tension is {low:.4g} N/m, "
+                            f"{floor - low:.4g} N/m below the floor {floor:.4g} N/m (the skin wrinkles)")
+        if math.isfinite(ceiling) and high - ceiling > VIOLATION_TOLERANCE * scale:
+            where.setdefault("max_tension", {})[k] = high - ceiling
+            messages.append(f"max_tension violated{at}: {its} largest fibre tension is {high:.4g} N/m, "
+                            f"{high - ceiling:.4g} N/m above the ceiling {ceiling:.4g} N/m")
+    return active, {name: Violation(amounts) for name, amounts in where.items()}, report, messages

@@ -1,13 +1,13 @@
-"""The optimisers behind `optimise_pressure`: SLSQP, least squares, optax and brentq.
+"""The optimisers behind `optimise_wing` and `optimise_pressure`: SLSQP, least squares, optax and brentq.
 
-Each takes a `problem.DesignProblem` and returns ``(u, success, message)``:
-the scaled design vector it ends at, whether the method reports convergence,
-and its message (the common checks of the result are `optimise_pressure`'s).
+Each takes a `problem.DesignProblem` (of N >= 1 bays) and returns ``(u,
+success, message)``: the scaled design vector it ends at, whether the method
+reports convergence, and its message (the common checks of the result are
+`optimise.optimise_wing`'s). ``root`` solves one bay's mid-bay condition.
 """
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
@@ -132,10 +132,6 @@ def optax_descent(problem: DesignProblem, u0, max_iterations, tolerance, optimis
 
     optimiser = optax.adam(OPTAX_LEARNING_RATE) if optimiser is None else optimiser
 
-    def loss(u):
-        r, sol = problem.residuals(u)
-        return jnp.sum(r * r), sol
-
     lower, upper = problem.variables.lower, problem.variables.upper
     u = jnp.asarray(u0, jnp.float64)
     state = optimiser.init(u)
@@ -144,8 +140,7 @@ def optax_descent(problem: DesignProblem, u0, max_iterations, tolerance, optimis
     f0 = None
     best_u, best, since, scale, halvings = u, np.inf, 0, 1.0, 0
     for _ in range(max_iterations):
-        (value, sol), grad = jax.value_and_grad(loss, has_aux=True)(u)
-        problem._remember(sol)
+        value, grad, sol = problem.loss_and_gradient(u)
         f0 = max(float(value), np.finfo(float).tiny) if f0 is None else f0
         grad_np = np.asarray(grad)
         # The projected gradient: components pushing into an active bound do not count.
@@ -176,7 +171,7 @@ def optax_descent(problem: DesignProblem, u0, max_iterations, tolerance, optimis
 
 
 def root(problem: DesignProblem, condition, max_iterations, tolerance):
-    design, target, chord = problem.variables, problem.target, problem.chord
+    design, target, chord = problem.variables, problem.targets[0], problem.chord
     if condition == "thickness":
         goal = float(target.max_thickness)
 
@@ -199,7 +194,7 @@ def root(problem: DesignProblem, condition, max_iterations, tolerance):
         if key not in memo:
             u = np.array([key])
             sol = problem.solve(u)
-            memo[key] = measure(sol.nodes)
+            memo[key] = measure(sol.nodes[0])
             problem.record(u, memo[key], solution=sol)
         return memo[key]
 

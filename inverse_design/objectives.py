@@ -1,27 +1,46 @@
-"""Distances between the inflated skin and the target profile (DESIGN section 6).
+"""Distances between the inflated skin and the target (paper eq. 17 compares the same sections).
 
-Every error is the signed normal distance of a skin section's nodes from the
+Every error is the signed normal distance of a skin section's nodes from its
 target contour (`targets.Airfoil.distance`, positive outside the target), in
-fractions of chord. The sections are the skin's rows at span stations
-``y = eta * rib_spacing``:
+fractions of the local chord. The sections are a bay's span rows at
+``y = eta * rib_spacing`` (`station_etas`):
 
 * ``"mid_bay"``: the section half-way between the ribs (``eta = 0.5``),
   where the bulge is largest;
 * ``"average"``: every grid row from rib to rib, each weighted equally (the
   mean square over the bay);
 * ``"worst"``: the row whose RMS distance is largest (a minimax objective;
-  non-smooth where two rows tie).
+  non-smooth where two rows tie; `mean_square` takes a smooth maximum).
 
 RMS and maximum are taken over the section's nodes (each node weighted
 equally, as `section_errors`).
 
-The JAX side (`target_distance`, `objective_residuals`) is differentiable:
-the distance's derivative in the query point is the target's outward unit
-normal at the foot of the perpendicular (`Airfoil.project`), so gradients
-flow from the objective to the skin nodes and, through the implicit
-derivative of `forward_solver.solve_equilibrium`, to the design variables. Like the
-equilibrium, the distance is computed on the host: call it eagerly (under
-``jax.grad`` / ``jax.jvp`` but not ``jax.jit``).
+The target of a row (`row_targets`). Bay ``k`` runs from rib ``k`` (chord
+``c_r``, target ``A_r``) to rib ``k + 1`` (``c_t``, ``A_t``). At the row
+``eta`` the target is the ruled surface between the two target sections at
+their chords, the surface the bay's mounted skin follows
+(`forward_solver.forces.nominal_nodes`), chord-normalised by the local chord
+``c(eta) = (1 - eta) c_r + eta c_t``::
+
+    T(eta) = ((1 - eta) c_r A_r + eta c_t A_t) / c(eta)
+
+with ``A_r`` and ``A_t`` resampled at the same cosine stations
+(`BLEND_POINTS`). Where both ribs carry the same section ``T(eta) = A_r``
+exactly (the target airfoil itself, its analytic surface); the skin's row is
+likewise divided by ``c(eta)`` (`section_points`).
+
+A wing's objective is the sum of its bays' objectives weighted by bay
+planform area ``(c_r + c_t) / 2 * (y_t - y_r)`` over the wing's
+(`bay_weights`); for one bay between equal ribs it is the bay's objective
+itself.
+
+The JAX side (`target_distance`, `bay_distances`, `mean_square`,
+`distance_residuals`) is differentiable: the distance's derivative in the
+query point is the target's outward unit normal at the foot of the
+perpendicular (`Airfoil.project`), so gradients flow from the objective to the
+skin nodes and, through the implicit derivative of the forward solve, to the
+design variables. Like the equilibrium, the distance is computed on the host:
+call it eagerly (under ``jax.grad`` / ``jax.jvp`` but not ``jax.jit``).
 """
 
 from __future__ import annotations
@@ -44,7 +63,19 @@ __all__ = [
     "objective_residuals",
     "objective_value",
     "design_errors",
+    "BLEND_POINTS",
+    "same_section",
+    "row_targets",
+    "local_chords",
+    "bay_weights",
+    "bay_distances",
+    "distance_residuals",
+    "mean_square",
+    "distance_errors",
 ]
+
+#: Points of each target section when two different sections are blended along a bay.
+BLEND_POINTS = 401
 
 #: Objective names accepted by `objective_residuals` and `optimise_pressure`.
 OBJECTIVES = ("mid_bay", "average", "worst")
@@ -127,64 +158,147 @@ def target_distance(target, points):
     return distance(points)
 
 
-@partial(jax.jit, static_argnames=("etas", "chord"))
-def _stations(nodes, etas, chord):
-    return jnp.stack([section_points(nodes, eta, chord) for eta in etas])
+@partial(jax.jit, static_argnames=("etas", "chords"))
+def _stations(nodes, etas, chords):
+    return jnp.stack([section_points(nodes, eta, chord) for eta, chord in zip(etas, chords)])
+
+
+def same_section(a, b) -> bool:
+    """Whether two airfoils are one section (the same object, or equal points)."""
+    return a is b or (np.array_equal(np.asarray(a.x), np.asarray(b.x))
+                      and np.array_equal(np.asarray(a.z), np.asarray(b.z)))
+
+
+def row_targets(root, tip, chord_root: float, chord_tip: float, etas) -> list:
+    """The target `targets.Airfoil` of each span row ``eta`` of a bay (module docstring).
+
+    Args:
+        root, tip: the target sections of the bay's ribs (chord-normalised).
+        chord_root, chord_tip: the rib chords, m.
+        etas: span rows, fractions of the rib spacing.
+
+    Returns:
+        One `targets.Airfoil` per ``eta``, chord-normalised by the local chord:
+        ``root`` itself for every row when both sections are the same, else
+        the blend of the two at their chords (``root`` at 0, ``tip`` at 1).
+    """
+    from targets import Airfoil
+
+    if same_section(root, tip):
+        return [root] * len(etas)
+    a, b = root.resample(BLEND_POINTS), tip.resample(BLEND_POINTS)
+    rows = []
+    for eta in etas:
+        if eta == 0.0:
+            rows.append(root)
+        elif eta == 1.0:
+            rows.append(tip)
+        else:
+            wr, wt = (1.0 - eta) * chord_root, eta * chord_tip
+            local = wr + wt
+            rows.append(Airfoil((wr * a.x + wt * b.x) / local, (wr * a.z + wt * b.z) / local,
+                                name=f"{root.name}-{tip.name} at {eta:.3g} b"))
+    return rows
+
+
+def local_chords(bay, etas) -> list:
+    """The local chord ``c(eta)`` of a bay's rows, m (the bay's chord itself between equal ribs)."""
+    if bay.chord_root == bay.chord_tip:
+        return [bay.chord] * len(etas)
+    return [(1.0 - e) * bay.chord_root + e * bay.chord_tip for e in etas]
+
+
+def bay_weights(bays) -> np.ndarray:
+    """``(n_bays,)`` weights of the bays in a wing's objective: planform area over the wing's, summing to 1.
+
+    Args:
+        bays: the `forward_solver.Bay` of each, or a `forward_solver.Wing`.
+    """
+    if hasattr(bays, "stations"):  # a Wing
+        chords, stations = np.asarray(bays.chords, float), np.asarray(bays.stations, float)
+        area = 0.5 * (chords[:-1] + chords[1:]) * np.diff(stations)
+    else:
+        area = np.array([0.5 * (b.chord_root + b.chord_tip) * b.rib_spacing for b in bays])
+    return area / np.sum(area)
+
+
+def bay_distances(nodes, rows: list, etas, chords) -> jnp.ndarray:
+    """``(n_rows, n_contour)`` signed distances of a bay's rows from their targets, fractions of the
+    local chords (``rows``: `row_targets`; ``chords``: `local_chords`); JAX nodes allowed."""
+    points = _stations(nodes, tuple(float(e) for e in etas), tuple(float(c) for c in chords))
+    if all(r is rows[0] for r in rows):
+        return target_distance(rows[0], points)
+    return jnp.stack([target_distance(r, points[i]) for i, r in enumerate(rows)])
 
 
 def section_distances(nodes, target, chord: float, etas) -> jnp.ndarray:
-    """``(n_stations, n_contour)`` signed distances of the sections at ``etas`` (chord units)."""
-    points = _stations(nodes, tuple(float(e) for e in etas), float(chord))
-    return target_distance(target, points)
+    """``(n_stations, n_contour)`` signed distances of the sections at ``etas`` from one target (chord units)."""
+    return bay_distances(nodes, [target] * len(etas), etas, [chord] * len(etas))
 
 
-def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay") -> jnp.ndarray:
-    """Residual vector whose sum of squares is the objective (mean square distance, chord^2).
-
-    Args:
-        nodes: ``(n_span, n_contour, 3)`` equilibrium nodes, m.
-        target: the target `targets.Airfoil`.
-        chord: m.
-        objective: one of `OBJECTIVES`.
-
-    Returns:
-        ``(n,)`` residuals: the distances scaled by ``1/sqrt(count)``, so that
-        ``sum(r**2)`` is the RMS error squared.
-    """
-    etas = station_etas(objective, nodes.shape[0])
-    d = section_distances(nodes, target, chord, etas)
+def distance_residuals(d, objective: str) -> jnp.ndarray:
+    """Residual vector whose sum of squares is the bay's mean square distance over the objective's
+    rows (for "worst" the worst row's): ``d`` scaled by ``1/sqrt(count)``."""
     if objective == "worst":
         worst = jnp.argmax(jnp.mean(jax.lax.stop_gradient(d) ** 2, axis=1))
         d = d[worst]
     return d.reshape(-1) / np.sqrt(d.size)
 
 
-#: Sharpness of the smooth maximum over rows of the "worst" objective in `objective_value`:
+#: Sharpness of the smooth maximum over rows of the "worst" objective in `mean_square`:
 #: it exceeds the true worst row's mean square by at most ``log(n_rows) / WORST_SHARPNESS``
 #: of it (2.8% on 17 rows; 0.7% when two rows tie), and is smooth where rows swap places.
 WORST_SHARPNESS = 100.0
 
 
-def objective_value(nodes, target, chord: float, objective: str = "mid_bay"):
-    """The objective as one smooth scalar, chord^2 (what SLSQP minimises).
+def mean_square(d, objective: str):
+    """A bay's objective as one smooth scalar from its row distances ``d``, chord^2 (what SLSQP minimises).
 
-    "mid_bay" and "average": the mean square distance, ``sum(objective_residuals**2)``.
+    "mid_bay" and "average": the mean square distance, ``sum(distance_residuals**2)``.
     "worst": a smooth (Kreisselmeier-Steinhauser) maximum of the rows' mean
     square distances, so that its gradient does not jump when another row
     becomes the worst (the plain maximum made SLSQP spend its budget where the
     rib and mid-bay rows tie).
     """
     if objective != "worst":
-        r = objective_residuals(nodes, target, chord, objective)
+        r = distance_residuals(d, objective)
         return jnp.sum(r * r)
-    d = section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0]))
     rows = jnp.mean(d * d, axis=1)
     top = jnp.maximum(jax.lax.stop_gradient(jnp.max(rows)), np.finfo(np.float64).tiny)  # a perfect fit
     return top * (1.0 + jnp.log(jnp.sum(jnp.exp(WORST_SHARPNESS * (rows / top - 1.0)))) / WORST_SHARPNESS)
 
 
+def distance_errors(d, objective: str) -> tuple[float, float]:
+    """``(rms, max)`` of concrete row distances ``d`` over the objective's rows (the worst row for "worst")."""
+    d = np.asarray(d, np.float64)
+    if objective == "worst":
+        d = d[np.argmax(np.mean(d**2, axis=1))]
+    return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
+
+
+def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay") -> jnp.ndarray:
+    """One bay's residual vector whose sum of squares is the objective (mean square distance, chord^2).
+
+    Args:
+        nodes: ``(n_span, n_contour, 3)`` equilibrium nodes, m.
+        target: the target `targets.Airfoil` (both ribs).
+        chord: m.
+        objective: one of `OBJECTIVES`.
+
+    Returns:
+        ``(n,)`` residuals (`distance_residuals`).
+    """
+    etas = station_etas(objective, nodes.shape[0])
+    return distance_residuals(section_distances(nodes, target, chord, etas), objective)
+
+
+def objective_value(nodes, target, chord: float, objective: str = "mid_bay"):
+    """One bay's objective as one smooth scalar, chord^2 (`mean_square`)."""
+    return mean_square(section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0])), objective)
+
+
 def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:
-    """``(rms, max)`` normal distance in fractions of chord, over the objective's sections.
+    """``(rms, max)`` normal distance of one bay in fractions of chord, over the objective's sections.
 
     For ``"worst"`` both refer to the worst row (largest RMS). Computed in
     float64 whatever the caller's JAX configuration (a thread-local scope).
@@ -193,6 +307,4 @@ def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tu
     with jax.enable_x64(True):
         etas = station_etas(objective, nodes.shape[0])
         d = np.asarray(section_distances(nodes, target, chord, etas))
-    if objective == "worst":
-        d = d[np.argmax(np.mean(d**2, axis=1))]
-    return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
+    return distance_errors(d, objective)

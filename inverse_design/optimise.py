@@ -1,35 +1,44 @@
-"""`optimise_pressure`: manufacturing parameters that make the inflated skin match a target.
+"""`optimise_wing` and `optimise_pressure`: manufacturing parameters that make the inflated skin match a target.
 
-Methods (DESIGN section 6; the loops are in `methods`, the objective,
+One design over a wing of N >= 1 bays (`optimise_wing`; `optimise_pressure`
+is the one-bay case of a `forward_solver.Scene`): one pressure, prestrain and
+rib scales for every bay, and a rib shape shared by every rib or one per rib
+(`variables`); the objective is the bays' distances from their row targets
+weighted by planform area (`objectives`); the tension limits hold over every
+cell of every bay (`constraints`); the ribs' manufacturability limits per rib
+(`rib_design`). Methods (the loops are in `methods`, the objective,
 constraints and their derivatives in `problem.DesignProblem`):
 
 * ``"slsqp"`` (default): `scipy.optimize.minimize` with SLSQP on the mean
-  square distance (`objectives.objective_value`: for "worst" a smooth maximum
-  over the rows), with the bounds and the tension limits as inequality
-  constraints (`constraints.constraint_functions`). The objective's and each
-  constraint's gradient come from reverse mode through the implicit
-  equilibrium (``jax.vjp`` of `forward_solver.solve_equilibrium`): one
-  forward solve and one adjoint solve per function per iterate, whatever the
-  number of variables.
+  square distance (`objectives.mean_square`: for "worst" a smooth maximum
+  over the rows), with the bounds, the tension limits
+  (`constraints.constraint_functions`) and the rib limits as inequality
+  constraints. The objective's and each constraint's gradient come from
+  reverse mode through the implicit equilibrium (``jax.vjp`` of
+  `forward_solver.solve_bays`): one forward solve and one adjoint solve per
+  function per iterate, whatever the number of variables.
 * ``"least_squares"``: `scipy.optimize.least_squares` (trust-region
   reflective, with the bounds) on the vector of section distances
-  (`objectives.objective_residuals`) plus exterior tension penalties; its
-  Jacobian from forward mode (``jax.jacfwd``, one tangent solve per
-  variable). Fast on unconstrained fits (inverse crimes).
+  (`objectives.distance_residuals`, each bay's scaled by the square root of
+  its weight) plus exterior tension penalties; its Jacobian from forward mode
+  (``jax.jacfwd``, one tangent solve per variable). Fast on unconstrained
+  fits (inverse crimes).
 * ``"optax"``: an optax optimiser (Adam by default) on the mean square
   error plus penalties, gradient from reverse mode, projection onto the
   bounds after every step; meant for many variables.
-* ``"root"``: `scipy.optimize.brentq` on the pressure alone, for a scalar
-  condition at mid-bay: ``root_condition="thickness"`` (maximum thickness of
-  the mid-bay section equal to the target's) or ``"mean_offset"`` (zero mean
-  normal distance). The bracket is found by stepping the pressure
-  geometrically (factor 2) from its start towards both bounds; when the
-  condition does not change sign inside the bounds a ValueError says so.
+* ``"root"``: `scipy.optimize.brentq` on the pressure of one bay alone, for a
+  scalar condition at mid-bay: ``root_condition="thickness"`` (maximum
+  thickness of the mid-bay section equal to the target's) or
+  ``"mean_offset"`` (zero mean normal distance). The bracket is found by
+  stepping the pressure geometrically (factor 2) from its start towards both
+  bounds; when the condition does not change sign inside the bounds a
+  ValueError says so. A wing of several bays has no one mid-bay section:
+  refused.
 
 Every result is checked the same way: the design is a success only if the
-method converged, the final solve converged, and no tension limit is broken
-by more than `constraints.VIOLATION_TOLERANCE` (the result names the
-constraint and the amount).
+method converged, every bay's final solve converged, and no tension or rib
+limit is broken by more than its tolerance (the result names the constraint,
+the bay or rib, and the amount).
 
 Every forward solve warm-starts from the previous iterate's equilibrium
 (chord Newton with its LU factor) and is solved to
@@ -44,65 +53,76 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from forward_solver import ConvergenceError, Parameters, Scene, Solution
+from forward_solver import Fabric, Parameters, Scene, Solution, Wing
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
+from forward_solver.solution import Result
+from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
-from .constraints import Constraints, cell_tensions, constraint_report
+from .constraints import UNMET_ADVICE, Constraints, constraint_report
 from .methods import least_squares, optax_descent, root, slsqp
-from .objectives import check_objective, design_errors
-from .problem import DesignProblem, check_solver_options
+from .objectives import check_objective, same_section
+from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
-from .variables import DesignVariables
+from .variables import VARIABLES, DesignVariables
 
-__all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "optimise_pressure", "refine_design"]
+__all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult", "optimise_wing", "optimise_pressure",
+           "refine_design"]
 
 METHODS = ("slsqp", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
 
+
 @dataclass(frozen=True, eq=False)
 class DesignResult(ParameterViews):
-    """Outcome of `optimise_pressure`.
+    """Outcome of `optimise_wing` and `optimise_pressure`: totals, and per-bay arrays.
 
     Attributes:
-        parameters: the `forward_solver.Parameters` of the design.
+        parameters: the shared `forward_solver.Parameters` of the design
+            (with a shared rib shape its ``rib_shape``).
         variables: the optimised names.
         rms_error, max_error: normal distance from the target over the
-            objective's sections at the design, fractions of chord.
+            objective's sections at the design, fractions of the local chord:
+            the square root of the bays' area-weighted mean squares, and the
+            largest over the bays (one bay: its own).
         initial_rms_error, initial_max_error: the same at the start.
-        solution: the `Solution` at the design.
+        wing_solution: the `forward_solver.wing.WingSolution` at the design.
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2,
-            as `objectives.objective_value` for slsqp; for "root" the
+            as `objectives.mean_square` for slsqp; for "root" the
             condition's value), ``gradient_norm`` (of the
             objective in the scaled variables; NaN where not computed),
-            ``constraints`` (the smooth constraint values, >= 0 feasible; slsqp
-            only) and ``steps`` (forward-solve steps).
-        success: the method converged, the final solve converged and no
-            tension limit is violated.
+            ``constraints`` (the smooth constraint values, >= 0 feasible,
+            with the least thickness and curvature row of the rib limits;
+            slsqp only) and ``steps`` (forward-solve steps of the slowest bay).
+        success: the method converged, every bay's final solve converged and
+            no tension or rib limit is violated.
         message: the method's message, and what was violated.
-        active_constraints: names of bounds (``"pressure<=upper"``) and tension
-            constraints (``"min_tension"``, ``"max_tension"``) at their limit
-            (within `constraints.ACTIVE_TOLERANCE`).
-        violated_constraints: ``{name: amount}``, N/m beyond the limit, of
-            each tension limit broken by more than
-            `constraints.VIOLATION_TOLERANCE`; for a shaped rib also
-            ``rib_min_thickness`` (the thickness ratio's shortfall) and
-            ``rib_min_radius`` (the radius's, chord) broken by more than
-            `rib_design.RIB_TOLERANCE` of the limit.
+        active_constraints: names of bounds (``"pressure<=upper"``,
+            ``"rib_shape[1][3]<=upper"`` for rib 1's), tension
+            constraints (``"min_tension"``, ``"max_tension"``) and rib limits
+            (``"rib_min_thickness"``; ``"rib_min_thickness@rib 2"`` with a shape
+            per rib) at their limit (within `constraints.ACTIVE_TOLERANCE`).
+        violated_constraints: ``{name: constraints.Violation}``: the amount
+            beyond the limit (N/m for a tension limit, broken by more than
+            `constraints.VIOLATION_TOLERANCE`; for a shaped rib
+            ``rib_min_thickness``, the thickness ratio's shortfall, and
+            ``rib_min_radius``, the radius's, chord, broken by more than
+            `rib_design.RIB_TOLERANCE` of the limit), the largest over the
+            bays or ribs, with the amount at each (``.items()``).
         constraint_values: the measured minimum and maximum fibre tension (N/m)
-            and the limits; for a shaped rib the least thickness ratio and
-            radius of curvature with their limits (`rib_design.rib_report`).
+            over every bay and the limits; for a shaped rib the least thickness
+            ratio and radius of curvature with their limits
+            (`rib_design.rib_report`).
         method, objective: as requested.
-        solves: forward solves.
+        solves: forward solves (each solves every bay once).
         wall_time: s, compilation included.
         grid_change: after `refine_design`, how the design moved from the
             coarser grid: ``{"grids": [[n_span, n_contour], ...], "values":
@@ -110,6 +130,19 @@ class DesignResult(ParameterViews):
             pressure, absolute otherwise (the largest component's for a
             vector)}, "rms_error": [coarse, fine]}``;
             None for a design on one grid.
+        weights: ``(n_bays,)`` bay weights of the objective (planform area).
+        bay_rms_error, bay_max_error: ``(n_bays,)`` RMS and largest normal
+            distance of each bay's objective rows from their targets.
+        initial_bay_rms_error, initial_bay_max_error: the same at the start.
+        bay_min_tension, bay_max_tension: ``(n_bays,)`` smallest and largest
+            unclamped fibre tension of each bay at the design, N/m.
+        targets: the target section of each rib.
+        scenes: the `Scene` of each bay.
+        wing: the `forward_solver.Wing` designed (None for a flat panel).
+        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
+            rib (root to tip), else None.
+        rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
+            manufacturability limits (`rib_design.RibGeometry.measure`).
     """
 
     parameters: Parameters
@@ -118,7 +151,7 @@ class DesignResult(ParameterViews):
     max_error: float
     initial_rms_error: float
     initial_max_error: float
-    solution: Solution
+    wing_solution: WingSolution
     history: list = field(default_factory=list)
     success: bool = False
     message: str = ""
@@ -130,13 +163,157 @@ class DesignResult(ParameterViews):
     solves: int = 0
     wall_time: float = 0.0
     grid_change: dict | None = None
+    weights: np.ndarray | None = None
+    bay_rms_error: np.ndarray | None = None
+    bay_max_error: np.ndarray | None = None
+    initial_bay_rms_error: np.ndarray | None = None
+    initial_bay_max_error: np.ndarray | None = None
+    bay_min_tension: np.ndarray | None = None
+    bay_max_tension: np.ndarray | None = None
+    targets: tuple = ()
+    scenes: tuple = ()
+    wing: Wing | None = None
+    rib_shapes: np.ndarray | None = None
+    rib_limits: list = field(default_factory=list)
 
     @property
     def values(self) -> dict:
         """``{name: value}`` of every design parameter (`variables.VARIABLES`)."""
-        from .variables import VARIABLES
-
         return {name: getattr(self.parameters, name) for name in VARIABLES}
+
+    @property
+    def n_bays(self) -> int:
+        return len(self.wing_solution.bays)
+
+    @property
+    def solution(self) -> Solution | WingSolution:
+        """One bay: its `Solution` at the design; a wing: the `WingSolution` (``bay_solution(k)``)."""
+        return self.wing_solution.bay_solution(0) if self.n_bays == 1 else self.wing_solution
+
+    @property
+    def bay_results(self) -> tuple:
+        """``(n_bays,)`` `forward_solver.Result` names of the final solves."""
+        return tuple(Result(int(r)).name for r in np.asarray(self.wing_solution.result))
+
+
+#: The wing's name of the result (one class for one bay and a wing).
+WingDesignResult = DesignResult
+
+
+def optimise_wing(
+    wing: Wing,
+    fabric: Fabric,
+    targets: Sequence | None = None,
+    variables=("pressure",),
+    *,
+    initial: Parameters | Mapping | None = None,
+    bounds: Mapping | None = None,
+    objective: str = "average",
+    constraints: Constraints | None = Constraints(),
+    method: str = "slsqp",
+    max_iterations: int = 50,
+    tolerance: float | None = None,
+    optimiser=None,
+    rtol: float = GRADIENT_RTOL,
+    max_steps: int | None = None,
+    solver_options: Mapping | None = None,
+    rib_limits: RibLimits | None = RibLimits(),
+    rib_shape: str = "per_rib",
+    n_span: int = 17,
+    n_contour: int = 64,
+    progress: bool = False,
+    callback=None,
+) -> DesignResult:
+    """One pressure (and prestrain, rib scales, rib shapes) for every bay of ``wing`` (module docstring).
+
+    Args:
+        wing: the ribs (`forward_solver.Wing`).
+        fabric: the skin's `forward_solver.Fabric` (one for the whole wing).
+        targets: the target section of each rib (N + 1 `targets.Airfoil`), one
+            `targets.Airfoil` for every rib, or None: each rib's own section.
+        variables: names to optimise, from `variables.VARIABLES`.
+        initial: the starting `Parameters`, or ``{name: value}`` (Pa,
+            fractions) over `variables.DEFAULT_START`; names that are not
+            optimised stay at these values. A per-rib ``rib_shape`` start is one
+            ``(2 K,)`` row for every rib or ``(n_ribs, 2 K)``.
+        bounds: ``{name: (lower, upper)}`` of optimised names (defaults
+            `variables.DEFAULT_BOUNDS`; ``rib_shape``'s for every coefficient).
+        objective: per bay "mid_bay", "average" (default) or "worst"
+            (`objectives`); combined over bays weighted by planform area.
+        constraints: tension limits over every cell of every bay (`Constraints`;
+            default a wrinkle-free skin below the fabric's allowable), or None.
+        method: "slsqp" (default), "least_squares" or "optax" ("root" is for
+            one bay: `optimise_pressure`).
+        max_iterations: cap on iterations (SLSQP iterations, and twice that in
+            forward solves; least-squares Jacobian evaluations; optax steps;
+            brentq iterations).
+        tolerance: convergence tolerance: SLSQP's ``ftol`` on the objective
+            relative to its starting value (default 1e-6: a change of one
+            part in a million of the mean square error, far below what the
+            grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
+            the relative pressure tolerance of brentq (1e-8), the scaled
+            gradient norm of optax relative to its starting loss (1e-8; optax
+            also ends, converged, when its loss levels off: `methods.optax_descent`).
+        optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
+            default ``optax.adam(0.05)`` on the scaled variables, its step
+            halved whenever the loss stops falling).
+        rtol: relative residual every bay is solved to (the implicit gradient
+            is only as good as the equilibrium).
+        max_steps: step cap of each bay's relaxation (``solver_options``'s
+            ``max_steps``; default 200000).
+        solver_options: ``{"method": ..., "max_steps": ...}`` of every
+            forward solve: method "auto" (default: relax+newton, then Newton
+            from where it stopped, then Newton with load continuation; see
+            `forward_solver.fallback`), "relax", "newton" or "relax+newton".
+        rib_limits: manufacturability limits of every shaped rib against its
+            own starting section (`rib_design.RibLimits`: minimum thickness,
+            curvature bound), SLSQP inequality constraints when ``rib_shape``
+            is a variable; None leaves the shapes free within their bounds.
+        rib_shape: "per_rib" (default: one shape per rib) or "shared" (one
+            shape for every rib), when ``rib_shape`` is a variable.
+        n_span, n_contour: the grid of every bay.
+        progress: show a tqdm progress bar on stderr, one tick per iterate
+            (off by default: library code prints nothing unless asked).
+        callback: called as ``callback(entry)`` after every iterate with the
+            new `DesignResult.history` entry; an exception it raises stops the
+            optimisation and propagates.
+
+    Returns:
+        A `DesignResult`.
+
+    Raises:
+        TypeError: for a target that is not a `targets.Airfoil`.
+        ValueError: for an unknown method, objective or variable, bad bounds,
+            targets or limits, ribs too close for the grid, rib limits with a
+            method other than SLSQP, or ``method="root"``.
+        WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
+            solve at the start (or the final solve at a clipped design never
+            solved before) does not converge; a failure in between ends the
+            optimisation at the best iterate whose solves converged, with
+            ``success=False`` and a message naming the failed solve.
+    """
+    if not isinstance(wing, Wing):
+        raise ValueError(f"wing must be a forward_solver.Wing, got {type(wing).__name__}")
+    if targets is None:
+        targets = list(wing.airfoils)
+    elif hasattr(targets, "distance"):  # one Airfoil for every rib
+        targets = [targets] * len(wing.airfoils)
+    else:
+        targets = list(targets)
+        if len(targets) != len(wing.airfoils):
+            raise ValueError(f"give one target section per rib: the wing has {len(wing.airfoils)} ribs, got "
+                             f"{len(targets)} targets (or one Airfoil for all, or None for the ribs' own)")
+        for k, t in enumerate(targets):
+            if not isinstance(t, Airfoil):
+                raise TypeError(f"target {k} must be a targets.Airfoil, got {type(t).__name__}")
+    solver_options = check_solver_options({**(solver_options or {}),
+                                           **({} if max_steps is None else {"max_steps": max_steps})})
+    return _optimise(wing.scenes(fabric, n_span, n_contour), targets, list(wing.sections), wing, variables,
+                     initial=initial, bounds=bounds, objective=objective, constraints=constraints, method=method,
+                     root_condition="thickness", max_iterations=max_iterations, tolerance=tolerance,
+                     optimiser=optimiser, rtol=rtol, solver_options=solver_options, progress=progress,
+                     callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, name="optimise_wing",
+                     check_gaps=True)
 
 
 def optimise_pressure(
@@ -160,112 +337,109 @@ def optimise_pressure(
     rib_limits: RibLimits | None = RibLimits(),
     solver_options: Mapping | None = None,
 ) -> DesignResult:
-    """Pressure, prestrain and rib geometry that bring the inflated skin closest to ``target``.
+    """Pressure, prestrain and rib geometry that bring one bay's inflated skin closest to ``target``.
+
+    The one-bay case of `optimise_wing` on ``scene`` itself (its bay, fabric
+    and physics switches), with ``target`` at both ribs and one rib shape for
+    both ribs; the arguments are `optimise_wing`'s, and:
 
     Args:
         scene: bay, fabric and physics switches (`forward_solver.Scene`).
         target: the target section, a chord-normalised `targets.Airfoil`.
-        variables: names to optimise, from `variables.VARIABLES`.
-        initial: the starting `forward_solver.Parameters`, or ``{name:
-            value}`` (Pa, fractions) over `variables.DEFAULT_START`; names that
-            are not optimised stay at these values.
-        bounds: ``{name: (lower, upper)}`` for optimised names (defaults:
-            `variables.DEFAULT_BOUNDS`).
-        objective: "mid_bay", "average" or "worst" (`objectives`).
-        constraints: tension limits (`Constraints`; default a wrinkle-free
-            skin below the fabric's allowable), or None.
+        objective: "mid_bay" (default), "average" or "worst".
         method: "slsqp" (default), "least_squares", "optax" or "root".
         root_condition: "thickness" or "mean_offset" (``method="root"``).
-        max_iterations: cap on iterations (SLSQP iterations; least-squares
-            Jacobian evaluations; optax steps; brentq iterations).
-        tolerance: convergence tolerance: SLSQP's ``ftol`` on the objective
-            relative to its starting value (default 1e-6: a change of one
-            part in a million of the mean square error, far below what the
-            grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
-            the relative pressure tolerance of brentq (1e-8), the scaled
-            gradient norm of optax relative to its starting loss (1e-8; optax
-            also ends, converged, when its loss levels off: `methods.optax_descent`).
-        optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            default ``optax.adam(0.05)`` on the scaled variables, its step
-            halved whenever the loss stops falling).
-        rtol: relative residual of the forward solves.
-        progress: show a tqdm progress bar on stderr, one tick per iterate
-            (off by default: library code prints nothing unless asked).
-        callback: called as ``callback(entry)`` after every iterate with the
-            new `DesignResult.history` entry; an exception it raises stops the
-            optimisation and propagates.
         rib: the rib's starting section (`targets.Airfoil`; default the
             target): what ``rib_limits`` are measured against. Give it when
             the scene's bay was built from another airfoil.
-        rib_limits: manufacturability limits of a shaped rib
-            (`rib_design.RibLimits`: minimum thickness, curvature bound), SLSQP
-            inequality constraints when ``rib_shape`` is a variable; None
-            leaves the shape free within its bounds.
-        solver_options: ``{"method": ..., "max_steps": ...}`` of every
-            forward solve: method "auto" (default: relax+newton, then Newton
-            from where it stopped, then Newton with load continuation; see
-            `forward_solver.fallback`), "relax", "newton" or "relax+newton";
-            max_steps the step cap of each relaxation (default 200000).
 
     Returns:
-        A `DesignResult`.
+        A `DesignResult` (its ``solution`` the bay's `Solution`).
 
     Raises:
         TypeError: if ``target`` is not a `targets.Airfoil` (None among them).
-        ValueError: for an unknown method, objective, variable or condition,
-            bad bounds, inconsistent tension limits, rib limits with a method
-            other than SLSQP, or (``method="root"``) no sign change inside the
-            pressure bounds.
+        ValueError: as `optimise_wing`; for ``method="root"`` also variables
+            other than the pressure, an unknown condition, or no sign change
+            inside the pressure bounds.
         forward_solver.ConvergenceError: if the forward solve at the starting
-            values fails. A solve that fails later stops the optimisation
-            instead: the `DesignResult` holds the best iterate whose solve
-            converged, with ``success=False`` and a message naming the
-            failed solve.
+            values fails (a later failure stops the optimisation instead).
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a forward_solver.Scene, got {type(scene).__name__}")
     if not isinstance(target, Airfoil):
         raise TypeError(f"target must be a targets.Airfoil (e.g. targets.naca('2412') or "
                         f"targets.load_airfoil('file.dat')), got {type(target).__name__}")
+    bay = scene.bay
+    wing = Wing.from_scene(scene) if getattr(bay, "airfoil", None) is not None else None
+    ribs = [target if rib is None else rib] * 2
+    return _optimise([scene], [target, target], ribs, wing, variables, initial=initial, bounds=bounds,
+                     objective=objective, constraints=constraints, method=method, root_condition=root_condition,
+                     max_iterations=max_iterations, tolerance=tolerance, optimiser=optimiser, rtol=rtol,
+                     solver_options=solver_options, progress=progress, callback=callback,
+                     rib_limits=rib_limits, rib_shape="shared", name="optimise_pressure", check_gaps=False)
+
+
+def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, objective, constraints, method,
+              root_condition, max_iterations, tolerance, optimiser, rtol, solver_options, progress, callback,
+              rib_limits, rib_shape, name, check_gaps) -> DesignResult:
+    """The design of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
+    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`)."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     check_objective(objective)
     solver_options = check_solver_options(None if solver_options is None else dict(solver_options))
     if not (isinstance(max_iterations, int) and max_iterations >= 1):
         raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
     if tolerance is not None and not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
         raise ValueError(f"tolerance must lie in (0, 1), got {tolerance!r}")
+    fabric = scenes[0].fabric
     if constraints is not None:
         if not isinstance(constraints, Constraints):
             raise ValueError(f"constraints must be an inverse_design.Constraints or None, got {constraints!r}")
-        constraints.check(scene.fabric)
-    design = DesignVariables.build(variables, initial, bounds)
+        constraints.check(fabric)
+    n_bays = len(scenes)
+    design = DesignVariables.build(variables, initial, bounds, n_ribs=n_bays + 1, rib_shape=rib_shape)
+    if check_gaps:
+        check_rib_gaps(wing, fabric, design.start, n_span=scenes[0].bay.n_span, n_contour=scenes[0].bay.n_contour,
+                       rtol=rtol)
     if method == "root":
+        if n_bays > 1:
+            raise ValueError(f"method='root' solves one scalar condition at one bay's mid-bay section; this "
+                             f"wing has {n_bays} bays: use slsqp, least_squares or optax")
         if design.names != ("pressure",):
             raise ValueError(f"method='root' solves for the pressure alone; got variables {design.names}")
         if root_condition not in ROOT_CONDITIONS:
             raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
-    rib_geometry = None
+    geometries = []
     if "rib_shape" in design.names and rib_limits is not None:
         if method != "slsqp":
             raise ValueError(f"the rib limits (minimum thickness, curvature) are constraints that only "
                              f"method='slsqp' enforces, got method={method!r}: use slsqp, or pass "
                              "rib_limits=None to leave the rib shape free within its bounds")
-        rib_geometry = RibGeometry(target if rib is None else rib, rib_limits)
+        if design.rib_shapes is not None:  # each rib against its own starting section
+            geometries = [(k, RibGeometry(section, rib_limits)) for k, section in enumerate(ribs)]
+        else:  # one shape: against each distinct starting section
+            firsts = [k for k, section in enumerate(ribs)
+                      if not any(same_section(section, ribs[j]) for j in range(k))]
+            geometries = [(k, RibGeometry(ribs[k], rib_limits)) for k in firsts]
     if tolerance is None:
         tolerance = 1e-6 if method == "slsqp" else 1e-8
     start = time.perf_counter()
-    with jax.enable_x64(True), _progress_bar(progress, max_iterations) as bar:
-        problem = DesignProblem(scene, target, design, objective, constraints, rtol, rib_geometry,
-                                solver_options=solver_options)
+    with jax.enable_x64(True), _progress_bar(progress, max_iterations, name) as bar:
+        problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol,
+                                solver_options=solver_options,
+                                rib_geometries=[g for _, g in geometries],
+                                rib_indices=[k for k, _ in geometries])
         problem.on_record = _notify(bar, callback, method)
         bar.set_postfix_str("initial equilibrium")
-        u0 = design.to_vector(design.start)
+        u0 = design.start_vector()
         if method == "slsqp":
             sol0 = problem.evaluate(u0)[-1]  # the first iterate's solve, with its gradients
         elif method == "least_squares":
             sol0 = problem.residuals_and_jacobian(u0)[-1]
         else:
             sol0 = problem.solve(u0)
-        initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
+        before = problem.measure(sol0, u0)
         try:
             if method == "root":
                 u, success, message = root(problem, root_condition, max_iterations, tolerance)
@@ -275,35 +449,37 @@ def optimise_pressure(
                 u, success, message = least_squares(problem, u0, max_iterations, tolerance)
             else:
                 u, success, message = optax_descent(problem, u0, max_iterations, tolerance, optimiser)
-        except ConvergenceError as failure:
-            # Stop at the best iterate whose forward solve converged ("objective" is the
+        except WingConvergenceError as failure:
+            # Stop at the best iterate whose forward solves converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
             best = problem.best_iterate()
             u = u0 if best is None else best
             success, message = False, _failed_solve_message(failure)
         u = np.clip(np.asarray(u, dtype=np.float64), design.lower, design.upper)
-        parameters = design.parameters(u).as_floats()
         sol = problem.solve(u)
-        rms, max_error = design_errors(sol.nodes, target, problem.chord, objective)
-        if not (np.isfinite([rms, max_error]).all() and np.isfinite(sol.nodes).all()):
+        parameters = sol.parameters if design.rib_shapes is not None else design.parameters(u).as_floats()
+        after = problem.measure(sol, u)
+        if not (np.all(np.isfinite(after["rms"])) and np.all(np.isfinite(after["max"]))
+                and np.all(np.isfinite(sol.nodes))):
             success = False
             message = f"{message}; the shape errors at the result are not finite"
-        tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), parameters))
-        active, violated, report = constraint_report(constraints, design, parameters, tensions,
-                                                     scene.fabric, problem.tension_scale)
-        rib_active, rib_violated, rib_values = rib_report(rib_geometry, parameters)
+        shapes = design.rib_shapes_at(u)
+        shapes = None if shapes is None else np.asarray(shapes)
+        active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"],
+                                                             fabric, problem.tension_scale, shapes)
+        rib_active, rib_violated, rib_values, per_rib, rib_broken = rib_report(geometries, parameters, shapes)
         if violated or rib_violated:
             success = False
-            message = f"{message}; {_violation_message(violated, report, rib_violated, rib_values)}"
+            message = f"{message}; {'; '.join(rib_broken + broken)}{UNMET_ADVICE}"
         active, violated, report = active + rib_active, {**violated, **rib_violated}, {**report, **rib_values}
     return DesignResult(
         parameters=parameters,
         variables=design.names,
-        rms_error=rms,
-        max_error=max_error,
-        initial_rms_error=initial_errors[0],
-        initial_max_error=initial_errors[1],
-        solution=sol,
+        rms_error=after["wing_rms"],
+        max_error=float(np.max(after["max"])),
+        initial_rms_error=before["wing_rms"],
+        initial_max_error=float(np.max(before["max"])),
+        wing_solution=sol,
         history=problem.history,
         success=bool(success and sol.converged),
         message=message,
@@ -314,39 +490,72 @@ def optimise_pressure(
         objective=objective,
         solves=problem.solves,
         wall_time=time.perf_counter() - start,
+        weights=problem.weights,
+        bay_rms_error=after["rms"],
+        bay_max_error=after["max"],
+        initial_bay_rms_error=before["rms"],
+        initial_bay_max_error=before["max"],
+        bay_min_tension=after["min_tension"],
+        bay_max_tension=after["max_tension"],
+        targets=tuple(targets),
+        scenes=tuple(scenes),
+        wing=wing,
+        rib_shapes=shapes,
+        rib_limits=per_rib,
     )
 
 
-def refine_design(result: DesignResult, scene: Scene, target, **options) -> DesignResult:
+def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, n_span: int | None = None,
+                  n_contour: int | None = None, **options) -> DesignResult:
     """Confirm and polish a design on a finer grid, and record how far it moved.
 
-    Runs `optimise_pressure` on ``scene`` (the same case on a finer grid)
-    from ``result``'s design, with its variables, objective and method. A
-    design that is converged in the grid moves little (and SLSQP, starting at
-    the optimum, stops in a few iterates); the move is the design's
-    discretisation error, recorded in `DesignResult.grid_change`.
+    Runs the design again on the finer grid from ``result``'s design, with its
+    variables, objective and method: one bay by `optimise_pressure` on
+    ``scene`` (the same case on a finer grid) with ``target``; a wing by
+    `optimise_wing` on ``n_span`` x ``n_contour`` with the result's wing,
+    fabric and targets. A design that is converged in the grid moves little
+    (and SLSQP, starting at the optimum, stops in a few iterates); the move is
+    the design's discretisation error, recorded in `DesignResult.grid_change`.
 
     Args:
         result: the design on the coarser grid.
-        scene: the finer scene.
-        target: the target, as for the coarse design.
-        **options: further `optimise_pressure` arguments (bounds,
-            constraints, max_iterations, ...), as for the coarse design.
+        scene, target: one bay's finer scene and its target, as for the coarse design.
+        n_span, n_contour: a wing's finer grid.
+        **options: further arguments of the design (bounds, constraints,
+            max_iterations, ...), as for the coarse design.
 
     Returns:
         The fine grid's `DesignResult` with ``grid_change`` filled in; its
         ``solves``, ``wall_time`` and ``history`` cover both grids, and its
         initial errors are those of the start of the design (measured on the
         coarser grid).
+
+    Raises:
+        ValueError: for a one-bay design without ``scene`` and ``target``, or
+            a wing without ``n_span`` and ``n_contour``.
     """
-    fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
-                             objective=result.objective, method=result.method, **options)
-    coarse_grid = list(result.solution.nodes.shape[:2])
-    values = {n: [_plain(getattr(result.parameters, n)), _plain(getattr(fine.parameters, n))]
-              for n in result.variables}
+    if result.n_bays == 1 and scene is not None:
+        if target is None:
+            raise ValueError("refine_design of a one-bay design needs the finer scene and its target")
+        fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
+                                 objective=result.objective, method=result.method, **options)
+        grid = [scene.bay.n_span, scene.bay.n_contour]
+    else:
+        if n_span is None or n_contour is None or result.wing is None:
+            raise ValueError("refine_design of a wing needs the finer grid as n_span and n_contour (and a "
+                             "one-bay design its finer scene and target)")
+        initial = result.parameters if result.rib_shapes is None else {
+            **{n: getattr(result.parameters, n) for n in VARIABLES if n != "rib_shape"},
+            "rib_shape": result.rib_shapes}
+        fine = optimise_wing(result.wing, result.scenes[0].fabric, list(result.targets), result.variables,
+                             initial=initial, objective=result.objective, method=result.method, n_span=n_span,
+                             n_contour=n_contour, **options)
+        grid = [n_span, n_contour]
+    coarse_grid = list(np.shape(result.wing_solution.nodes)[1:3])
+    values = {n: [_value(result, n), _value(fine, n)] for n in result.variables}
     change = {n: (b - a) / a if n == "pressure" else float(np.max(np.abs(np.subtract(b, a))))
               for n, (a, b) in values.items()}
-    grid_change = {"grids": [coarse_grid, [scene.bay.n_span, scene.bay.n_contour]], "values": values,
+    grid_change = {"grids": [coarse_grid, grid], "values": values,
                    "change": change, "rms_error": [result.rms_error, fine.rms_error]}
     return dataclasses.replace(fine, grid_change=grid_change, solves=result.solves + fine.solves,
                                wall_time=result.wall_time + fine.wall_time,
@@ -355,49 +564,30 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
                                initial_max_error=result.initial_max_error)
 
 
-def _plain(value):
-    """A float, or a list of floats for a vector variable."""
+def _value(result: DesignResult, name: str):
+    """A design value as a float, or a list of floats (of lists, per rib) for a vector variable."""
+    value = result.rib_shapes if name == "rib_shape" and result.rib_shapes is not None else \
+        getattr(result.parameters, name)
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
 
 
-def _violation_message(violated: dict, report: dict, rib_violated: dict | None = None,
-                       rib_values: dict | None = None) -> str:
-    parts = []
-    rib_violated, rib_values = rib_violated or {}, rib_values or {}
-    if "rib_min_thickness" in rib_violated:
-        parts.append(f"rib_min_thickness violated: the rib is {rib_values['rib_min_thickness']:.4g} of its "
-                     f"starting thickness somewhere, below the limit {rib_values['rib_min_thickness_limit']:.4g}")
-    if "rib_min_radius" in rib_violated:
-        parts.append(f"rib_min_radius violated: the rib's smallest radius of curvature is "
-                     f"{rib_values['rib_min_radius']:.4g} chord, below the limit "
-                     f"{rib_values['rib_min_radius_limit']:.4g}")
-    if "min_tension" in violated:
-        parts.append(f"min_tension violated: the smallest fibre tension is {report['min_tension']:.4g} "
-                     f"N/m, {violated['min_tension']:.4g} N/m below the floor "
-                     f"{report['min_tension_floor']:.4g} N/m (the skin wrinkles)")
-    if "max_tension" in violated:
-        parts.append(f"max_tension violated: the largest fibre tension is {report['max_tension']:.4g} "
-                     f"N/m, {violated['max_tension']:.4g} N/m above the ceiling "
-                     f"{report['max_tension_ceiling']:.4g} N/m")
-    return "; ".join(parts) + " (no design within the bounds meets the limits, or the optimiser " \
-        "stopped early: widen the bounds or relax the limits)"
-
-
-def _failed_solve_message(failure: ConvergenceError) -> str:
+def _failed_solve_message(failure: WingConvergenceError) -> str:
     sol = failure.solution
+    where = "" if failure.n_bays == 1 else (f" in bay {failure.bay} ({len(failure.failed)} of {failure.n_bays} "
+                                            "bays failed)")
     return (f"stopped: the forward solve at pressure {sol.pressure:.6g} Pa, prestrain "
-            f"({sol.prestrain[0]:.6g}, {sol.prestrain[1]:.6g}) failed ({sol.message}); the "
+            f"({sol.prestrain[0]:.6g}, {sol.prestrain[1]:.6g}) failed{where} ({sol.message}); the "
             "result is the best iterate whose solve converged; narrow the bounds to where the "
             "skin has an equilibrium")
 
 
 # ------------------------------------------------------------------ progress
-def _progress_bar(progress: bool, max_iterations: int):
+def _progress_bar(progress: bool, max_iterations: int, name: str):
     """A tqdm counter on stderr: iterates so far against the cap; a silent no-op when off.
 
     No percentage or ETA: the cap is an upper bound, not the expected count.
     """
-    return tqdm(total=max_iterations, desc="optimise_pressure", unit="iterate", disable=not progress,
+    return tqdm(total=max_iterations, desc=name, unit="iterate", disable=not progress,
                 leave=False, dynamic_ncols=True,
                 bar_format="{desc}: iterate {n_fmt} (cap {total_fmt}), {elapsed} elapsed{postfix}")
 

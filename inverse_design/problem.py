@@ -1,14 +1,21 @@
-"""`DesignProblem`: the objective, the constraints and their derivatives for one design.
+"""`DesignProblem`: the objective, the constraints and their derivatives for one design of N >= 1 bays.
 
-Every forward solve warm-starts from the previous iterate's equilibrium
-(chord Newton with its LU factor) and is solved to the optimiser's ``rtol``
-by the ``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm
-solve is retried cold, then by Newton; `forward_solver.fallback`) unless
-``solver_options`` name one method. The objective (`objectives.objective_value`)
-and the smooth tension constraints (`constraints.constraint_functions`) get
-their gradients by reverse mode through `forward_solver.solve_equilibrium`
-(one adjoint solve each); the penalty residuals their Jacobian by forward
-mode. Every converged solve is archived, so the result is never re-solved.
+The bays are `forward_solver.Scene`s sharing one fabric and grid (a single
+bay, or the bays of a `forward_solver.Wing`), solved together by
+`forward_solver.solve_bays` (on a CPU a loop of `solve_equilibrium`, chord
+Newton with its LU factor). Every forward solve warm-starts from the previous
+iterate's equilibrium and is solved to the optimiser's ``rtol`` by the
+``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm solve is
+retried cold, then by Newton; `forward_solver.fallback`) unless
+``solver_options`` name one method (then a failed warm solve is retried cold
+here). The objective (`objectives.mean_square` of each bay,
+weighted by `objectives.bay_weights`) and the smooth tension constraints
+(`constraints.constraint_functions` over every cell of every bay) get their
+gradients by reverse mode through the N-bay forward solve (one adjoint solve
+per output); the penalty residuals their Jacobian by forward mode. Every
+converged solve is archived, so the result is never re-solved. A bay whose
+cold solve fails raises `WingConvergenceError`; its NaN nodes never reach
+the optimiser.
 """
 
 from __future__ import annotations
@@ -20,97 +27,190 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from forward_solver import ConvergenceError, Parameters, Solution, solve_equilibrium
+from forward_solver import ConvergenceError, solve_bays
+from forward_solver.adjoint import GRADIENT_RTOL
+from forward_solver.wing import WingSolution, default_strategy
 
 from .constraints import cell_tensions, constraint_functions, penalty_residuals, tension_scale
-from .objectives import objective_residuals, objective_value
+from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
+                         mean_square, row_targets, station_etas)
 from .variables import DesignVariables
 
-__all__ = ["DesignProblem", "with_rib_rows", "check_solver_options"]
+__all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
 
 #: The forward solves' options when none are given.
 DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
 
 
-class DesignProblem:
-    """The objective, the constraints, their derivatives and the iterate history of one design."""
+class WingConvergenceError(ConvergenceError):
+    """A bay did not converge; ``.bay`` is its index, ``.failed`` every failed bay, ``.solution`` its `Solution`."""
 
-    def __init__(self, scene, target, variables: DesignVariables, objective, constraints, rtol,
-                 rib_geometry=None, solver_options=None):
-        self.scene = scene
-        self.target = target
+    def __init__(self, wing_solution: WingSolution, bay: int):
+        solution = wing_solution.bay_solution(bay)
+        super().__init__(solution)
+        failed = wing_solution.failed_bays()
+        y0 = sum(b.rib_spacing for b in wing_solution.bays[:bay])
+        values = wing_solution.parameters
+        self.bay = bay
+        self.failed = failed
+        self.n_bays = len(wing_solution.bays)
+        self.args = (f"bay {bay} (ribs {bay} and {bay + 1}, y = {y0:.4g} to "
+                     f"{y0 + wing_solution.bays[bay].rib_spacing:.4g} m; {len(failed)} of "
+                     f"{len(wing_solution.bays)} bays failed) at pressure {float(values.pressure):.6g} Pa, "
+                     f"prestrain ({float(values.prestrain_span):.6g}, {float(values.prestrain_chord):.6g}): "
+                     f"{self.args[0]}",)
+
+
+class DesignProblem:
+    """The objective, the constraints, their derivatives and the iterate history of one design.
+
+    Args:
+        scenes: the bays, root to tip (one fabric, switches and grid).
+        targets: the target section of each rib (``len(scenes) + 1``).
+        variables: the `DesignVariables`.
+        objective: one of `objectives.OBJECTIVES` (per bay).
+        constraints: the tension limits, or None.
+        rtol: relative residual of every bay's solve.
+        solver_options: ``{"method", "max_steps"}`` of every bay's solve
+            (`check_solver_options`).
+        rib_geometries: the `rib_design.RibGeometry` whose limits are SLSQP
+            rows (empty: none): one per rib for a shape per rib, else one per
+            distinct starting section of a shared shape.
+        rib_indices: the rib of each geometry (default 0, 1, ...).
+
+    The constraint vector is the tension rows (`constraints.Constraints.names`,
+    over all bays), then every rib geometry's `rib_design.RibGeometry.functions`
+    rows.
+    """
+
+    def __init__(self, scenes, targets, variables: DesignVariables, objective, constraints, *,
+                 rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None):
+        self.scenes = list(scenes)
+        self.bays = [scene.bay for scene in self.scenes]
+        self.fabric = self.scenes[0].fabric
+        self.targets = list(targets)
         self.variables = variables
         self.objective = objective
         self.constraints = constraints
         self.rtol = rtol
-        self.chord = scene.bay.chord
-        # Small design grids: one relaxation loop to compile beats grid sequencing.
-        self.sequencing = scene.bay.n_contour > 128
         # {"method": ..., "max_steps": ...} of every forward solve (`check_solver_options`).
         self.solver_options = check_solver_options(solver_options)
-        self.previous: Solution | None = None  # warm start (and its LU factor)
+        self.weights = bay_weights(self.bays)
+        self.etas = station_etas(objective, self.bays[0].n_span)
+        self.chords = [local_chords(bay, self.etas) for bay in self.bays]
+        self.rows = [row_targets(self.targets[k], self.targets[k + 1], bay.chord_root, bay.chord_tip, self.etas)
+                     for k, bay in enumerate(self.bays)]
+        self.chord = max(bay.chord for bay in self.bays)
+        self.tension_scale = tension_scale(variables.start, self.chord)
+        # The loop (CPU): the chain, or the method named; the batch (accelerators) relaxes.
+        self.method = self.solver_options["method"]
+        if self.method == "auto" and default_strategy() == "batch":
+            self.method = "relax"
+        # Small design grids: one relaxation loop to compile beats grid sequencing.
+        self.sequencing = self.bays[0].n_contour > 128
+        self.previous: WingSolution | None = None  # warm start (and its LU factors)
         self.solves = 0
         self.history: list[dict] = []
         self.on_record = None  # called with each new history entry (progress bar, callback)
-        self.tension_scale = tension_scale(variables.start, self.chord)
         self._cache: dict = {}  # the last evaluation with its derivatives
-        self._solved: dict = {}  # every converged solve by `_key`, without its LU factor
-        # The rib's manufacturability limits (`rib_design.RibGeometry`): no solve in them, so their
-        # Jacobian comes from forward mode on the design vector alone.
-        self.rib_geometry = rib_geometry
-        if rib_geometry is not None:
+        self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
+        # The ribs' manufacturability limits: no solve in them, so their Jacobian comes from forward
+        # mode on the design vector alone.
+        self.rib_geometries = list(rib_geometries)
+        self.rib_indices = list(range(len(self.rib_geometries)) if rib_indices is None else rib_indices)
+        if self.rib_geometries:
             def rib_rows(u):
-                return rib_geometry.functions(variables.parameters(u))
+                parameters, shapes = variables.parameters(u), variables.rib_shapes_at(u)
+                return jnp.concatenate([g.functions(parameters if shapes is None
+                                                    else parameters.replace(rib_shape=shapes[k]))
+                                        for k, g in zip(self.rib_indices, self.rib_geometries)])
 
             self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
 
+    # ------------------------------------------------------------ pieces
+    def distances(self, nodes) -> list:
+        """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
+        return [bay_distances(nodes[k], self.rows[k], self.etas, self.chords[k]) for k in range(len(self.bays))]
+
+    def objective_value(self, distances):
+        """The design's objective, chord^2: the bays' `objectives.mean_square`, weighted by area."""
+        return sum(float(w) * mean_square(d, self.objective) for w, d in zip(self.weights, distances))
+
+    def tensions(self, nodes, u) -> list:
+        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
+        return [cell_tensions(scene, nodes[k], self.variables.bay_parameters(u, k))
+                for k, scene in enumerate(self.scenes)]
+
     # ------------------------------------------------------------ solves
-    def _solve(self, parameters: Parameters) -> Solution:
-        options = dict(rtol=self.rtol, sequencing=self.sequencing, **self.solver_options)
-        if options["method"] == "auto":  # the chain retries cold itself, then falls back to Newton
-            try:
-                sol = solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
-            except ConvergenceError as failure:
-                self.solves += len(failure.solution.extra.get("attempts", [None]))
-                raise
-            self.solves += len(sol.extra.get("attempts", [None]))
-            return sol
-        self.solves += 1
-        try:
-            return solve_equilibrium(self.scene, parameters, initial=self.previous, **options)
-        except ConvergenceError:
-            if self.previous is None:
-                raise
-        # A warm start far from this iterate (a long trial step) may fail where a cold start
-        # converges: only a cold failure means the skin has no equilibrium here.
-        self.solves += 1
-        return solve_equilibrium(self.scene, parameters, initial=None, **options)
+    def _solve(self, u, initial) -> WingSolution:
+        sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol,
+                         max_steps=self.solver_options["max_steps"], method=self.method, initial=initial,
+                         rib_shapes=self.variables.rib_shapes_at(u), sequencing=self.sequencing)
+        # The chain's tries count as solves (of its slowest bay); a named method's solve is one.
+        self.solves += max([len(s.extra.get("attempts", [None])) for s in sol.solutions or []], default=1)
+        return sol
 
-    def _remember(self, sol: Solution) -> Solution:
-        """Keep ``sol`` as the next warm start (as numpy arrays: the auxiliary output of a
-        JAX transformation comes back as JAX arrays) and in the archive of solves."""
-        self.previous = jax.tree_util.tree_map(np.asarray, sol)
-        key = key_of(self.variables.to_vector(sol.parameters))
-        self._solved[key] = dataclasses.replace(self.previous, factor=None)
-        return self.previous
+    def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
+        """``sol`` with the concrete arrays of ``aux`` (a JAX transformation's auxiliary output)."""
+        u = np.asarray(u, np.float64)
+        shapes = self.variables.rib_shapes_at(u)
+        return dataclasses.replace(
+            sol, nodes=np.asarray(aux["nodes"]), result=np.asarray(aux["result"]),
+            residual=np.asarray(aux["residual"]), steps=np.asarray(aux["steps"]),
+            mounted=np.asarray(aux["mounted"]), rib_shapes=None if shapes is None else np.asarray(shapes),
+            parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
-    def solve(self, u) -> Solution:
-        """The concrete `Solution` at the scaled vector ``u`` (from the archive if solved before)."""
-        key = key_of(self.variables.to_vector(self.variables.parameters(np.asarray(u, np.float64))))
-        if key in self._solved:
-            return self._solved[key]
-        return self._remember(self._solve(self.variables.parameters(np.asarray(u, np.float64))))
+    def _transformed(self, transform, function, u):
+        """``transform(wrapped)(u)`` and the concrete `WingSolution`, where ``wrapped(v)`` solves every
+        bay at ``v`` and returns ``(function(v, solution), aux)``; the warm start first, then cold.
 
-    def _solve_with_tensions(self, u):
-        """The solution at ``u`` (a JAX value allowed) and its unclamped cell tensions (None
-        without tension constraints)."""
-        parameters = self.variables.parameters(u)
-        sol = self._solve(parameters)
-        tensions = cell_tensions(self.scene, sol.nodes, parameters) if self.constraints else None
-        return sol, tensions
+        Raises:
+            WingConvergenceError: if a bay does not converge from the mounted shape.
+        """
+        # The chain retries cold itself; a named method is retried cold here.
+        retry = self.previous is not None and self.method != "auto"
+        for initial in ([self.previous, None] if retry else [self.previous]):
+            held = {}
+
+            def wrapped(v):
+                sol = self._solve(v, initial)
+                held["sol"] = sol
+                aux = {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps,
+                       "mounted": sol.mounted}
+                if not sol.converged:  # NaN nodes: stop here, nothing downstream is used
+                    return jnp.zeros(0), aux
+                return function(v, sol), aux
+
+            out = transform(wrapped, jnp.asarray(u, jnp.float64))
+            sol = self._concrete(held["sol"], out[-1], u)
+            if sol.converged:
+                return out[:-1], self.remember(sol, u)
+        raise WingConvergenceError(sol, sol.failed_bays()[0])
+
+    def remember(self, sol: WingSolution, u) -> WingSolution:
+        """Keep ``sol`` as the next warm start and in the archive of solves (without LU factors)."""
+        self.previous = sol
+        light = None if sol.solutions is None else [dataclasses.replace(s, factor=None) for s in sol.solutions]
+        self._solved[key_of(u)] = dataclasses.replace(sol, solutions=light)
+        return sol
+
+    def solve(self, u) -> WingSolution:
+        """The concrete `WingSolution` at the scaled vector ``u`` (from the archive if solved before).
+
+        Raises:
+            WingConvergenceError: if a bay does not converge from the mounted shape.
+        """
+        u = np.asarray(u, np.float64)
+        if key_of(u) in self._solved:
+            return self._solved[key_of(u)]
+
+        def plain(wrapped, v):
+            return wrapped(v)
+
+        return self._transformed(plain, lambda v, sol: jnp.zeros(0), u)[1]
 
     def cached(self, key):
-        """The cached evaluation at ``key`` (`_key` of a vector), or None."""
+        """The cached evaluation at ``key`` (`key_of` a vector), or None."""
         return self._cache.get(key)
 
     def best_iterate(self) -> np.ndarray | None:
@@ -127,80 +227,112 @@ class DesignProblem:
 
     # ----------------------------------------------- smooth constraints (slsqp)
     def evaluate(self, u):
-        """``(f, grad f, g, dg/du, solution)`` at ``u``: mean square error (chord^2) and
-        the smooth constraints ``g >= 0`` (tension limits, gradients by reverse mode, one adjoint
-        solve each; then the rib limits' rows, if any)."""
+        """``(f, grad f, g, dg/du, solution)`` at ``u``: the objective (chord^2) and the smooth
+        constraints ``g >= 0`` (tension limits, gradients by reverse mode, one adjoint solve each;
+        then the rib limits' rows, if any, by forward mode without a solve).
+
+        Raises:
+            WingConvergenceError: if a bay does not converge from the mounted shape.
+        """
         key = key_of(u)
         if key not in self._cache:
 
-            def outputs(v):
-                sol, tensions = self._solve_with_tensions(v)
-                f = objective_value(sol.nodes, self.target, self.chord, self.objective)
-                if tensions is None:
-                    return f[None], sol
-                g = constraint_functions(self.constraints, tensions, self.scene.fabric, self.tension_scale)
-                return jnp.concatenate([f[None], g]), sol
+            def outputs(v, sol):
+                f = self.objective_value(self.distances(sol.nodes))
+                if self.constraints is None:
+                    return f[None]
+                t = jnp.concatenate(self.tensions(sol.nodes, v))
+                return jnp.concatenate([f[None], constraint_functions(self.constraints, t, self.fabric,
+                                                                      self.tension_scale)])
 
-            y, pullback, sol = jax.vjp(outputs, jnp.asarray(u, jnp.float64), has_aux=True)
+            (y, pullback), sol = self._transformed(
+                lambda wrapped, v: jax.vjp(wrapped, v, has_aux=True), outputs, u)
             rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
             y = np.asarray(y)
             recorded = y[1:]
-            if self.rib_geometry is not None:
-                y, rows, g_rib = with_rib_rows(y, rows, self._rib_rows, u)
-                n_thick = self.rib_geometry.upper.size  # history: the least row of each rib limit
-                recorded = np.concatenate([recorded, [g_rib[:n_thick].min(), g_rib[n_thick:].min()]])
-            self._cache = {key: (y[0], rows[0], y[1:], rows[1:], self._remember(sol))}
+            if self.rib_geometries:
+                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
+                y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
+                # history: the least thickness row and the least curvature row over the ribs
+                per_rib = g_rib.reshape(len(self.rib_geometries), -1)
+                n_thick = self.rib_geometries[0].upper.size
+                recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
+            self._cache = {key: (y[0], rows[0], y[1:], rows[1:], sol)}
             self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
         return self._cache[key]
 
     # ------------------------------------------------------ penalty methods
-    def residuals(self, u):
-        """Shape residuals and penalties at ``u`` (a JAX value allowed), and the solution."""
-        sol, tensions = self._solve_with_tensions(u)
-        shape = objective_residuals(sol.nodes, self.target, self.chord, self.objective)
-        if tensions is None:
-            return shape, sol
-        penalties = penalty_residuals(self.constraints, tensions, self.scene.fabric, self.tension_scale)
-        return jnp.concatenate([shape, penalties]), sol
+    def residuals(self, v, sol):
+        """Shape residuals (each bay's `objectives.distance_residuals` times the square root of its
+        weight) and tension penalties at ``v`` (a JAX value allowed) of the solution ``sol``."""
+        shape = jnp.concatenate([math.sqrt(w) * distance_residuals(d, self.objective)
+                                 for w, d in zip(self.weights, self.distances(sol.nodes))])
+        if self.constraints is None:
+            return shape
+        t = jnp.concatenate(self.tensions(sol.nodes, v))
+        return jnp.concatenate([shape, penalty_residuals(self.constraints, t, self.fabric, self.tension_scale)])
 
     def residuals_and_jacobian(self, u):
         """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
         key = key_of(u)
         if key not in self._cache:
 
-            def residuals_twice(v):  # the value comes back as the auxiliary output
-                r, sol = self.residuals(v)
-                return r, (r, sol)
+            def jacobian(wrapped, v):
+                def twice(w):  # the value comes back as the auxiliary output
+                    r, aux = wrapped(w)
+                    return r, (r, aux)
 
-            u = jnp.asarray(u, jnp.float64)
-            jac, (r, sol) = jax.jacfwd(residuals_twice, has_aux=True)(u)
+                jac, (r, aux) = jax.jacfwd(twice, has_aux=True)(v)
+                return r, jac, aux
+
+            (r, jac), sol = self._transformed(jacobian, self.residuals, u)
             r, jac = np.asarray(r), np.asarray(jac)
-            self._cache = {key: (r, jac, self._remember(sol))}
+            self._cache = {key: (r, jac, sol)}
             self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
         return self._cache[key]
 
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: Solution,
-               constraints=None):
+    def loss_and_gradient(self, u):
+        """The sum of squared residuals and its gradient (reverse mode), and the solution, at ``u``."""
+
+        def value_and_grad(wrapped, v):
+            def loss(w):
+                r, aux = wrapped(w)
+                return jnp.sum(r * r), aux
+
+            (value, aux), grad = jax.value_and_grad(loss, has_aux=True)(v)
+            return value, grad, aux
+
+        (value, grad), sol = self._transformed(value_and_grad, self.residuals, u)
+        return value, grad, sol
+
+    # ------------------------------------------------------------ measurements
+    def measure(self, sol: WingSolution, u) -> dict:
+        """Per-bay errors and tensions of a concrete converged solution at ``u``: ``rms``, ``max``
+        (arrays over the bays, fractions of the local chord), ``wing_rms`` (the square root of the
+        weighted mean squares), ``tensions`` (per bay, N/m) and their extremes."""
+        d = [np.asarray(x) for x in self.distances(jnp.asarray(sol.nodes))]
+        errors = [distance_errors(x, self.objective) for x in d]
+        t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
+        mean_squares = np.array([np.mean(x**2) if self.objective != "worst" else e[0] ** 2
+                                 for x, e in zip(d, errors)])
+        rms = np.array([e[0] for e in errors])
+        return {"rms": rms, "max": np.array([e[1] for e in errors]),
+                "wing_rms": float(rms[0]) if len(d) == 1 else float(np.sqrt(np.sum(self.weights * mean_squares))),
+                "min_tension": np.array([x.min() for x in t]), "max_tension": np.array([x.max() for x in t]),
+                "tensions": t}
+
+    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None):
         entry = {
             "values": self.variables.values(np.asarray(u, dtype=np.float64)),
             "objective": float(objective),
             "gradient_norm": float(gradient_norm),
-            "steps": int(solution.steps),
+            "steps": int(np.max(solution.steps)),
         }
         if constraints is not None:
             entry["constraints"] = [float(c) for c in constraints]
         self.history.append(entry)
         if self.on_record is not None:
             self.on_record(entry)
-
-
-def with_rib_rows(y, rows, rib_rows, u):
-    """``(y, rows, g_rib)``: the outputs and their gradient rows with the rib limits' rows appended.
-
-    ``rib_rows(u)`` returns the rib-limit values and their Jacobian (no solve in them).
-    """
-    g_rib, jac_rib = (np.asarray(a) for a in rib_rows(jnp.asarray(u, jnp.float64)))
-    return np.concatenate([y, g_rib]), np.vstack([rows, jac_rib]), g_rib
 
 
 def check_solver_options(options) -> dict:

@@ -1,4 +1,4 @@
-"""Rib design: manufacturability limits of a shaped rib, and the fabric's cut lengths (issue 12, item 1).
+"""Rib design: manufacturability limits of a shaped rib, and the fabric's cut lengths.
 
 A rib shape (`forward_solver.rib_shape`, the design variable ``rib_shape``)
 must stay a rib that can be made:
@@ -19,7 +19,8 @@ points, curvature by the circle through each three consecutive points) as
 vectors of smooth inequality constraints ``g >= 0`` for SLSQP, with exact
 Jacobians from JAX (they do not involve the equilibrium, so they cost no
 solve). `rib_report` measures them at a design, with active and violated
-limits named as the tension limits are.
+limits named as the tension limits are; on a wing each rib is measured
+against its own starting section, and named by its index.
 
 `cut_lengths` gives the fabric's cut pattern: the cut (reference) length of
 every grid edge, paper eq. (12) ``h = nominal / (1 + prestrain)``, summed
@@ -39,6 +40,8 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver import forces as fk
 from forward_solver.rib_shape import rib_offsets
+
+from .constraints import Violation
 
 __all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "cut_lengths"]
 
@@ -143,26 +146,52 @@ class RibGeometry:
                 "rib_start_radius": self.start_radius}
 
 
-def rib_report(geometry: RibGeometry | None, parameters: Parameters) -> tuple[list, dict, dict]:
+def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tuple[list, dict, dict, list, list]:
     """Active and violated rib limits at a design, and the measured values.
 
+    Args:
+        geometries: ``(rib, RibGeometry)`` pairs: the rib's index and its
+            starting section's limits (one pair for a single bay's shared shape).
+        parameters: the design's shared `Parameters` (its ``rib_shape`` when shared).
+        rib_shapes: ``(n_ribs, 2 K)`` per-rib shapes, or None (shared).
+
     Returns:
-        ``(active, violated, values)``: names of limits within `RIB_TOLERANCE`
-        of their bound; ``{name: amount}`` of each limit broken by more than
-        it, relative to the limit (the thickness ratio's shortfall, or the
-        radius's in fractions of chord); and `RibGeometry.measure`.
+        ``(active, violated, values, per_rib, messages)``: names of limits
+        within `RIB_TOLERANCE` of their bound (``"rib_min_thickness"``; with
+        several ribs ``"rib_min_thickness@rib 2"``); ``{name: Violation}`` of
+        each limit broken by more than it at some rib, relative to the limit
+        (the thickness ratio's shortfall, or the radius's in fractions of
+        chord); the measured values (`RibGeometry.measure`) of the rib with
+        the least margin on each limit; every rib's ``{"rib": k, ...}``
+        values; and one sentence per broken limit and rib.
     """
-    if geometry is None or parameters.rib_shape is None:
-        return [], {}, {}
-    values = geometry.measure(parameters)
-    active, violated = [], {}
-    for name in RibGeometry.NAMES:
-        measured, limit = values[name], values[f"{name}_limit"]
-        if (measured - limit) / limit <= RIB_TOLERANCE:
-            active.append(name)
-        if (limit - measured) / limit > RIB_TOLERANCE:
-            violated[name] = float(limit - measured)
-    return active, violated, values
+    if not geometries or (rib_shapes is None and parameters.rib_shape is None):
+        return [], {}, {}, [], []
+    active, where, values, per_rib, messages = [], {}, {}, [], []
+    margin = {}
+    one = len(geometries) == 1
+    for rib, geometry in geometries:
+        shaped = parameters if rib_shapes is None else parameters.replace(rib_shape=np.asarray(rib_shapes)[rib])
+        measured = geometry.measure(shaped)
+        per_rib.append({"rib": rib, **measured})
+        at = "" if one else f" at rib {rib}"
+        for name in RibGeometry.NAMES:
+            value, limit = measured[name], measured[f"{name}_limit"]
+            if (value - limit) / limit <= RIB_TOLERANCE:
+                active.append(name if one else f"{name}@rib {rib}")
+            if (limit - value) / limit > RIB_TOLERANCE:
+                where.setdefault(name, {})[rib] = float(limit - value)
+                messages.append(
+                    f"rib_min_thickness violated{at}: the rib is {value:.4g} of its starting thickness "
+                    f"somewhere, below the limit {limit:.4g}" if name == "rib_min_thickness" else
+                    f"rib_min_radius violated{at}: the rib's smallest radius of curvature is {value:.4g} "
+                    f"chord, below the limit {limit:.4g}")
+            if (value - limit) / limit < margin.get(name, math.inf):
+                margin[name] = (value - limit) / limit
+                values.update({name: value, f"{name}_limit": limit})
+                if name == "rib_min_radius":
+                    values["rib_start_radius"] = measured["rib_start_radius"]
+    return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
 
 
 def cut_lengths(scene, parameters: Parameters) -> dict:

@@ -6,10 +6,14 @@ value, prestrain in percent, rib scales as they are). `DesignVariables`
 maps ``u`` to a `forward_solver.Parameters` and back; ``u`` may be a JAX
 value, so derivatives flow from the parameters' to the scaled variables.
 
-``rib_shape`` is a vector variable: its 2 K coefficients
-(`forward_solver.rib_shape`) take 2 K places in ``u``, each with the same
-bounds; its size comes from the starting `Parameters` (K =
-`DEFAULT_RIB_SHAPE_TERMS` from a zero offset when the start has none).
+One set of variables serves a wing of N >= 1 bays: the pressure, prestrains
+and rib scales are shared by every bay. ``rib_shape`` is a vector variable
+(2 K Bernstein coefficients, `forward_solver.rib_shape`, each with the same
+bounds; K = `DEFAULT_RIB_SHAPE_TERMS` from a zero offset when the start has
+none), laid out one of two ways (`RIB_SHAPE_LAYOUTS`): ``"shared"``, one
+shape for every rib (2 K places in ``u``; a single bay's default), or
+``"per_rib"``, one shape per rib (``n_ribs`` x 2 K places, root to tip; bay
+``k`` lies between rib ``k``'s shape and rib ``k + 1``'s).
 """
 
 from __future__ import annotations
@@ -22,8 +26,8 @@ import numpy as np
 
 from forward_solver import Parameters
 
-__all__ = ["VARIABLES", "VECTOR_VARIABLES", "DEFAULT_START", "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS",
-           "DesignVariables"]
+__all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
+           "DEFAULT_RIB_SHAPE_TERMS", "SCALES", "DesignVariables"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
@@ -32,6 +36,9 @@ VARIABLES = ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_sca
 
 #: Variables with several components (`Parameters` array fields).
 VECTOR_VARIABLES = ("rib_shape",)
+
+#: How the ``rib_shape`` variable is laid out over the ribs (module docstring).
+RIB_SHAPE_LAYOUTS = ("shared", "per_rib")
 
 #: Bernstein terms per surface of a rib shape started from no offset (8 coefficients in all).
 DEFAULT_RIB_SHAPE_TERMS = 4
@@ -52,8 +59,9 @@ DEFAULT_BOUNDS = {
     "rib_shape": (-0.05, 0.05),
 }
 
-_SCALES = {"prestrain_span": 0.01, "prestrain_chord": 0.01, "rib_thickness_scale": 1.0,
-           "rib_chord_scale": 1.0, "rib_shape": 0.01}
+#: Unit of each scaled variable but the pressure (whose unit is its start).
+SCALES = {"prestrain_span": 0.01, "prestrain_chord": 0.01, "rib_thickness_scale": 1.0,
+          "rib_chord_scale": 1.0, "rib_shape": 0.01}
 
 
 @dataclass(frozen=True)
@@ -62,28 +70,37 @@ class DesignVariables:
 
     Attributes:
         names: optimised parameter names, in the order of the vector.
-        start: the starting `Parameters` (the non-optimised ones stay there).
+        start: the starting shared `Parameters` (the non-optimised ones stay
+            there); with a shared rib shape its ``rib_shape``.
         bounds: ``(lower, upper)`` of each optimised name (of every component
             of a vector variable).
-        sizes: components of each name (1, or 2 K for ``rib_shape``).
+        sizes: components of each name in the vector (1; 2 K for a shared
+            ``rib_shape``, ``n_ribs`` x 2 K for one per rib).
+        rib_shapes: ``(n_ribs, 2 K)`` starting shapes of a ``"per_rib"``
+            ``rib_shape`` variable, else None.
     """
 
     names: tuple
     start: Parameters
     bounds: dict
     sizes: dict = None
+    rib_shapes: np.ndarray | None = None
 
     @classmethod
-    def build(cls, variables, initial: Parameters | Mapping | None,
-              bounds: Mapping | None) -> "DesignVariables":
+    def build(cls, variables, initial: Parameters | Mapping | None, bounds: Mapping | None, *,
+              n_ribs: int = 2, rib_shape: str = "shared") -> "DesignVariables":
         """Validate the caller's choices.
 
         Args:
             variables: names from `VARIABLES` (or one name).
             initial: a `Parameters`, or ``{name: value}`` over
-                `DEFAULT_START`, or None.
+                `DEFAULT_START`, or None. A ``"per_rib"`` rib-shape start is one
+                ``(2 K,)`` row for every rib or an ``(n_ribs, 2 K)`` array.
             bounds: ``{name: (lower, upper)}`` for optimised names; others
                 take `DEFAULT_BOUNDS`.
+            n_ribs: ribs of the wing (2 for one bay).
+            rib_shape: the layout of an optimised ``rib_shape``, one of
+                `RIB_SHAPE_LAYOUTS`.
 
         Raises:
             ValueError: for an unknown or repeated name, a bound that is not an
@@ -99,18 +116,34 @@ class DesignVariables:
                 raise ValueError(f"unknown design variable {name!r}; choose from {VARIABLES}")
         if len(set(names)) != len(names):
             raise ValueError(f"variables must not repeat a name, got {names}")
+        if rib_shape not in RIB_SHAPE_LAYOUTS:
+            raise ValueError(f"rib_shape must be one of {RIB_SHAPE_LAYOUTS}, got {rib_shape!r}")
+        per_rib = "rib_shape" in names and rib_shape == "per_rib"
+        shape_start = None
         if isinstance(initial, Parameters):
             start = initial
+            if per_rib:
+                shape_start, start = start.rib_shape, start.replace(rib_shape=None, rib_shape_tip=None)
         else:
             initial = dict(initial or {})
             for name in initial:
                 if name not in VARIABLES:
                     raise ValueError(f"unknown parameter {name!r} in initial; choose from {VARIABLES}")
+            if per_rib:
+                shape_start = initial.pop("rib_shape", None)
             start = DEFAULT_START.replace(**{k: (np.asarray(v, np.float64) if k in VECTOR_VARIABLES
                                                  else float(v)) for k, v in initial.items()})
-        if "rib_shape" in names and start.rib_shape is None:
+        if "rib_shape" in names and not per_rib and start.rib_shape is None:
             start = start.replace(rib_shape=np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS))
         start = start.as_floats().check()
+        shapes = None
+        if per_rib:
+            shapes = np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS) if shape_start is None else np.asarray(shape_start, float)
+            if shapes.ndim == 1:
+                shapes = np.tile(shapes, (n_ribs, 1))
+            if shapes.ndim != 2 or shapes.shape[0] != n_ribs or shapes.shape[1] < 2 or shapes.shape[1] % 2:
+                raise ValueError(f"the rib_shape start must be one row of 2K coefficients for every rib or an "
+                                 f"({n_ribs}, 2K) array, got shape {np.shape(shape_start)}")
         bounds = dict(bounds or {})
         for name in bounds:
             if name not in VARIABLES:
@@ -118,6 +151,8 @@ class DesignVariables:
             if name not in names:
                 raise ValueError(f"bounds given for {name!r}, which is not among the variables {names}")
         values = start.as_dict()
+        if per_rib:
+            values["rib_shape"] = shapes
         chosen = {}
         for name in names:
             lo, hi = (float(b) for b in bounds.get(name, DEFAULT_BOUNDS[name]))
@@ -130,25 +165,27 @@ class DesignVariables:
                 raise ValueError(f"bounds of {name} must lie in (-0.5, 1.0), got {(lo, hi)}")
             if name in ("rib_thickness_scale", "rib_chord_scale") and lo <= 0:
                 raise ValueError(f"the lower bound of {name} must be positive, got {lo}")
-            if name in VECTOR_VARIABLES and start.rib_shape_tip is not None:
-                raise ValueError("a single bay's rib_shape design gives both ribs one shape; the start "
+            if name in VECTOR_VARIABLES and not per_rib and start.rib_shape_tip is not None:
+                raise ValueError("a shared rib_shape design gives every rib one shape; the start "
                                  "must not set rib_shape_tip")
-            if not np.all((lo <= np.asarray(values[name])) & (np.asarray(values[name]) <= hi)):
-                shown = np.asarray(values[name]).tolist() if name in VECTOR_VARIABLES else repr(values[name])
+            value = np.asarray(values[name], np.float64)
+            if not np.all(np.isfinite(value) & (lo <= value) & (value <= hi)):
+                shown = value.tolist() if name in VECTOR_VARIABLES else repr(values[name])
                 hint = ("; a rib shape starts from the unchanged rib (every coefficient 0) unless given, "
                         "so its bounds must include 0" if name in VECTOR_VARIABLES else "")
                 raise ValueError(f"the start of {name}, {shown}, lies outside its bounds {(lo, hi)}{hint}")
             chosen[name] = (lo, hi)
         sizes = {n: int(np.size(values[n])) for n in names}
-        return cls(names, start, chosen, sizes)
+        return cls(names, start, chosen, sizes, shapes)
 
     def scale(self, name: str) -> float:
         """Unit of the scaled variable."""
         if name == "pressure":
             return abs(self.start.pressure)
-        return _SCALES[name]
+        return SCALES[name]
 
-    def _slices(self) -> dict:
+    def slices(self) -> dict:
+        """``{name: slice}`` of each name's components in the scaled vector."""
         sizes = self.sizes or {n: 1 for n in self.names}
         ends = np.cumsum([sizes[n] for n in self.names])
         return {n: slice(int(e - sizes[n]), int(e)) for n, e in zip(self.names, ends)}
@@ -158,49 +195,84 @@ class DesignVariables:
         """Length of the scaled vector."""
         return sum((self.sizes or {n: 1 for n in self.names}).values())
 
-    def to_vector(self, parameters: Parameters) -> np.ndarray:
-        """Scaled vector of the optimised names."""
-        return np.concatenate([np.reshape(np.asarray(getattr(parameters, n), np.float64), -1) / self.scale(n)
+    def to_vector(self, parameters: Parameters, rib_shapes=None) -> np.ndarray:
+        """Scaled vector of the optimised names (``rib_shapes``: the per-rib shapes, default the start's)."""
+        def value(n):
+            if n == "rib_shape" and self.rib_shapes is not None:
+                return self.rib_shapes if rib_shapes is None else rib_shapes
+            return getattr(parameters, n)
+
+        return np.concatenate([np.reshape(np.asarray(value(n), np.float64), -1) / self.scale(n)
                                for n in self.names])
 
+    def start_vector(self) -> np.ndarray:
+        """The scaled vector of the start."""
+        return self.to_vector(self.start)
+
     def parameters(self, u) -> Parameters:
-        """The `Parameters` of the scaled vector ``u`` (a JAX value keeps them traced)."""
+        """The shared `Parameters` of the scaled vector ``u`` (a JAX value keeps them traced)."""
         changes = {}
-        for n, part in self._slices().items():
+        for n, part in self.slices().items():
+            if n == "rib_shape" and self.rib_shapes is not None:
+                continue  # per rib: `rib_shapes_at`
             changes[n] = (u[part] if n in VECTOR_VARIABLES else u[part.start]) * self.scale(n)
         return self.start.replace(**changes)
 
+    def rib_shapes_at(self, u):
+        """``(n_ribs, 2 K)`` per-rib shapes at ``u`` (JAX values stay traced), or None (not per rib)."""
+        if self.rib_shapes is None:
+            return None
+        return u[self.slices()["rib_shape"]].reshape(self.rib_shapes.shape) * self.scale("rib_shape")
+
+    def bay_parameters(self, u, bay: int) -> Parameters:
+        """The `Parameters` of bay ``bay`` at ``u``: the shared ones, with its ribs' shapes when per rib."""
+        parameters, shapes = self.parameters(u), self.rib_shapes_at(u)
+        if shapes is None:
+            return parameters
+        return parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+
     def values(self, u) -> dict:
-        """``{name: value}`` of the optimised names at the scaled vector ``u`` (a list for a vector)."""
+        """``{name: value}`` of the optimised names at ``u`` (a list for a vector; per rib, a list per rib)."""
         u = np.asarray(u, np.float64)
-        return {n: ([float(v) * self.scale(n) for v in u[part]] if n in VECTOR_VARIABLES
-                    else float(u[part.start]) * self.scale(n))
-                for n, part in self._slices().items()}
+        out = {}
+        for n, part in self.slices().items():
+            if n in VECTOR_VARIABLES:
+                values = u[part] * self.scale(n)
+                out[n] = (values.reshape(self.rib_shapes.shape).tolist() if self.rib_shapes is not None
+                          else [float(v) for v in values])
+            else:
+                out[n] = float(u[part.start]) * self.scale(n)
+        return out
 
     def from_values(self, values: dict) -> np.ndarray:
         """The scaled vector of ``{name: value}`` (as `values` returns it)."""
         return np.concatenate([np.reshape(np.asarray(values[n], np.float64), -1) / self.scale(n)
                                for n in self.names])
 
-    def components(self, parameters: Parameters):
-        """``(label, value, lower, upper)`` of every scalar component (``rib_shape[3]`` for a vector)."""
+    def components(self, parameters: Parameters, rib_shapes=None):
+        """``(label, value, lower, upper)`` of every scalar component (``rib_shape[3]`` for a shared
+        vector, ``rib_shape[k][3]`` for rib ``k``'s of ``rib_shapes``, the per-rib shapes)."""
         for n in self.names:
-            value = np.reshape(np.asarray(getattr(parameters, n), np.float64), -1)
             lo, hi = self.bounds[n]
+            if n == "rib_shape" and self.rib_shapes is not None:
+                for k, row in enumerate(np.asarray(rib_shapes, np.float64)):
+                    yield from ((f"{n}[{k}][{j}]", float(v), lo, hi) for j, v in enumerate(row))
+                continue
+            value = np.reshape(np.asarray(getattr(parameters, n), np.float64), -1)
             if n in VECTOR_VARIABLES:
                 yield from ((f"{n}[{k}]", float(v), lo, hi) for k, v in enumerate(value))
             else:
                 yield n, float(value[0]), lo, hi
 
-    def _bound(self, side: int) -> np.ndarray:
+    def bound(self, side: int) -> np.ndarray:
         """Scaled lower (``side`` 0) or upper (1) bound of every component."""
         return np.concatenate([np.full(part.stop - part.start, self.bounds[n][side] / self.scale(n))
-                               for n, part in self._slices().items()])
+                               for n, part in self.slices().items()])
 
     @property
     def lower(self) -> np.ndarray:
-        return self._bound(0)
+        return self.bound(0)
 
     @property
     def upper(self) -> np.ndarray:
-        return self._bound(1)
+        return self.bound(1)

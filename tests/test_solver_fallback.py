@@ -89,16 +89,16 @@ def test_bad_equilibrium_options_are_refused():
 
 
 def test_design_loop_uses_the_solver_options(monkeypatch):
-    import inverse_design.problem as problem
+    import forward_solver.wing as bays  # the design's solves: solve_bays's loop of solve_equilibrium
 
     seen = []
-    real = problem.solve_equilibrium
+    real = bays.solve_equilibrium
 
     def spy(*args, **kwargs):
         seen.append((kwargs["method"], kwargs["max_steps"]))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(problem, "solve_equilibrium", spy)
+    monkeypatch.setattr(bays, "solve_equilibrium", spy)
     bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
     optimise_pressure(Scene(bay, Fabric()), naca("2412"), max_iterations=1, constraints=None,
                       solver_options={"method": "newton", "max_steps": 999})

@@ -1,8 +1,7 @@
 """The wing design loop (issue 12, item 2): one pressure for every bay of a tapered wing.
 
 One 3-bay wing on 9x32 grids is shared by the gradient, optimum and limit
-tests (the jit(vmap) of `solve_wing` and its adjoint compile once per number
-of bays): chords 1.0 -> 0.8 -> 0.7 -> 0.6 m, stations 0.25 m apart, NACA
+tests (its bays' solves compile once): chords 1.0 -> 0.8 -> 0.7 -> 0.6 m, stations 0.25 m apart, NACA
 2412 ribs except a NACA 4415 tip rib, so the last bay compares its rows with
 sections blended between two different airfoils. A one-bay wing is checked
 against `optimise_pressure` on the same bay.
@@ -14,11 +13,12 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene
 from forward_solver.wing import Wing
-from inverse_design import Constraints, optimise_pressure
+from inverse_design import Constraints, optimise_pressure, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
-from inverse_design.rib_design import RibLimits
-from inverse_design.wing_design import (WingConvergenceError, WingProblem, WingVariables, _bay_distances,
-                                        bay_weights, optimise_wing, row_targets)
+from inverse_design.objectives import bay_distances, bay_weights, row_targets
+from inverse_design.problem import DesignProblem, WingConvergenceError
+from inverse_design.rib_design import RibGeometry, RibLimits
+from inverse_design.variables import DesignVariables
 from targets import naca
 
 GRID = dict(n_span=9, n_contour=32)
@@ -41,9 +41,9 @@ def test_objective_and_constraint_gradients_match_central_differences(wing):
     # Solves to rtol 1e-12 (node error ~1e-12 m) against a step of 1e-4 of the pressure: the
     # difference quotient's truncation (~1e-8 relative) and round-off stay far below 1e-5.
     with jax.enable_x64(True):
-        variables = WingVariables.build(("pressure",), START, BOUNDS, 4)
-        problem = WingProblem(wing, Fabric(), list(wing.airfoils), variables, "average", Constraints(),
-                              rtol=1e-12, max_steps=200_000, **GRID)
+        variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
+        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
+                                Constraints(), rtol=1e-12)
         u = np.array([1.0])
         f, grad, g, dg, _ = problem.evaluate(u)
         h = 1e-4
@@ -65,9 +65,11 @@ def test_per_rib_shape_gradients_match_central_differences(wing):
     shapes = 0.01 * np.array([[0.0, 0.5, 0.0, -0.5], [-0.5, 0.5, 0.5, -0.5], [0.5, -0.5, 0.0, 0.5],
                               [0.5, 0.5, -0.5, 0.0]])
     with jax.enable_x64(True):
-        variables = WingVariables.build(("pressure", "rib_shape"), {**START, "rib_shape": shapes}, BOUNDS, 4)
-        problem = WingProblem(wing, Fabric(), list(wing.airfoils), variables, "average", Constraints(),
-                              rtol=1e-13, max_steps=400_000, rib_limits=RibLimits(), **GRID)
+        variables = DesignVariables.build(("pressure", "rib_shape"), {**START, "rib_shape": shapes}, BOUNDS,
+                                          n_ribs=4, rib_shape="per_rib")
+        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
+                                Constraints(), rtol=1e-13, solver_options={"max_steps": 400_000},
+                                rib_geometries=[RibGeometry(af, RibLimits()) for af in wing.airfoils])
         u = variables.start_vector()
         assert u.size == 1 + 16
         f, grad, g, dg, _ = problem.evaluate(u)
@@ -96,8 +98,8 @@ def test_the_mounted_skin_of_a_mixed_bay_lies_on_its_row_targets():
     chords = [(1 - e) * 0.7 + e * 0.6 for e in etas]
     with jax.enable_x64(True):
         nodes = np.asarray(bay.nominal_nodes())
-        blended = np.asarray(_bay_distances(nodes, row_targets(root, tip, 0.7, 0.6, etas), etas, chords))
-        naive = np.asarray(_bay_distances(nodes, [root] * len(etas), etas, chords))
+        blended = np.asarray(bay_distances(nodes, row_targets(root, tip, 0.7, 0.6, etas), etas, chords))
+        naive = np.asarray(bay_distances(nodes, [root] * len(etas), etas, chords))
     assert np.max(np.abs(blended)) < 1e-6
     assert np.max(np.abs(naive[-1])) > 1e-2
 
@@ -156,12 +158,13 @@ def test_a_one_bay_wing_agrees_with_optimise_pressure():
 
 def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
     # 100 relaxation steps cannot converge any bay: the problem raises, naming the first bay and
-    # its result code (its NaN nodes never reach the optimiser). Through `WingProblem.solve`, the
+    # its result code (its NaN nodes never reach the optimiser). Through `DesignProblem.solve`, the
     # path of every final solve, so the test compiles only the forward loop at its new step cap.
     with jax.enable_x64(True):
-        variables = WingVariables.build(("pressure",), START, BOUNDS, 4)
-        problem = WingProblem(wing, Fabric(), list(wing.airfoils), variables, "average", Constraints(),
-                              rtol=1e-11, max_steps=100, **GRID)
+        variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
+        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
+                                Constraints(), rtol=1e-11,
+                                solver_options={"method": "relax", "max_steps": 100})
         with pytest.raises(WingConvergenceError, match=r"bay 0 \(ribs 0 and 1.*max_steps_reached") as failure:
             problem.solve(np.array([1.0]))
     assert failure.value.bay == 0 and failure.value.failed == [0, 1, 2]
@@ -179,3 +182,25 @@ def test_bad_wing_designs_are_refused(wing):
         optimise_wing(wing, Fabric(), objective="tip", **GRID)
     with pytest.raises(ValueError, match="unknown design variable"):
         optimise_wing(wing, Fabric(), variables=("stiffness_span",), **GRID)
+
+
+def test_every_method_designs_a_wing_or_says_why_not(wing):
+    # least_squares and optax run on the wing as on a bay (the bays' residuals weighted by the square
+    # root of their area); brentq's mid-bay condition has no meaning over several bays: refused.
+    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares", max_iterations=4,
+                        constraints=None, **GRID)
+    assert res.rms_error < res.initial_rms_error and res.bay_rms_error.shape == (3,)
+    assert res.pressure < START["pressure"] and res.solves == len(res.history)
+    steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax", max_iterations=2,
+                          constraints=None, **GRID)
+    assert len(steps.history) == 2 and steps.pressure != START["pressure"]
+    with pytest.raises(ValueError, match="method='root' solves one scalar condition at one bay's mid-bay"):
+        optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="root", **GRID)
+
+
+def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(design):
+    # One result class: a wing's solution is its WingSolution (per-bay Solutions inside), its
+    # violations one format ({name: Violation}) whether one bay or three.
+    assert design.n_bays == 3 and design.solution is design.wing_solution
+    assert design.solution.bay_solution(2).converged
+    assert design.max_error == pytest.approx(float(np.max(design.bay_max_error)))

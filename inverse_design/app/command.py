@@ -131,7 +131,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     from forward_solver.wing import Wing
 
     from .export import check_output_folder
-    from ..wing_design import optimise_wing
+    from ..optimise import optimise_wing
     from .wing_report import write_wing_report
 
     out = check_output_folder(args.out)

@@ -1,4 +1,4 @@
-"""The output folder of a wing design (`wing_design.optimise_wing`), like the single bay's.
+"""The output folder of a wing design (`optimise.optimise_wing`), like the single bay's.
 
 `write_wing_report` writes, atomically (`export.staged_folder`)::
 
@@ -30,7 +30,8 @@ import numpy as np
 from .export import check_output_folder, staged_folder, write_obj, write_selig, write_stl
 from .plots import plot_history, plot_section
 from .summary import _jsonable, _version
-from ..wing_design import WingDesignResult, _bay_distances, row_targets
+from ..objectives import bay_distances, local_chords, row_targets
+from ..optimise import DesignResult as WingDesignResult
 
 __all__ = ["wing_deviation", "wing_nodes", "summarise_wing", "write_wing_report"]
 
@@ -40,7 +41,7 @@ _DPI = 150
 def wing_nodes(result: WingDesignResult) -> np.ndarray:
     """``(n_bays (n_span - 1) + 1, n_contour, 3)`` m: the bays joined at their shared ribs, y the
     span station (`Wing.stations`)."""
-    sol = result.solution
+    sol = result.wing_solution
     stations = np.asarray(result.wing.stations, np.float64)
     parts = []
     for k in range(len(sol.bays)):
@@ -52,25 +53,24 @@ def wing_nodes(result: WingDesignResult) -> np.ndarray:
 
 def wing_deviation(result: WingDesignResult) -> np.ndarray:
     """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
-    fractions of the local chord (positive outside; `wing_design` module docstring)."""
+    fractions of the local chord (positive outside; `objectives` module docstring)."""
     import jax
 
-    sol, targets = result.solution, result.targets
+    sol, targets = result.wing_solution, result.targets
     out = []
     with jax.enable_x64(True):
         for k, bay in enumerate(sol.bays):
             etas = np.linspace(0.0, 1.0, bay.n_span)
             rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
-            chords = [(1 - e) * bay.chord_root + e * bay.chord_tip for e in etas]
-            out.append(np.asarray(_bay_distances(np.asarray(sol.nodes[k]), rows, etas, chords)))
+            out.append(np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas))))
     return np.stack(out)
 
 
 def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timings: dict | None = None) -> dict:
     """The JSON-ready summary of a wing design (the keys the command line reads as for one bay:
     ``mode``, ``results.success``, ``results.message``, ``constraints.violated``)."""
-    sol = result.solution
-    params = result.parameters.as_dict()
+    sol = result.wing_solution
+    params = result.parameters.resolved(sol.fabric).as_dict()
     stations = np.asarray(result.wing.stations, np.float64)
     specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
     bays = []
@@ -116,7 +116,7 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
                        "stiffness_chord_n_per_m": params["stiffness_chord"]},
             "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
             "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
-            "rib_limits": [{"rib": k, **m} for k, m in enumerate(result.rib_limits)],
+            "rib_limits": list(result.rib_limits),
             "variables": list(result.variables), "method": result.method,
             "iterations": len(result.history), "forward_solves": result.solves,
             "wall_time_s": result.wall_time, "bays": bays,
@@ -157,7 +157,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     Args:
         out_dir: the folder to create, or to write into (replacing only an earlier
             report's files: `export.staged_folder`).
-        result: the `wing_design.WingDesignResult`.
+        result: the `optimise.DesignResult` of the wing.
         bounds: variable bounds to draw in the history plot.
         inputs: the caller's options (stored as given).
         timings: seconds spent before the report; ``report`` and ``total`` are added.
@@ -172,7 +172,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     summary = summarise_wing(result, inputs=inputs, timings=timings)
-    sol = result.solution
+    sol = result.wing_solution
     files, skipped = [], {}
     with staged_folder(out) as staging:
         solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
