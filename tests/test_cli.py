@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design.app import case as case_reader, cli, export, interrupts, resources
+from inverse_design.app import case as case_reader, cli, command, export, interrupts, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -105,6 +105,12 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert inputs["sources"] == {"n_span": "command line", "n_contour": "command line",
                                  "out": "command line"}
     assert summary["case"]["grid"] == [5, 32] and summary["mode"] == "optimise"
+    # One layout for a bay and a wing (schema 2): the bay axis has this bay's one entry.
+    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 1
+    (bay,) = summary["bays"]
+    assert bay["errors_after"]["rms"] == pytest.approx(summary["errors"]["after"]["rms"], rel=1e-12)
+    assert bay["errors_before"]["rms"] == pytest.approx(summary["errors"]["before"]["rms"], rel=1e-12)
+    assert bay["result"] == "converged" and bay["span_m"] == [0.0, pytest.approx(0.25)]
     results = summary["results"]
     assert results["success"] is True and results["message"]
     assert results["variables"] == ["pressure", "rib_thickness_scale"]
@@ -518,9 +524,9 @@ def test_a_stop_lost_in_a_gc_callback_still_ends_the_run_and_writes_nothing(tmp_
     # Issue 19: a Ctrl-C or SIGTERM arriving while JAX's gc callback ran was lost; the run wrote its
     # folder and exited 0. Here the stop is sent from inside a gc callback at the start of the run
     # (before the solve) or while the report is being written (inside its staging folder).
-    from inverse_design.app import summary
+    from inverse_design.app import report as summary
 
-    name, module = ("check_grid", cli) if where == "solving" else ("plot_section", summary)
+    name, module = ("check_grid", command) if where == "solving" else ("plot_section", summary)
     original = getattr(module, name)
 
     def lose_a_stop(*args, **kwargs):

@@ -21,7 +21,7 @@ from forward_solver import Bay, Fabric, Parameters, Scene, rib_section
 from forward_solver.rib_shape import class_function
 from inverse_design import optimise_pressure
 from inverse_design.rib_design import RibGeometry, RibLimits, _curvature, cut_lengths
-from inverse_design.app.summary import write_report
+from inverse_design.app.report import write_report
 from inverse_design.variables import DesignVariables
 from targets import load_airfoil, naca
 

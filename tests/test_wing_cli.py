@@ -68,10 +68,11 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert (out / "rib_0.dat.orig").read_bytes() == b"the user's rib"
     assert (out / "wing.toml").read_bytes() == b"# the user's case"
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["mode"] == "wing" and summary["results"]["success"]
+    assert summary["mode"] == "optimise" and summary["results"]["success"]
+    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
     assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
     assert summary["case"]["ribs"][3]["target"] == "NACA 4415"
-    bays = summary["results"]["bays"]
+    bays = summary["bays"]
     assert [b["result"] for b in bays] == ["converged"] * 3
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",

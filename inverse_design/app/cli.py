@@ -3,7 +3,7 @@
 It parses the options (and a TOML case file, ``--config``), builds the
 `forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
 ``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
-to `inverse_design.app.summary.write_report`, which writes the output folder. No
+to `inverse_design.app.report.write_report`, which writes the output folder. No
 physics lives here.
 
 Exit codes: 0 success; 1 the run failed (a forward solve did not converge:

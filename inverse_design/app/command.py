@@ -17,16 +17,17 @@ from .case import design_inputs, load_section
 from .options import InputError
 from .resources import check_grid
 
-__all__ = ["NOT_FOR_A_WING", "run", "run_wing", "safe_point"]
+__all__ = ["NOT_FOR_A_WING", "run", "safe_point"]
 
-#: Options that mean nothing for a wing, and what to do instead.
+#: Options that have no meaning for a wing, or that the command does not run for one, and why.
 NOT_FOR_A_WING = {
     "chord": "give each rib's chord in its [[rib]] table",
     "rib_spacing": "give each rib's station in its [[rib]] table",
     "rib": "give each rib's section in its [[rib]] table",
-    "refine": "run the wing again on a finer grid (n-span, n-contour)",
-    "evaluate": "optimise the wing, or solve it with forward_solver.solve_wing",
-    "aero": "compare the sections of a single bay",
+    "evaluate": ("the command evaluates a single bay; solve a wing once with forward_solver.solve_wing, or "
+                 "design it (the report then shows the start's errors too)"),
+    "aero": ("NeuralFoil compares one bay's mid-bay and bay-average sections with its target; run the bay "
+             "of interest as a single bay (--target, --rib, --chord, --rib-spacing) with --aero"),
 }
 
 
@@ -37,7 +38,15 @@ def safe_point(entry=None) -> None:
 
 def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = False,
         started: float | None = None) -> dict:
-    """Run the case described by ``args``, write the output folder and return its summary.
+    """Run the case described by ``args`` (one bay, or a wing of ``[[rib]]`` tables), write the output
+    folder and return its summary.
+
+    One path for both: the sections are loaded and checked before JAX is
+    imported, the output folder is checked before the long work, the design
+    runs (`optimise_pressure` for one bay, `optimise_wing` for a wing; every
+    method, ``--refine``, the solver options), and `report.write_report`
+    writes the folder. A wing refuses the options of `NOT_FOR_A_WING` with
+    one line that says why.
 
     ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
     start of `main`, so that it includes importing JAX.
@@ -47,36 +56,69 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         forward_solver.ConvergenceError: a forward solve failed (nothing written).
     """
     start = time.perf_counter() if started is None else started
-    if getattr(args, "wing", None) is not None:  # a case file with [[rib]] tables
-        return run_wing(args, sources, progress=progress, started=start)
+    sources = dict(sources or {})
+    wing_ribs = getattr(args, "wing", None)  # [[rib]] tables of a case file, or None: one bay
+    if wing_ribs is not None:
+        for option, why in NOT_FOR_A_WING.items():
+            if option in sources:
+                raise InputError(f"{option.replace('_', '-')} does not apply to a wing ([[rib]] tables in "
+                                 f"{args.config}): {why}")
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
-    target = load_section(args.target, "--target")  # (before importing JAX: bad input fails fast)
-    rib = target if args.rib is None else load_section(args.rib, "--rib")
-    from forward_solver import Bay, ConvergenceError, Fabric, Scene, solve_equilibrium
+    # The sections, before importing JAX: bad input fails fast.
+    if wing_ribs is None:
+        target = load_section(args.target, "--target")
+        rib = target if args.rib is None else load_section(args.rib, "--rib")
+    else:
+        where = args.config
+        common = load_section(args.target, "--target") if "target" in sources else None
+        sections = [load_section(r["section"], f"{where}: rib {k}: section") for k, r in enumerate(wing_ribs)]
+        targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
+                    common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
+    from forward_solver import Bay, ConvergenceError, Fabric, Scene, Wing, solve_equilibrium
 
-    from ..optimise import optimise_pressure, refine_design
+    from ..optimise import optimise_pressure, optimise_wing, refine_design
     from .export import check_output_folder
-    from .summary import write_report
+    from .report import write_report
 
     out = check_output_folder(args.out)  # before the long work, not after it
+    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
+    initial, variables, rib_limits, bounds, constraints = design_inputs(args)
+    options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
+                   tolerance=args.tolerance, progress=progress, rib_limits=rib_limits, callback=safe_point,
+                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
+    if wing_ribs is not None:
+        try:
+            wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in wing_ribs),
+                        stations=tuple(r["station"] for r in wing_ribs), trailing_edge=args.trailing_edge)
+        except ValueError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        timings = {"setup": time.perf_counter() - start}
+        t = time.perf_counter()
+        result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
+                               method=args.method, n_span=args.n_span, n_contour=args.n_contour, **options)
+        if args.refine:
+            result = refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
+        timings["optimisation"] = time.perf_counter() - t
+        interrupts.check()
+        return write_report(out, result, bounds=bounds, inputs={**vars(args), "sources": sources},
+                            timings=timings, magnification=args.magnification)
+
     def scene_on(n_span: int) -> Scene:
         bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
                                n_contour=args.n_contour)
-        return Scene(bay, Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
-                                 poisson=args.poisson))
+        return Scene(bay, fabric)
 
     scene = scene_on(args.n_span)
-    parameters, variables, rib_limits, bounds, constraints = design_inputs(args)
-    inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
+    inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
                   rib=rib, rib_limits=rib_limits)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
-        result = solve_equilibrium(scene, parameters, max_steps=args.max_steps, method=args.equilibrium_method,
+        result = solve_equilibrium(scene, initial, max_steps=args.max_steps, method=args.equilibrium_method,
                                    throw=False)
         timings["equilibrium"] = time.perf_counter() - t
         if not result.converged:
@@ -84,12 +126,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         aero = _aero(args, result, target, alphas, timings)
         interrupts.check()
         return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
-    options = dict(bounds=bounds, constraints=constraints, root_condition=args.root_condition,
-                   max_iterations=args.max_iterations, tolerance=args.tolerance, progress=progress,
-                   rib=rib, rib_limits=rib_limits, callback=safe_point,
-                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
+    options.update(root_condition=args.root_condition, rib=rib)
     t = time.perf_counter()
-    result = optimise_pressure(scene, target, variables=variables, initial=parameters,
+    result = optimise_pressure(scene, target, variables=variables, initial=initial,
                                objective=args.objective, method=args.method, **options)
     if args.refine:
         scene = scene_on(2 * args.n_span - 1)
@@ -98,64 +137,6 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     aero = _aero(args, result.solution, target, alphas, timings)
     interrupts.check()
     return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
-
-
-def run_wing(args, sources: dict | None = None, progress: bool = False, started: float | None = None) -> dict:
-    """Optimise the wing of ``args.wing`` (from `read_ribs`), write the folder, return its summary.
-
-    Raises:
-        ValueError: bad input (`options.InputError` among them).
-        forward_solver.ConvergenceError: a bay's solve at the start failed (nothing written).
-    """
-    start = time.perf_counter() if started is None else started
-    sources = dict(sources or {})
-    for option, instead in NOT_FOR_A_WING.items():
-        if option in sources:
-            raise InputError(f"{option.replace('_', '-')} does not apply to a wing ([[rib]] tables in "
-                         f"{args.config}): {instead}")
-    if args.method != "slsqp":
-        raise InputError(f"method {args.method} is not available for a wing ([[rib]] tables in {args.config}); "
-                     "use slsqp (the default)")
-    if args.equilibrium_method not in ("auto", "relax"):
-        raise InputError(f"equilibrium-method {args.equilibrium_method} is not available for a wing ([[rib]] tables "
-                     f"in {args.config}): its bays are relaxed together; use auto or relax")
-    if args.max_steps < 1:
-        raise InputError(f"max-steps must be a positive integer, got {args.max_steps}")
-    check_grid(args.n_span, args.n_contour, allow_large=args.allow_large_grid)  # (per bay)
-    where = args.config
-    common = load_section(args.target, "--target") if "target" in sources else None
-    sections = [load_section(r["section"], f"{where}: rib {k}: section") for k, r in enumerate(args.wing)]
-    targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
-                common if common is not None else sections[k]) for k, r in enumerate(args.wing)]
-    from forward_solver import Fabric
-    from forward_solver.wing import Wing
-
-    from .export import check_output_folder
-    from ..optimise import optimise_wing
-    from .wing_report import write_wing_report
-
-    out = check_output_folder(args.out)
-    try:
-        wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in args.wing),
-                    stations=tuple(r["station"] for r in args.wing), trailing_edge=args.trailing_edge)
-    except ValueError as exc:
-        raise InputError(f"{where}: {exc}") from None
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
-                    poisson=args.poisson)
-    initial, variables, rib_limits, bounds, constraints = design_inputs(args)  # (one shape per rib)
-    timings = {"setup": time.perf_counter() - start}
-    t = time.perf_counter()
-    result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
-                           objective=args.objective, constraints=constraints, rib_limits=rib_limits,
-                           n_span=args.n_span, max_steps=args.max_steps,
-                           n_contour=args.n_contour, max_iterations=args.max_iterations,
-                           **({} if args.tolerance is None else {"tolerance": args.tolerance}),
-                           progress=progress, callback=safe_point)
-    timings["optimisation"] = time.perf_counter() - t
-    inputs = {**vars(args), "sources": sources}
-    safe_point()
-    return write_wing_report(out, result, bounds=bounds, inputs=inputs, timings=timings,
-                             magnification=args.magnification)
 
 
 def _aero_angles(args: argparse.Namespace):

@@ -13,7 +13,7 @@ def _value_text(name: str, value) -> str:
 
 def describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
-    if summary["mode"] == "wing":
+    if summary["case"].get("n_bays", 1) > 1:
         return describe_wing(summary)
     case, res, err = summary["case"], summary["results"], summary["errors"]
     v = res["values"]
@@ -72,13 +72,13 @@ def describe_wing(summary: dict) -> list[str]:
                      f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
     lines.append(f"  {res['method']}: {chosen}")
     lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
-    for bay in res["bays"]:
+    for bay in summary["bays"]:
         lines.append(f"  bay {bay['bay']}: {bay['result']}, rms {bay['errors_before']['rms']:.3e} -> "
                      f"{bay['errors_after']['rms']:.3e}, max {bay['errors_after']['max']:.3e} chord, "
                      f"tension {bay['min_tension_n_per_m']:.4g} to {bay['max_tension_n_per_m']:.4g} N/m")
-    violated = summary["constraints"]["violated"] or {}
-    shown = ", ".join(f"{name} in {bay} by {amount:.4g} N/m" for name, per_bay in violated.items()
-                      for bay, amount in per_bay.items())
+    where = summary["constraints"]["violated_where"] or {}
+    shown = ", ".join(f"{name} in {place} by {amount:.4g}" + ("" if name.startswith("rib_") else " N/m")
+                      for name, places in where.items() for place, amount in places.items())
     lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
                  f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")

@@ -226,7 +226,7 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     return path
 
 
-#: Names of the files a report writes (`summary.write_report`, `wing_report.write_wing_report`). An
+#: Names of the files a report writes (`report.write_report`). An
 #: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
 #: that no earlier report there wrote (`written_files`), before the long work.
 REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|cut_pattern\.csv|"

@@ -2,7 +2,7 @@
 
 The ``plot_*`` functions return `matplotlib.figure.Figure` objects built
 without pyplot (no global state, an Agg canvas), so they serve notebooks and
-scripts as well as the command line (`inverse_design.app.summary.write_report`
+scripts as well as the command line (`inverse_design.app.report.write_report`
 saves them into the output folder). Maps of the whole bay are drawn on the
 developed skin: the horizontal axis is the distance along the rib contour
 from the trailing edge over the upper surface, the leading edge and the
