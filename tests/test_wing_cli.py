@@ -106,7 +106,7 @@ def test_the_built_in_example_is_a_valid_wing_case():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root is not available for a wing .*; use slsqp"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):
