@@ -117,15 +117,16 @@ def _jsonable(value):
     return value
 
 
-def summarise(result, target, scene, *, objective: str | None = None,
+def summarise(result, target=None, scene=None, *, objective: str | None = None,
               inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
               rib_limits: RibLimits | None = None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
     Args:
         result: a `DesignResult`, or a `Solution` (a single equilibrium).
-        target: the target `targets.Airfoil`.
-        scene: the `forward_solver.Scene`.
+        target: a single bay's target `targets.Airfoil`; None for a wing's
+            summary (any number of bays, the result's own targets).
+        scene: a single bay's `forward_solver.Scene`.
         objective: the sections the errors are measured on (default the
             result's objective, or "mid_bay" for a `Solution`).
         inputs: the caller's options (stored as given).
@@ -141,7 +142,7 @@ def summarise(result, target, scene, *, objective: str | None = None,
         value that does not exist (no upper tension limit, a gradient not
         computed).
     """
-    if isinstance(result, DesignResult) and result.n_bays > 1:
+    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):
         return _summarise_wing(result, inputs=inputs, timings=timings)
     solution, design = _unpack(result)
     objective = objective or (design.objective if design is not None else "mid_bay")
@@ -286,7 +287,8 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         result: a `DesignResult` (`optimise_pressure`, `optimise_wing`: one
             bay or several), or a single bay's `Solution`.
         target: a single bay's target `targets.Airfoil` (chord-normalised);
-            a wing's targets are the result's own.
+            None for a wing's folder (any number of bays; its targets are the
+            result's own, one per rib).
         scene: a single bay's `forward_solver.Scene` it was solved on.
         objective, inputs: as `summarise`.
         bounds: variable bounds to draw in the history plot.
@@ -309,7 +311,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         ValueError: if ``out_dir`` cannot be written (`check_output_folder`).
         TypeError: if ``result`` is neither a `DesignResult` nor a `Solution`.
     """
-    if isinstance(result, DesignResult) and result.n_bays > 1:
+    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):  # a wing's folder
         if aero is not None:
             raise ValueError("the aerodynamic comparison is of one bay's sections; a wing's report has none")
         return _write_wing_folder(out_dir, result, bounds=bounds, inputs=inputs, timings=timings,
