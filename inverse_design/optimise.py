@@ -97,6 +97,10 @@ class DesignResult(ParameterViews):
             ``rib_min_thickness`` (the thickness ratio's shortfall) and
             ``rib_min_radius`` (the radius's, chord) broken by more than
             `rib_design.RIB_TOLERANCE` of the limit.
+        violated_at_start: the same for the starting design (empty when
+            the start met every limit). A start that broke a limit may have
+            a smaller error than a design that meets it: the error then
+            rises, and this says why.
         constraint_values: the measured minimum and maximum fibre tension (N/m)
             and the limits; for a shaped rib the least thickness ratio and
             radius of curvature with their limits (`rib_design.rib_report`).
@@ -124,6 +128,7 @@ class DesignResult(ParameterViews):
     active_constraints: list = field(default_factory=list)
     violated_constraints: dict = field(default_factory=dict)
     constraint_values: dict = field(default_factory=dict)
+    violated_at_start: dict = field(default_factory=dict)
     method: str = ""
     objective: str = ""
     solves: int = 0
@@ -251,6 +256,8 @@ def optimise_pressure(
         else:
             sol0 = problem.solve(u0)
         initial_errors = design_errors(sol0.nodes, target, problem.chord, objective)
+        violated_at_start = _violated(scene, constraints, design, design.parameters(u0).as_floats(), sol0,
+                                      problem.tension_scale, rib_geometry)
         try:
             if method == "root":
                 u, success, message = root(problem, root_condition, max_iterations, tolerance)
@@ -295,6 +302,7 @@ def optimise_pressure(
         active_constraints=active,
         violated_constraints=violated,
         constraint_values=report,
+        violated_at_start=violated_at_start,
         method=method,
         objective=objective,
         solves=problem.solves,
@@ -337,12 +345,21 @@ def refine_design(result: DesignResult, scene: Scene, target, **options) -> Desi
                                wall_time=result.wall_time + fine.wall_time,
                                history=[*result.history, *fine.history],
                                initial_rms_error=result.initial_rms_error,
-                               initial_max_error=result.initial_max_error)
+                               initial_max_error=result.initial_max_error,
+                               violated_at_start=result.violated_at_start)
 
 
 def _plain(value):
     """A float, or a list of floats for a vector variable."""
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
+
+
+def _violated(scene, constraints, design, parameters, sol, scale, rib_geometry) -> dict:
+    """``{name: amount}`` of the limits the design ``parameters`` (solved as ``sol``) breaks, as
+    `DesignResult.violated_constraints` counts them."""
+    tensions = np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes), parameters))
+    violated = constraint_report(constraints, design, parameters, tensions, scene.fabric, scale)[1]
+    return {**violated, **rib_report(rib_geometry, parameters)[1]}
 
 
 def _violation_message(violated: dict, report: dict, rib_violated: dict | None = None,

@@ -164,6 +164,7 @@ def summarise(result, target, scene, *, objective: str | None = None,
         "constraints": {
             "active": list(design.active_constraints) if design is not None else None,
             "violated": dict(design.violated_constraints) if design is not None else None,
+            "violated_at_start": dict(design.violated_at_start) if design is not None else None,
             "values": (dict(design.constraint_values) if design is not None else
                        {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
                         "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),

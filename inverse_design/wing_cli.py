@@ -168,6 +168,8 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
 
 def describe_wing(summary: dict) -> list[str]:
     """The console lines of a finished wing run."""
+    from .cli import start_violation_line
+
     res, err = summary["results"], summary["errors"]
     v = res["values"]
     ribs = summary["case"]["ribs"]
@@ -189,6 +191,9 @@ def describe_wing(summary: dict) -> list[str]:
                       for bay, amount in per_bay.items())
     lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
                  f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
+    start_line = start_violation_line(summary)
+    if start_line:
+        lines.append(start_line)
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines

@@ -536,6 +536,9 @@ class WingDesignResult(ParameterViews):
         violated_constraints: ``{name: {index: amount}}`` for each limit
             broken beyond its tolerance: tension limits by bay (N/m), rib
             limits by rib (`rib_design.rib_report`'s amounts).
+        violated_at_start: the same for the starting design (empty when the
+            start met every limit): a start that broke a limit may have a
+            smaller error than a design that meets it.
         constraint_values: the wing's extreme tensions and the limits, N/m.
         history: one dict per iterate: ``values``, ``objective`` (chord^2),
             ``gradient_norm``, ``constraints`` (``g >= 0`` feasible), ``steps``
@@ -570,6 +573,7 @@ class WingDesignResult(ParameterViews):
     active_constraints: list = field(default_factory=list)
     violated_constraints: dict = field(default_factory=dict)
     constraint_values: dict = field(default_factory=dict)
+    violated_at_start: dict = field(default_factory=dict)
     history: list = field(default_factory=list)
     solves: int = 0
     wall_time: float = 0.0
@@ -692,6 +696,7 @@ def optimise_wing(
         u0 = design.start_vector()
         sol0 = problem.evaluate(u0)[-1]
         before = problem.measure(sol0, u0)
+        violated_at_start = _start_violations(problem, design, constraints, fabric, sol0.parameters, before, u0)
         try:
             u, success, message = slsqp(problem, u0, max_iterations, tolerance)
         except WingConvergenceError as failure:
@@ -738,8 +743,20 @@ def optimise_wing(
         bay_min_tension=after["min_tension"], bay_max_tension=after["max_tension"],
         solution=sol, targets=tuple(targets), success=bool(success), message=message,
         active_constraints=active, violated_constraints=violated, constraint_values=report,
-        history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start, wing=wing,
+        violated_at_start=violated_at_start, history=problem.history, solves=problem.solves, wall_time=time.perf_counter() - start, wing=wing,
         rib_shapes=None if shapes is None else np.asarray(shapes), rib_limits=ribs)
+
+
+def _start_violations(problem, design, constraints, fabric, parameters, measured, u) -> dict:
+    """``{name: {index: amount}}`` of the limits the start breaks, as
+    `WingDesignResult.violated_constraints` counts them (tension limits by bay, rib limits by rib)."""
+    violated = _check_limits(constraints, design, parameters, measured, fabric, problem.tension_scale)[1]
+    shapes = design.rib_shapes(u)
+    if shapes is not None and problem.rib_geometries is not None:
+        for k, row in enumerate(np.asarray(shapes)):
+            for name, amount in rib_report(problem.rib_geometries[k], parameters.replace(rib_shape=row))[1].items():
+                violated.setdefault(name, {})[k] = amount
+    return violated
 
 
 def _check_limits(constraints, design, parameters, measured, fabric, scale):

@@ -122,14 +122,20 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
         },
         "constraints": {
             "active": list(result.active_constraints),
-            "violated": {name: {f"bay {k}": v for k, v in per_bay.items()}
-                         for name, per_bay in result.violated_constraints.items()},
+            "violated": _per_place(result.violated_constraints),
+            "violated_at_start": _per_place(result.violated_at_start),
             "values": dict(result.constraint_values), "unit": "N/m",
         },
         "timings_s": dict(timings or {}),
         "history": list(result.history),
     }
     return _jsonable(summary)
+
+
+def _per_place(violated: dict) -> dict:
+    """``{name: {"bay K" (tension limits) or "rib K" (rib limits): amount}}``."""
+    return {name: {f"{'rib' if name.startswith('rib_') else 'bay'} {k}": v for k, v in per_index.items()}
+            for name, per_index in violated.items()}
 
 
 class _SharedHistory:

@@ -122,9 +122,29 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert isinstance(constraints["active"], list)
     assert constraints["values"]["min_tension_floor"] == 0.0
     assert constraints["values"]["max_tension"] > constraints["values"]["min_tension"]
+    assert constraints["violated_at_start"] == {}  # the default start is taut
     timings = summary["timings_s"]
     assert {"setup", "optimisation", "report", "total"} <= set(timings)
     assert timings["total"] >= timings["optimisation"] + timings["report"] > 0
+
+
+def test_a_start_that_broke_a_limit_is_said_on_the_console():
+    # The numbers of `--target e387.dat` (17x64): the start wrinkled, the feasible design's error
+    # is larger; without the line a worse design read as a plain success.
+    summary = {"constraints": {"violated": {}, "violated_at_start": {"min_tension": 624.6}},
+               "errors": {"before": {"rms": 6.807e-3}, "after": {"rms": 9.115e-3}}}
+    assert cli.start_violation_line(summary) == (
+        "  note: the start broke min_tension by 624.6 N/m; the design is feasible but its error is larger "
+        "than the infeasible start's (9.115e-03 against 6.807e-03 chord)")
+    summary["errors"]["after"]["rms"] = 5e-3
+    assert cli.start_violation_line(summary).endswith("; the design is feasible")
+    wing = {"constraints": {"violated": {"max_tension": {"bay 0": 2.0}},
+                            "violated_at_start": {"max_tension": {"bay 0": 10.0, "bay 2": 5.0}}},
+            "errors": {"before": {"rms": 1e-2}, "after": {"rms": 2e-2}}}
+    assert cli.start_violation_line(wing) == ("  note: the start broke max_tension by 10 N/m in bay 0, by 5 N/m "
+                                              "in bay 2; the design still breaks a limit (above)")
+    summary["constraints"]["violated_at_start"] = {}
+    assert cli.start_violation_line(summary) is None
 
 
 def test_the_npz_holds_the_equilibrium_and_its_parameters(default_run):
