@@ -437,9 +437,11 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
     scene = scene_on(args.n_span)
     parameters, variables, rib_limits, bounds, constraints = design_inputs(args)
+    notes = plausibility(args, scene.fabric, parameters, [(args.rib_spacing, args.chord)],
+                         None if args.evaluate else bounds)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
-                  rib=rib, rib_limits=rib_limits)
+                  rib=rib, rib_limits=rib_limits, warnings=notes)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
@@ -504,6 +506,18 @@ def design_inputs(args: argparse.Namespace) -> tuple:
     constraints = (None if args.no_tension_constraints else
                    Constraints(min_tension=args.min_tension, max_tension=args.max_tension))
     return initial, variables, rib_limits, bounds, constraints
+
+
+def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds) -> list[str]:
+    """`plausibility.check_plausibility`'s lines for the inputs, each shown on stderr as one
+    ``warning:`` line (unless ``--quiet``); the caller records them in the summary."""
+    from .plausibility import check_plausibility
+
+    lines = check_plausibility(fabric, parameters, bays, bounds, warn=False)
+    if not args.quiet:
+        for line in lines:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+    return lines
 
 
 def _aero_angles(args: argparse.Namespace):

@@ -122,7 +122,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
         ValueError: bad input (`cli.InputError` among them).
         forward_solver.ConvergenceError: a bay's solve at the start failed (nothing written).
     """
-    from .cli import _airfoil, design_inputs
+    from .cli import _airfoil, design_inputs, plausibility
 
     start = time.perf_counter() if started is None else started
     sources = dict(sources or {})
@@ -152,6 +152,9 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
                     poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)  # (one shape per rib)
+    chords, stations = wing.chords, wing.stations
+    notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
+                                                 for k in range(len(chords) - 1)], bounds)
     timings = {"setup": time.perf_counter() - start}
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
@@ -163,7 +166,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     timings["optimisation"] = time.perf_counter() - t
     inputs = {**vars(args), "sources": sources}
     return write_wing_report(out, result, bounds=bounds, inputs=inputs, timings=timings,
-                             magnification=args.magnification)
+                             magnification=args.magnification, warnings=notes)
 
 
 def describe_wing(summary: dict) -> list[str]:

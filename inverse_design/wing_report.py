@@ -66,9 +66,11 @@ def wing_deviation(result: WingDesignResult) -> np.ndarray:
     return np.stack(out)
 
 
-def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timings: dict | None = None) -> dict:
+def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timings: dict | None = None,
+                   warnings: list | None = None) -> dict:
     """The JSON-ready summary of a wing design (the keys the command line reads as for one bay:
-    ``mode``, ``results.success``, ``results.message``, ``constraints.violated``)."""
+    ``mode``, ``results.success``, ``results.message``, ``constraints.violated``; ``warnings``:
+    lines about the inputs, `plausibility.check_plausibility`)."""
     sol = result.solution
     params = result.parameters.as_dict()
     stations = np.asarray(result.wing.stations, np.float64)
@@ -92,6 +94,7 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
         "versions": {"python": platform.python_version(), "jax": _version("jax"), "numpy": np.__version__},
         "mode": "wing",
         "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
         "case": {
             "ribs": [{"section": af.name, "target": t.name, "chord_m": c, "station_m": y}
                      for af, t, c, y in zip(result.wing.airfoils, result.targets, result.wing.chords,
@@ -151,7 +154,7 @@ class _SharedHistory:
 
 def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None = None,
                       inputs: dict | None = None, timings: dict | None = None,
-                      magnification: float | None = None) -> dict:
+                      magnification: float | None = None, warnings: list | None = None) -> dict:
     """Write the output folder of a wing design and return its summary (module docstring).
 
     Args:
@@ -161,6 +164,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
         inputs: the caller's options (stored as given).
         timings: seconds spent before the report; ``report`` and ``total`` are added.
         magnification: deviation factor of the section plots (default automatic).
+        warnings: lines about the inputs, stored as ``summary["warnings"]``.
 
     Returns:
         The summary, with ``files``, ``skipped`` and ``out``.
@@ -170,7 +174,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     """
     start = time.perf_counter()
     out = check_output_folder(out_dir)
-    summary = summarise_wing(result, inputs=inputs, timings=timings)
+    summary = summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
     sol = result.solution
     files, skipped = [], {}
     with staged_folder(out) as staging:
