@@ -767,4 +767,9 @@ def _main(argv: list[str] | None, started: float) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m inverse_design.cli` runs this file as __main__, a second copy of the module beside
+    # the inverse_design.cli that wing_cli imports: its InputError would not be this copy's, and bad
+    # wing input would end in a traceback. Run the package's own module instead.
+    from inverse_design.cli import main as package_main
+
+    sys.exit(package_main())
