@@ -486,9 +486,11 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
     scene = scene_on(args.n_span)
     parameters, variables, rib_limits, bounds, constraints = design_inputs(args)
+    notes = plausibility(args, scene.fabric, parameters, [(args.rib_spacing, args.chord)],
+                         None if args.evaluate else bounds)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": dict(sources or {})}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
-                  rib=rib, rib_limits=rib_limits)
+                  rib=rib, rib_limits=rib_limits, warnings=notes)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
@@ -559,6 +561,18 @@ def design_inputs(args: argparse.Namespace) -> tuple:
     return initial, variables, rib_limits, bounds, constraints
 
 
+def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds) -> list[str]:
+    """`plausibility.check_plausibility`'s lines for the inputs, each shown on stderr as one
+    ``warning:`` line (unless ``--quiet``); the caller records them in the summary."""
+    from .plausibility import check_plausibility
+
+    lines = check_plausibility(fabric, parameters, bays, bounds, warn=False)
+    if not args.quiet:
+        for line in lines:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+    return lines
+
+
 def _aero_angles(args: argparse.Namespace):
     """The angles of ``--aero``, after checking that NeuralFoil is installed (`InputError` if not)."""
     from .aero import AeroUnavailable, alpha_range, require_neuralfoil
@@ -592,6 +606,41 @@ def _value_text(name: str, value) -> str:
     return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
 
 
+#: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
+_VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
+
+
+def _amount_text(name: str, amount) -> str:
+    """``"by 12.3 N/m"``; a per-bay (per-rib) amount ``{where: amount}`` as ``"by 12.3 N/m in bay 0, ..."``."""
+    unit = _VIOLATION_UNITS.get(name, " N/m")
+    if isinstance(amount, dict):
+        return ", ".join(f"by {v:.4g}{unit} in {where}" for where, v in amount.items())
+    return f"by {amount:.4g}{unit}"
+
+
+def start_violation_line(summary: dict) -> str | None:
+    """The console line of a design whose start broke a limit (``constraints.violated_at_start``),
+    or None when the start met every limit.
+
+    The start's error is then no fair yardstick: a design that meets the
+    limit may have a larger error than the infeasible start, and the line
+    says so rather than leave a worse error unexplained.
+    """
+    at_start = summary["constraints"].get("violated_at_start") or {}
+    if not at_start:
+        return None
+    broke = "; ".join(f"{name} {_amount_text(name, amount)}" for name, amount in at_start.items())
+    err = summary["errors"]
+    if summary["constraints"]["violated"]:
+        verdict = "the design still breaks a limit (above)"
+    elif err["after"]["rms"] > err["before"]["rms"]:
+        verdict = ("the design is feasible but its error is larger than the infeasible start's "
+                   f"({err['after']['rms']:.3e} against {err['before']['rms']:.3e} chord)")
+    else:
+        verdict = "the design is feasible"
+    return f"  note: the start broke {broke}; {verdict}"
+
+
 def _describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
     if summary["mode"] == "wing":
@@ -615,6 +664,9 @@ def _describe(summary: dict) -> list[str]:
         lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
                      f"violated: {', '.join(f'{k} by {v:.4g} N/m' for k, v in violated.items()) or 'none'}; "
                      f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+        start_line = start_violation_line(summary)
+        if start_line:
+            lines.append(start_line)
         grid = res.get("grid_change")
         if grid:
             moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
@@ -760,4 +812,9 @@ def _main(argv: list[str] | None, started: float) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m inverse_design.cli` runs this file as __main__, a second copy of the module beside
+    # the inverse_design.cli that wing_cli imports: its InputError would not be this copy's, and bad
+    # wing input would end in a traceback. Run the package's own module instead.
+    from inverse_design.cli import main as package_main
+
+    sys.exit(package_main())

@@ -92,7 +92,7 @@ def _jsonable(value):
 
 def summarise(result, target, scene, *, objective: str | None = None,
               inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
-              rib_limits: RibLimits | None = None) -> dict:
+              rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
     Args:
@@ -108,6 +108,8 @@ def summarise(result, target, scene, *, objective: str | None = None,
         rib: the rib's starting section (default the target), for the rib
             entry of a shaped rib.
         rib_limits: the `rib_design.RibLimits` the design used (default the defaults).
+        warnings: lines about the inputs (`plausibility.check_plausibility`),
+            stored as ``summary["warnings"]`` (default none).
 
     Returns:
         A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
@@ -127,6 +129,7 @@ def summarise(result, target, scene, *, objective: str | None = None,
                      "numpy": np.__version__},
         "mode": "optimise" if design is not None else "evaluate",
         "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
         "case": {
             "target": str(target.name), "rib": bay.name, "chord_m": chord,
             "rib_spacing_m": bay.rib_spacing, "grid": [bay.n_span, bay.n_contour],
@@ -164,6 +167,7 @@ def summarise(result, target, scene, *, objective: str | None = None,
         "constraints": {
             "active": list(design.active_constraints) if design is not None else None,
             "violated": dict(design.violated_constraints) if design is not None else None,
+            "violated_at_start": dict(design.violated_at_start) if design is not None else None,
             "values": (dict(design.constraint_values) if design is not None else
                        {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
                         "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),
@@ -199,7 +203,7 @@ def summarise(result, target, scene, *, objective: str | None = None,
 def write_report(out_dir, result, target, *, scene, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
-                 rib=None, rib_limits: RibLimits | None = None) -> dict:
+                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -208,7 +212,7 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
         result: a `DesignResult` from `optimise_pressure`, or a `Solution`.
         target: the target `targets.Airfoil` (chord-normalised).
         scene: the `forward_solver.Scene` it was solved on.
-        objective, inputs: as `summarise`.
+        objective, inputs, warnings: as `summarise`.
         bounds: variable bounds to draw in the history plot.
         timings: seconds spent before the report (e.g. ``setup``,
             ``optimisation``); ``report`` and, unless given, ``total`` (their
@@ -233,7 +237,7 @@ def write_report(out_dir, result, target, *, scene, objective: str | None = None
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
     summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero,
-                        rib=rib, rib_limits=rib_limits)
+                        rib=rib, rib_limits=rib_limits, warnings=warnings)
     files, skipped = [], {}
     start_rib = target if rib is None else rib
     shaped = solution.parameters.rib_shape is not None

@@ -125,7 +125,7 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
         ValueError: bad input (`cli.InputError` among them).
         forward_solver.ConvergenceError: a bay's solve at the start failed (nothing written).
     """
-    from .cli import _airfoil, _safe_point, design_inputs
+    from .cli import _airfoil, _safe_point, design_inputs, plausibility
 
     start = time.perf_counter() if started is None else started
     sources = dict(sources or {})
@@ -163,6 +163,9 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
                     poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)  # (one shape per rib)
+    chords, stations = wing.chords, wing.stations
+    notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
+                                                 for k in range(len(chords) - 1)], bounds)
     timings = {"setup": time.perf_counter() - start}
     t = time.perf_counter()
     result = optimise_wing(wing, fabric, targets, variables, initial=initial, bounds=bounds,
@@ -175,11 +178,13 @@ def run_wing(args, sources: dict | None = None, progress: bool = False, started:
     inputs = {**vars(args), "sources": sources}
     _safe_point()
     return write_wing_report(out, result, bounds=bounds, inputs=inputs, timings=timings,
-                             magnification=args.magnification)
+                             magnification=args.magnification, warnings=notes)
 
 
 def describe_wing(summary: dict) -> list[str]:
     """The console lines of a finished wing run."""
+    from .cli import start_violation_line
+
     res, err = summary["results"], summary["errors"]
     v = res["values"]
     ribs = summary["case"]["ribs"]
@@ -207,6 +212,9 @@ def describe_wing(summary: dict) -> list[str]:
                       for bay, amount in per_bay.items())
     lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
                  f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
+    start_line = start_violation_line(summary)
+    if start_line:
+        lines.append(start_line)
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines

@@ -66,9 +66,11 @@ def wing_deviation(result: WingDesignResult) -> np.ndarray:
     return np.stack(out)
 
 
-def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timings: dict | None = None) -> dict:
+def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timings: dict | None = None,
+                   warnings: list | None = None) -> dict:
     """The JSON-ready summary of a wing design (the keys the command line reads as for one bay:
-    ``mode``, ``results.success``, ``results.message``, ``constraints.violated``)."""
+    ``mode``, ``results.success``, ``results.message``, ``constraints.violated``; ``warnings``:
+    lines about the inputs, `plausibility.check_plausibility`)."""
     sol = result.wing_solution
     params = result.parameters.resolved(sol.fabric).as_dict()
     stations = np.asarray(result.wing.stations, np.float64)
@@ -93,6 +95,7 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
         "versions": {"python": platform.python_version(), "jax": _version("jax"), "numpy": np.__version__},
         "mode": "wing",
         "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
         "case": {
             "ribs": [{"section": af.name, "target": t.name, "chord_m": c, "station_m": y}
                      for af, t, c, y in zip(result.wing.airfoils, result.targets, result.wing.chords,
@@ -128,14 +131,20 @@ def summarise_wing(result: WingDesignResult, *, inputs: dict | None = None, timi
         },
         "constraints": {
             "active": list(result.active_constraints),
-            "violated": {name: {f"bay {k}": v for k, v in per_bay.items()}
-                         for name, per_bay in result.violated_constraints.items()},
+            "violated": _per_place(result.violated_constraints),
+            "violated_at_start": _per_place(result.violated_at_start),
             "values": dict(result.constraint_values), "unit": "N/m",
         },
         "timings_s": dict(timings or {}),
         "history": list(result.history),
     }
     return _jsonable(summary)
+
+
+def _per_place(violated: dict) -> dict:
+    """``{name: {"bay K" (tension limits) or "rib K" (rib limits): amount}}``."""
+    return {name: {f"{'rib' if name.startswith('rib_') else 'bay'} {k}": v for k, v in per_index.items()}
+            for name, per_index in violated.items()}
 
 
 class _SharedHistory:
@@ -151,7 +160,7 @@ class _SharedHistory:
 
 def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None = None,
                       inputs: dict | None = None, timings: dict | None = None,
-                      magnification: float | None = None) -> dict:
+                      magnification: float | None = None, warnings: list | None = None) -> dict:
     """Write the output folder of a wing design and return its summary (module docstring).
 
     Args:
@@ -162,6 +171,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
         inputs: the caller's options (stored as given).
         timings: seconds spent before the report; ``report`` and ``total`` are added.
         magnification: deviation factor of the section plots (default automatic).
+        warnings: lines about the inputs, stored as ``summary["warnings"]``.
 
     Returns:
         The summary, with ``files``, ``skipped`` and ``out``.
@@ -171,7 +181,7 @@ def write_wing_report(out_dir, result: WingDesignResult, *, bounds: dict | None 
     """
     start = time.perf_counter()
     out = check_output_folder(out_dir)
-    summary = summarise_wing(result, inputs=inputs, timings=timings)
+    summary = summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
     sol = result.wing_solution
     files, skipped = [], {}
     with staged_folder(out) as staging:
