@@ -117,6 +117,10 @@ class DesignResult(ParameterViews):
             ``rib_min_radius``, the radius's, chord, broken by more than
             `rib_design.RIB_TOLERANCE` of the limit), the largest over the
             bays or ribs, with the amount at each (``.items()``).
+        violated_at_start: the same for the starting design (empty when
+            the start met every limit). A start that broke a limit may have
+            a smaller error than a design that meets it: the error then
+            rises, and this says why.
         constraint_values: the measured minimum and maximum fibre tension (N/m)
             over every bay and the limits; for a shaped rib the least thickness
             ratio and radius of curvature with their limits
@@ -158,6 +162,7 @@ class DesignResult(ParameterViews):
     active_constraints: list = field(default_factory=list)
     violated_constraints: dict = field(default_factory=dict)
     constraint_values: dict = field(default_factory=dict)
+    violated_at_start: dict = field(default_factory=dict)
     method: str = ""
     objective: str = ""
     solves: int = 0
@@ -440,6 +445,13 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         else:
             sol0 = problem.solve(u0)
         before = problem.measure(sol0, u0)
+        start_parameters = sol0.parameters if design.rib_shapes is not None else design.parameters(u0).as_floats()
+        start_shapes = design.rib_shapes_at(u0)
+        start_shapes = None if start_shapes is None else np.asarray(start_shapes)
+        violated_at_start = {
+            **constraint_report(constraints, design, start_parameters, before["tensions"], fabric,
+                                problem.tension_scale, start_shapes)[1],
+            **rib_report(geometries, start_parameters, start_shapes)[1]}
         try:
             if method == "root":
                 u, success, message = root(problem, root_condition, max_iterations, tolerance)
@@ -486,6 +498,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         active_constraints=active,
         violated_constraints=violated,
         constraint_values=report,
+        violated_at_start=violated_at_start,
         method=method,
         objective=objective,
         solves=problem.solves,
@@ -561,7 +574,8 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
                                wall_time=result.wall_time + fine.wall_time,
                                history=[*result.history, *fine.history],
                                initial_rms_error=result.initial_rms_error,
-                               initial_max_error=result.initial_max_error)
+                               initial_max_error=result.initial_max_error,
+                               violated_at_start=result.violated_at_start)
 
 
 def _value(result: DesignResult, name: str):

@@ -129,9 +129,33 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert isinstance(constraints["active"], list)
     assert constraints["values"]["min_tension_floor"] == 0.0
     assert constraints["values"]["max_tension"] > constraints["values"]["min_tension"]
+    assert constraints["violated_at_start"] == {}  # the default start is taut
+    assert summary["warnings"] == []  # the default case lies inside the validated ranges
     timings = summary["timings_s"]
     assert {"setup", "optimisation", "report", "total"} <= set(timings)
     assert timings["total"] >= timings["optimisation"] + timings["report"] > 0
+
+
+def test_a_start_that_broke_a_limit_is_said_on_the_console():
+    # The numbers of `--target e387.dat` (17x64): the start wrinkled, the feasible design's error
+    # is larger; without the line a worse design read as a plain success.
+    from inverse_design.app.console import start_violation_line
+
+    summary = {"case": {"n_bays": 1}, "constraints": {"violated": {}, "violated_at_start": {"min_tension": 624.6}},
+               "errors": {"before": {"rms": 6.807e-3}, "after": {"rms": 9.115e-3}}}
+    assert start_violation_line(summary) == (
+        "  note: the start broke min_tension by 624.6 N/m; the design is feasible but its error is larger "
+        "than the infeasible start's (9.115e-03 against 6.807e-03 chord)")
+    summary["errors"]["after"]["rms"] = 5e-3
+    assert start_violation_line(summary).endswith("; the design is feasible")
+    wing = {"case": {"n_bays": 3},
+            "constraints": {"violated": {"max_tension": 2.0}, "violated_at_start": {"max_tension": 10.0},
+                            "violated_at_start_where": {"max_tension": {"bay 0": 10.0, "bay 2": 5.0}}},
+            "errors": {"before": {"rms": 1e-2}, "after": {"rms": 2e-2}}}
+    assert start_violation_line(wing) == ("  note: the start broke max_tension by 10 N/m in bay 0, by 5 N/m "
+                                          "in bay 2; the design still breaks a limit (above)")
+    summary["constraints"]["violated_at_start"] = {}
+    assert start_violation_line(summary) is None
 
 
 def test_the_npz_holds_the_equilibrium_and_its_parameters(default_run):
@@ -202,6 +226,18 @@ def test_a_case_file_is_read_and_the_command_line_overrides_it(run_cli, tmp_path
     assert summary["errors"]["before"] is None and summary["errors"]["after"]["rms"] > 0
     # A single equilibrium has no optimiser history: the plot is skipped and the summary says why.
     assert "history.png" in summary["skipped"] and not (tmp_path / "out" / "history.png").exists()
+
+
+def test_inputs_outside_the_validated_ranges_warn_on_stderr_and_in_the_summary(run_cli, tmp_path):
+    done = run_cli(*SMALL, "--evaluate", "--prestrain-chord", "0.08", "--rib-spacing", "0.6", "--out", "out",
+                   cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 3 and all(line.startswith("optimise-pressure: warning: ") for line in lines)
+    assert "prestrain chord 0.08 (8%) lies outside the range the model is validated for (-2% to 5%)" in lines[0]
+    assert "rib spacing 0.6 m lies outside" in lines[1] and "rib spacing / chord 0.6 lies outside" in lines[2]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["warnings"] == [line.removeprefix("optimise-pressure: warning: ") for line in lines]
 
 
 def test_case_file_values_are_checked_like_options(tmp_path):

@@ -75,6 +75,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     bays = summary["bays"]
     assert [b["result"] for b in bays] == ["converged"] * 3
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
+    assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
                                      "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
                                      "bay_2_mid_bay_section.png"}
@@ -87,6 +88,27 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     # One mesh for the whole wing: 3 bays of 8 cell rows, 32 cells round.
     faces = [line for line in (out / "skin.obj").read_text().splitlines() if line.startswith("f ")]
     assert len(faces) == 3 * 8 * 32
+
+
+def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, capsys, monkeypatch):
+    # Bay 1 spans 100 m. The lines come before the optimisation, which is stopped there (as
+    # Ctrl-C would) so that no 100 m bay is solved.
+    from inverse_design import wing_design
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(wing_design, "optimise_wing", stop)
+    case = tmp_path / "wing.toml"
+    case.write_text(CASE.replace("station = 0.5", "station = 100.25").replace("station = 0.75", "station = 100.5"))
+    code = cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == cli.EXIT_INTERRUPTED
+    assert err[:2] == ["optimise-pressure: warning: bay 1: rib spacing 100 m lies outside the range the model is "
+                       "validated for (0.05 to 0.5 m); check the value, or treat the result as unvalidated",
+                       "optimise-pressure: warning: bay 1: rib spacing / chord 133.3 lies outside the range the "
+                       "model is validated for (0.05 to 0.5); check the value, or treat the result as unvalidated"]
+    assert len(err) == 3  # then the interruption
 
 
 def test_the_built_in_example_is_a_valid_wing_case():

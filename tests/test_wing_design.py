@@ -126,6 +126,7 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
     scale = 0.5 * START["pressure"] * 0.9  # the tension scale: p_start times the widest bay's chord / 2
     assert np.all(design.bay_min_tension >= -VIOLATION_TOLERANCE * scale)
     assert "min_tension" in design.active_constraints and not design.violated_constraints
+    assert design.violated_at_start == {}  # 30 kPa: a taut skin everywhere
     assert design.solves == len(design.history) and design.solves < 20
     assert design.bay_rms_error.shape == (3,) and np.all(design.bay_rms_error > 0)
     w = design.weights
@@ -140,6 +141,11 @@ def test_unmeetable_limits_are_named_with_their_bay(wing):
     assert set(res.violated_constraints) == {"max_tension"}
     assert set(res.violated_constraints["max_tension"]) == {0, 1, 2}
     assert "max_tension violated in bay 0" in res.message and "above the ceiling 50 N/m" in res.message
+    # The start (30 kPa) breaks the ceiling in every bay too, by more than the design does.
+    assert set(res.violated_at_start) == {"max_tension"}
+    start = res.violated_at_start["max_tension"]
+    assert set(start) == {0, 1, 2}
+    assert all(start[k] > res.violated_constraints["max_tension"][k] > 0 for k in start)
 
 
 def test_a_one_bay_wing_agrees_with_optimise_pressure():

@@ -10,14 +10,15 @@ writer. No physics lives here.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 from . import interrupts
 from .case import design_inputs, load_section
-from .options import InputError
+from .options import PROG, InputError
 from .resources import check_grid
 
-__all__ = ["NOT_FOR_A_WING", "run", "safe_point"]
+__all__ = ["NOT_FOR_A_WING", "plausibility", "run", "safe_point"]
 
 #: Options that have no meaning for a wing, or that the command does not run for one, and why.
 NOT_FOR_A_WING = {
@@ -98,6 +99,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
                         stations=tuple(r["station"] for r in wing_ribs), trailing_edge=args.trailing_edge)
         except ValueError as exc:
             raise InputError(f"{where}: {exc}") from None
+        chords, stations = wing.chords, wing.stations
+        notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
+                                                     for k in range(len(chords) - 1)], bounds)
         timings = {"setup": time.perf_counter() - start}
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
@@ -107,7 +111,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         timings["optimisation"] = time.perf_counter() - t
         interrupts.check()
         return write_report(out, result, bounds=bounds, inputs={**vars(args), "sources": sources},
-                            timings=timings, magnification=args.magnification)
+                            timings=timings, magnification=args.magnification, warnings=notes)
 
     def scene_on(n_span: int) -> Scene:
         bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
@@ -115,9 +119,10 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         return Scene(bay, fabric)
 
     scene = scene_on(args.n_span)
+    notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
-                  rib=rib, rib_limits=rib_limits)
+                  rib=rib, rib_limits=rib_limits, warnings=notes)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()
@@ -140,6 +145,18 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     aero = _aero(args, result.solution, target, alphas, timings)
     interrupts.check()
     return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
+
+
+def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds) -> list[str]:
+    """`inverse_design.plausibility.check_plausibility`'s lines for the inputs, each shown on stderr as
+    one ``warning:`` line (unless ``--quiet``); the caller records them in the summary."""
+    from ..plausibility import check_plausibility
+
+    lines = check_plausibility(fabric, parameters, bays, bounds, warn=False)
+    if not args.quiet:
+        for line in lines:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+    return lines
 
 
 def _aero_angles(args: argparse.Namespace):

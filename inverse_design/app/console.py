@@ -2,7 +2,46 @@
 
 from __future__ import annotations
 
-__all__ = ["describe", "describe_wing"]
+__all__ = ["describe", "describe_wing", "start_violation_line"]
+
+#: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
+_VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
+
+
+def _amount_text(name: str, amount) -> str:
+    """``"by 12.3 N/m"``; a per-bay (per-rib) amount ``{where: amount}`` as ``"by 12.3 N/m in bay 0, ..."``."""
+    unit = _VIOLATION_UNITS.get(name, " N/m")
+    if isinstance(amount, dict):
+        return ", ".join(f"by {v:.4g}{unit} in {where}" for where, v in amount.items())
+    return f"by {amount:.4g}{unit}"
+
+
+def start_violation_line(summary: dict) -> str | None:
+    """The console line of a design whose start broke a limit (``constraints.violated_at_start``),
+    or None when the start met every limit.
+
+    The start's error is then no fair yardstick: a design that meets the
+    limit may have a larger error than the infeasible start, and the line
+    says so rather than leave a worse error unexplained. A wing's amounts
+    are given per bay (``violated_at_start_where``).
+    """
+    constraints = summary["constraints"]
+    at_start = constraints.get("violated_at_start") or {}
+    if not at_start:
+        return None
+    where = constraints.get("violated_at_start_where") or {}
+    several = summary["case"].get("n_bays", 1) > 1
+    broke = "; ".join(f"{name} {_amount_text(name, where[name] if several and name in where else amount)}"
+                      for name, amount in at_start.items())
+    err = summary["errors"]
+    if constraints["violated"]:
+        verdict = "the design still breaks a limit (above)"
+    elif err["after"]["rms"] > err["before"]["rms"]:
+        verdict = ("the design is feasible but its error is larger than the infeasible start's "
+                   f"({err['after']['rms']:.3e} against {err['before']['rms']:.3e} chord)")
+    else:
+        verdict = "the design is feasible"
+    return f"  note: the start broke {broke}; {verdict}"
 
 def _value_text(name: str, value) -> str:
     """``name value`` for the console (a vector variable as its rounded components)."""
@@ -30,8 +69,11 @@ def describe(summary: dict) -> list[str]:
                      f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
         violated = summary["constraints"]["violated"] or {}
         lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
-                     f"violated: {', '.join(f'{k} by {v:.4g} N/m' for k, v in violated.items()) or 'none'}; "
+                     f"violated: {', '.join(f'{k} {_amount_text(k, v)}' for k, v in violated.items()) or 'none'}; "
                      f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+        start_line = start_violation_line(summary)
+        if start_line:
+            lines.append(start_line)
         grid = res.get("grid_change")
         if grid:
             moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
@@ -77,10 +119,12 @@ def describe_wing(summary: dict) -> list[str]:
                      f"{bay['errors_after']['rms']:.3e}, max {bay['errors_after']['max']:.3e} chord, "
                      f"tension {bay['min_tension_n_per_m']:.4g} to {bay['max_tension_n_per_m']:.4g} N/m")
     where = summary["constraints"]["violated_where"] or {}
-    shown = ", ".join(f"{name} in {place} by {amount:.4g}" + ("" if name.startswith("rib_") else " N/m")
-                      for name, places in where.items() for place, amount in places.items())
+    shown = ", ".join(f"{name} {_amount_text(name, places)}" for name, places in where.items())
     lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
                  f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
+    start_line = start_violation_line(summary)
+    if start_line:
+        lines.append(start_line)
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines

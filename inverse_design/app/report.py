@@ -119,7 +119,7 @@ def _jsonable(value):
 
 def summarise(result, target=None, scene=None, *, objective: str | None = None,
               inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
-              rib_limits: RibLimits | None = None) -> dict:
+              rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
     """The summary of a design or a single equilibrium, as `write_report` stores it.
 
     Args:
@@ -136,6 +136,8 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
         rib: the rib's starting section (default the target), for the rib
             entry of a shaped rib.
         rib_limits: the `rib_design.RibLimits` the design used (default the defaults).
+        warnings: lines about the inputs (`inverse_design.plausibility`),
+            stored as ``summary["warnings"]`` (default none).
 
     Returns:
         A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
@@ -143,7 +145,7 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
         computed).
     """
     if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):
-        return _summarise_wing(result, inputs=inputs, timings=timings)
+        return _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
     solution, design = _unpack(result)
     objective = objective or (design.objective if design is not None else "mid_bay")
     params = solution.parameters.as_dict()
@@ -158,6 +160,7 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
                      "numpy": np.__version__},
         "mode": "optimise" if design is not None else "evaluate",
         "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
         "case": {
             "n_bays": 1, "target": str(target.name), "rib": bay.name, "chord_m": chord,
             "rib_spacing_m": bay.rib_spacing, "grid": [bay.n_span, bay.n_contour],
@@ -197,6 +200,10 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
             "violated": ({name: float(v) for name, v in design.violated_constraints.items()}
                          if design is not None else None),
             "violated_where": _violated_where(design.violated_constraints) if design is not None else None,
+            "violated_at_start": ({name: float(v) for name, v in design.violated_at_start.items()}
+                                  if design is not None else None),
+            "violated_at_start_where": (_violated_where(design.violated_at_start) if design is not None
+                                        else None),
             "values": (dict(design.constraint_values) if design is not None else
                        {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
                         "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),
@@ -278,7 +285,7 @@ def _equilibrium_entry(solution: Solution, scene, target, rms: float, largest: f
 def write_report(out_dir, result, target=None, *, scene=None, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
-                 rib=None, rib_limits: RibLimits | None = None) -> dict:
+                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -290,7 +297,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
             None for a wing's folder (any number of bays; its targets are the
             result's own, one per rib).
         scene: a single bay's `forward_solver.Scene` it was solved on.
-        objective, inputs: as `summarise`.
+        objective, inputs, warnings: as `summarise`.
         bounds: variable bounds to draw in the history plot.
         timings: seconds spent before the report (e.g. ``setup``,
             ``optimisation``); ``report`` and, unless given, ``total`` (their
@@ -315,14 +322,14 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         if aero is not None:
             raise ValueError("the aerodynamic comparison is of one bay's sections; a wing's report has none")
         return _write_wing_folder(out_dir, result, bounds=bounds, inputs=inputs, timings=timings,
-                                  magnification=magnification)
+                                  magnification=magnification, warnings=warnings)
     if target is None or scene is None:
         raise TypeError("a single bay's report needs its target and scene")
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
     summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero,
-                        rib=rib, rib_limits=rib_limits)
+                        rib=rib, rib_limits=rib_limits, warnings=warnings)
     files, skipped = [], {}
     start_rib = target if rib is None else rib
     shaped = solution.parameters.rib_shape is not None
@@ -397,7 +404,8 @@ def wing_deviation(result: DesignResult) -> np.ndarray:
     return np.stack(out)
 
 
-def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None) -> dict:
+def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None,
+                    warnings: list | None = None) -> dict:
     """The summary of a design of several bays (`summarise` for a single bay; module docstring)."""
     sol = result.wing_solution
     params = result.parameters.resolved(sol.fabric).as_dict()
@@ -410,6 +418,7 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
         "schema": SCHEMA_VERSION,
         "mode": "optimise",
         "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
         "case": {
             "n_bays": result.n_bays,
             "ribs": [{"section": af.name, "target": t.name, "chord_m": c, "station_m": y}
@@ -448,6 +457,8 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
             "active": list(result.active_constraints),
             "violated": {name: float(v) for name, v in result.violated_constraints.items()},
             "violated_where": _violated_where(result.violated_constraints),
+            "violated_at_start": {name: float(v) for name, v in result.violated_at_start.items()},
+            "violated_at_start_where": _violated_where(result.violated_at_start),
             "values": dict(result.constraint_values), "unit": "N/m",
         },
         "timings_s": dict(timings or {}),
@@ -470,7 +481,7 @@ class _SharedHistory:
 
 def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = None,
                       inputs: dict | None = None, timings: dict | None = None,
-                      magnification: float | None = None) -> dict:
+                      magnification: float | None = None, warnings: list | None = None) -> dict:
     """Write the output folder of a wing design and return its summary (module docstring).
 
     Args:
@@ -490,7 +501,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
     """
     start = time.perf_counter()
     out = check_output_folder(out_dir)
-    summary = _summarise_wing(result, inputs=inputs, timings=timings)
+    summary = _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
     sol = result.wing_solution
     files, skipped = [], {}
     with staged_folder(out) as staging:

@@ -1,0 +1,132 @@
+"""Plausibility of a design's inputs: the ranges the model and its validation cover.
+
+The solver runs far outside these ranges (an 80% prestrain, a 100 m bay) and
+may converge, but nothing has checked that its answer means anything there:
+the membrane law of eq. 10 assumes small strains, and the validation cases
+and the random-scene stress test (README, "Where the numbers come from";
+``tests/test_stress.py``) cover:
+
+=====================  =================  ====================================
+quantity               range              from
+=====================  =================  ====================================
+pressure               1e2 to 2e5 Pa      stress test (1e2-2e5 Pa)
+fibre stiffnesses      1e4 to 1e6 N/m     stress test
+stiffness ratio        0.1 to 10          stress test (span over chord)
+prestrains             -2% to 5%          stress test; the command's bounds
+rib spacing            0.05 to 0.5 m      stress test (chord 1 m)
+rib spacing / chord    0.05 to 0.5        stress test (chord 1 m)
+=====================  =================  ====================================
+
+`check_plausibility` compares the starting values (and the bounds the
+optimiser may move them to) with `RANGES` and returns one line per value
+outside; by default it also issues each as a `PlausibilityWarning`
+(``warnings.warn``), so library callers can filter or escalate them. It never
+prints and never refuses: the command shows the lines and records them in
+``summary.json`` under ``warnings``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Mapping, Sequence
+
+__all__ = ["PlausibilityWarning", "RANGES", "check_plausibility"]
+
+
+class PlausibilityWarning(UserWarning):
+    """An input lies outside the ranges the model and its validation cover (`RANGES`)."""
+
+
+#: ``{quantity: (low, high, unit)}``: what the validation and the stress test cover (module docstring).
+RANGES = {
+    "pressure": (1e2, 2e5, "Pa"),
+    "stiffness": (1e4, 1e6, "N/m"),
+    "stiffness_ratio": (0.1, 10.0, ""),
+    "prestrain": (-0.02, 0.05, ""),
+    "rib_spacing": (0.05, 0.5, "m"),
+    "rib_spacing_over_chord": (0.05, 0.5, ""),
+}
+
+_COVERED = "outside the range the model is validated for"
+
+
+def _fmt(value: float, unit: str) -> str:
+    text = f"{value:.4g}"
+    return f"{text} {unit}" if unit else text
+
+
+def _outside(quantity: str, value: float) -> bool:
+    low, high, _ = RANGES[quantity]
+    return not (math.isfinite(value) and low <= value <= high)
+
+
+def _range(quantity: str) -> str:
+    low, high, unit = RANGES[quantity]
+    if quantity == "prestrain":
+        return f"{low:.0%} to {high:.0%}"
+    return f"{_fmt(low, '')} to {_fmt(high, unit)}"
+
+
+def _value(quantity: str, value: float) -> str:
+    return f"{value:.4g} ({value:.0%})" if quantity == "prestrain" else _fmt(value, RANGES[quantity][2])
+
+
+def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | None = None, *,
+                       warn: bool = True) -> list[str]:
+    """Lines for every input outside the covered ranges (`RANGES`); none for the default case.
+
+    Args:
+        fabric: the `forward_solver.Fabric` (its stiffnesses, unless
+            ``parameters`` sets them).
+        parameters: the starting `forward_solver.Parameters`, or a mapping
+            with ``pressure``, ``prestrain_span``, ``prestrain_chord`` (and
+            optionally ``stiffness_span``, ``stiffness_chord``).
+        bays: ``(rib_spacing_m, chord_m)`` of each bay: one pair for a single
+            bay; for a wing, each bay's rib spacing and mean chord.
+        bounds: ``{name: (low, high)}`` of the optimised variables: a bound of
+            the pressure or a prestrain outside its range is reported too (the
+            design may land there).
+        warn: also issue each line as a `PlausibilityWarning`.
+
+    Returns:
+        One line per finding (empty when every input is covered).
+    """
+    get = parameters.get if isinstance(parameters, Mapping) else (lambda name: getattr(parameters, name, None))
+    lines = []
+
+    def check(quantity: str, label: str, value) -> None:
+        if value is not None and _outside(quantity, float(value)):
+            lines.append(f"{label} {_value(quantity, float(value))} lies {_COVERED} "
+                         f"({_range(quantity)}); check the value, or treat the result as unvalidated")
+
+    check("pressure", "pressure", get("pressure"))
+    for name in ("prestrain_span", "prestrain_chord"):
+        check("prestrain", name.replace("_", " "), get(name))
+    stiffness = {}
+    for name in ("stiffness_span", "stiffness_chord"):
+        value = get(name)
+        stiffness[name] = float(getattr(fabric, name) if value is None else value)
+        check("stiffness", name.replace("_", " "), stiffness[name])
+    if stiffness["stiffness_chord"] > 0:
+        check("stiffness_ratio", "stiffness ratio span/chord",
+              stiffness["stiffness_span"] / stiffness["stiffness_chord"])
+    for name, (low, high) in dict(bounds or {}).items():
+        quantity = "pressure" if name == "pressure" else "prestrain" if name.startswith("prestrain") else None
+        if quantity is None:
+            continue
+        outside = [b for b in (float(low), float(high)) if _outside(quantity, b)]
+        if outside:
+            lines.append(f"{name.replace('_', ' ')} bounds {_value(quantity, float(low))} to "
+                         f"{_value(quantity, float(high))} reach {_COVERED} ({_range(quantity)}): the design "
+                         "may land there; narrow the bounds, or treat the result as unvalidated")
+    several = len(bays) > 1
+    for k, (spacing, chord) in enumerate(bays):
+        where = f"bay {k}: " if several else ""
+        check("rib_spacing", f"{where}rib spacing", spacing)
+        if chord > 0:
+            check("rib_spacing_over_chord", f"{where}rib spacing / chord", float(spacing) / float(chord))
+    if warn:
+        for line in lines:
+            warnings.warn(line, PlausibilityWarning, stacklevel=2)
+    return lines

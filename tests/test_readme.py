@@ -1,0 +1,154 @@
+"""Every fenced code block of README.md runs as written (issue 19, item 8).
+
+Each block is preceded by a marker that says how it is checked::
+
+    <!-- readme-test: run -->          run as written
+    <!-- readme-test: small grid -->   run as written on a small grid (below)
+    <!-- readme-test: case file -->    a case file: read by the command's reader (`case.read_config`)
+    <!-- readme-test: case file, small grid -->   ... and run with --config on the small grid
+    <!-- readme-test: error of the case file above ... -->   the command's message, reproduced (below)
+    <!-- readme-test: skip (why) -->   not run, and why
+
+A block without a marker, or with another one, fails the test, so a new
+block gets a decision. Python blocks run in a subprocess with the
+repository first on PYTHONPATH, in a temporary folder; shell blocks run
+each command (``&&`` splits them) with ``optimise-pressure`` as
+``python -m inverse_design.app.cli`` (the code under test) and skip ``pip
+install`` lines. "Small grid" is the one substitution: every ``n_span=N``
+and ``n_contour=N`` of a Python block becomes 5 and 48, and every
+``optimise-pressure`` command gets ``--n-span 5 --n-contour 48``
+(the default grids take minutes; the blocks' outcomes do not depend on the
+grid). The subprocesses share one JAX compilation cache, as in
+tests/test_cli.py, but kept between sessions in pytest's cache folder
+(``.pytest_cache/d/readme-jax-cache``; delete it to start cold).
+"""
+
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from inverse_design.app import case as case_reader
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+SMALL = {"n_span": 5, "n_contour": 48}
+SMALL_ARGS = ["--n-span", str(SMALL["n_span"]), "--n-contour", str(SMALL["n_contour"])]
+TIMEOUT = 300
+MARKER = re.compile(r"<!-- readme-test: (.+?) -->\s*$")
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+#: The error block's marker, and the rib it adds to the case file above it.
+ERROR_MARKER = "error of the case file above with a third rib at station 0.2 m"
+THIRD_RIB = '\n[[rib]]\nsection = "naca2412"\nchord = 0.7\nstation = 0.2\n'
+
+
+def _blocks():
+    """``[(line, language, text, marker or None)]`` of every fenced block of the README."""
+    text = README.read_text()
+    blocks = []
+    for match in FENCE.finditer(text):
+        line = text.count("\n", 0, match.start()) + 1
+        before = text[:match.start()].rstrip("\n").splitlines()
+        marker = MARKER.search(before[-1]) if before else None
+        blocks.append((line, match.group(1), match.group(2), marker.group(1) if marker else None))
+    return blocks
+
+
+BLOCKS = _blocks()
+
+
+@pytest.fixture(scope="module")
+def env(request, tmp_path_factory):
+    # Compilation is most of the blocks' time (about 3 minutes of it on a loaded 2-core machine,
+    # 40 s once compiled), so the cache lives in pytest's own cache folder and outlasts the session.
+    cache = (request.config.cache.mkdir("readme-jax-cache") if request.config.cache is not None
+             else tmp_path_factory.mktemp("jax-cache"))
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+                JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
+                JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", MPLBACKEND="Agg")
+
+
+def _small_python(code: str) -> str:
+    for name, value in SMALL.items():
+        code = re.sub(rf"\b{name}=\d+", f"{name}={value}", code)
+    return code
+
+
+def _commands(text: str):
+    """The shell block's commands as argument lists (comments dropped, ``&&`` split)."""
+    for line in text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        for command in filter(None, (c.strip() for c in line.split("&&"))):
+            yield shlex.split(command)
+
+
+def _command(args: list, small: bool):
+    """The argument list to run, or None for a line that is not run (pip install)."""
+    if args[:4] == ["python", "-m", "pip", "install"] or args[:2] == ["pip", "install"]:
+        return None
+    if args[0] == "optimise-pressure":
+        return [sys.executable, "-m", "inverse_design.app.cli", *args[1:], *(SMALL_ARGS if small else [])]
+    if args[0] == "python":
+        return [sys.executable, *args[1:]]
+    return args
+
+
+def _run(args, cwd, env):
+    return subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+
+
+def _previous_case_file(index: int) -> str:
+    earlier = [b for b in BLOCKS[:index] if b[1] == "toml"]
+    return earlier[-1][2]
+
+
+def test_every_block_has_a_known_marker():
+    assert len(BLOCKS) >= 8
+    known = ("run", "small grid", "case file", "case file, small grid", ERROR_MARKER)
+    for line, language, _, marker in BLOCKS:
+        assert marker is not None, f"README.md:{line}: a ```{language} block without a readme-test marker"
+        assert marker in known or marker.startswith("skip ("), f"README.md:{line}: unknown marker {marker!r}"
+
+
+@pytest.mark.parametrize("index", range(len(BLOCKS)), ids=[f"line {b[0]} {b[1] or 'text'}" for b in BLOCKS])
+def test_the_block_runs_as_written(index, env, tmp_path):
+    line, language, text, marker = BLOCKS[index]
+    if marker is None or marker.startswith("skip ("):
+        pytest.skip(f"README.md:{line}: {marker}")
+    small = "small grid" in marker
+    if marker == ERROR_MARKER:
+        (tmp_path / "wing.toml").write_text(_previous_case_file(index) + THIRD_RIB)
+        done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "wing.toml"], tmp_path, env)
+        assert done.returncode == 2 and done.stdout == "", done.stderr
+        assert done.stderr.strip() == text.strip()
+    elif language == "python":
+        (tmp_path / "block.py").write_text(_small_python(text) if small else text)
+        done = _run([sys.executable, "block.py"], tmp_path, env)
+        assert done.returncode == 0, f"README.md:{line}:\n{done.stderr[-3000:]}"
+    elif language == "toml":
+        case = tmp_path / "case.toml"
+        case.write_text(text)
+        values = case_reader.read_config(case)  # every key and value checked as the command checks them
+        assert values
+        if small:
+            done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "case.toml", *SMALL_ARGS,
+                         "--out", "out"], tmp_path, env)
+            assert done.returncode == 0, f"README.md:{line}:\n{done.stderr[-3000:]}"
+            assert (tmp_path / "out" / "summary.json").exists()
+    elif language == "bash":
+        commands = [c for c in (_command(args, small) for args in _commands(text)) if c is not None]
+        assert commands, f"README.md:{line}: nothing to run"
+        if any("--aero" in c for c in commands):
+            pytest.importorskip("neuralfoil")
+        for command in commands:
+            done = _run(command, tmp_path, env)
+            assert done.returncode == 0, f"README.md:{line}: {shlex.join(command)}:\n{done.stderr[-3000:]}"
+            if command[1:3] == ["-m", "inverse_design.app.cli"]:  # the documented outcome: the folder
+                out = command[command.index("--out") + 1] if "--out" in command else "optimise-pressure-out"
+                assert (tmp_path / out / "summary.json").is_file() and f"wrote {tmp_path / out}" in done.stdout
+    else:
+        pytest.fail(f"README.md:{line}: a ```{language} block marked {marker!r}: nothing knows how to run it")
