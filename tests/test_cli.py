@@ -148,7 +148,7 @@ def test_a_start_that_broke_a_limit_is_said_on_the_console():
         "than the infeasible start's (9.115e-03 against 6.807e-03 chord)")
     summary["errors"]["after"]["rms"] = 5e-3
     assert start_violation_line(summary).endswith("; the design is feasible")
-    wing = {"case": {"n_bays": 3},
+    wing = {"case": {"n_bays": 3, "ribs": [{}] * 4},
             "constraints": {"violated": {"max_tension": 2.0}, "violated_at_start": {"max_tension": 10.0},
                             "violated_at_start_where": {"max_tension": {"bay 0": 10.0, "bay 2": 5.0}}},
             "errors": {"before": {"rms": 1e-2}, "after": {"rms": 2e-2}}}

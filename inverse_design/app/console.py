@@ -30,7 +30,7 @@ def start_violation_line(summary: dict) -> str | None:
     if not at_start:
         return None
     where = constraints.get("violated_at_start_where") or {}
-    several = summary["case"].get("n_bays", 1) > 1
+    several = "ribs" in summary.get("case", {})
     broke = "; ".join(f"{name} {_amount_text(name, where[name] if several and name in where else amount)}"
                       for name, amount in at_start.items())
     err = summary["errors"]
@@ -52,7 +52,7 @@ def _value_text(name: str, value) -> str:
 
 def describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
-    if summary["case"].get("n_bays", 1) > 1:
+    if "ribs" in summary["case"]:  # a wing case (any number of bays)
         return describe_wing(summary)
     case, res, err = summary["case"], summary["results"], summary["errors"]
     v = res["values"]
