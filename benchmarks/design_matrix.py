@@ -9,8 +9,8 @@ Every combination of
 * target: NACA 2412, 0012, 4415, 23012 (the ribs are the target);
 
 108 designs, each with the ``optimise-pressure`` command's defaults (the
-namespace of `inverse_design.cli.parse_arguments`, the scene built as
-`inverse_design.cli.run` builds it): fabric 2e5 N/m both ways, Poisson
+namespace of `inverse_design.app.case.parse_arguments`, the scene built as
+`inverse_design.app.command.run` builds it): fabric 2e5 N/m both ways, Poisson
 0.25, prestrain 2% both ways, chord 1 m, rib spacing 0.25 m, pressure start
 1e4 Pa, bounds pressure 1e3-1e5 Pa, prestrain 0-0.05, rib thickness 0.7-1.0,
 rib chord 0.5-1.5, min_tension 0 (wrinkle-free), no max tension, SLSQP with
@@ -57,7 +57,7 @@ import numpy as np
 
 from forward_solver import Bay, Fabric, Parameters, Scene
 from inverse_design import Constraints, optimise_pressure
-from inverse_design.cli import parse_arguments
+from inverse_design.app.case import parse_arguments
 from inverse_design.methods import SLSQP_EVALUATIONS_PER_ITERATION
 from targets import naca
 
@@ -81,7 +81,7 @@ def command_defaults():
 
 
 def make_scene(args, target, n_span: int, n_contour: int) -> Scene:
-    """The scene of `inverse_design.cli.run`: ribs equal to the target."""
+    """The scene of `inverse_design.app.command.run`: ribs equal to the target."""
     bay = Bay.from_airfoil(target, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
                            n_contour=n_contour)
     return Scene(bay, Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord,
@@ -89,7 +89,7 @@ def make_scene(args, target, n_span: int, n_contour: int) -> Scene:
 
 
 def design_options(args, variables):
-    """The start, bounds, constraints and optimiser options of `inverse_design.cli.run`."""
+    """The start, bounds, constraints and optimiser options of `inverse_design.app.command.run`."""
     initial = Parameters(pressure=args.pressure, prestrain_span=args.prestrain_span,
                          prestrain_chord=args.prestrain_chord,
                          rib_thickness_scale=args.rib_thickness_scale, rib_chord_scale=args.rib_chord_scale)

@@ -17,7 +17,7 @@ scale 0.946. The span count decides it, not the contour count.
 
 Run:  PYTHONPATH=. python benchmarks/optimise_default.py [--skip-grids] [--skip-command]
 
-1. The command in fresh processes (``python -m inverse_design.cli``): once
+1. The command in fresh processes (``python -m inverse_design.app.cli``): once
    with an empty compilation cache (everything compiles), twice with the cache
    it left (the second run of a grid on a machine), and once with the cache
    off. Wall time of the process, and the run's own timings.
@@ -71,7 +71,7 @@ def command_runs() -> list[dict]:
                              ("no cache", ["--no-compilation-cache"])]:
             out = Path(tmp) / f"out-{len(rows)}"
             start = time.perf_counter()
-            done = subprocess.run([sys.executable, "-m", "inverse_design.cli", "--quiet", "--out", str(out),
+            done = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", "--quiet", "--out", str(out),
                                    *extra], env=env, capture_output=True, text=True)
             wall = time.perf_counter() - start
             if done.returncode != 0:

@@ -375,7 +375,7 @@ def float32_error():
                    "coordinates to float32 can leave; a float32 solve refuses an rtol below it. The "
                    "residual is always evaluated in float64 at the returned nodes.")
     details.append("Shapes: float32 iterated to stagnation lies within the 1e-5 chord accuracy goal "
-                   "(DESIGN section 2) of the float64 equilibrium, but its residual cannot certify "
+                   "(docs/architecture.md, Conventions) of the float64 equilibrium, but its residual cannot certify "
                    "it: use float64 (the default) whenever the tolerance matters.")
     details.append(_float32_speed())
     return Row("float32 vs float64", "float64 equilibrium (rtol 1e-11)",

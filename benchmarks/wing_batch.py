@@ -9,7 +9,7 @@ grids, every bay solved to a relative residual of 1e-10 three ways:
   ``jax.jit(jax.vmap(relaxation))`` call (the batch runs until its slowest
   bay stops);
 * **jit loop**: a Python loop calling the same compiled relaxation once per
-  bay (``wing._wing_equilibrium`` on a batch of one): the fair comparison
+  bay (``wing.batched_equilibrium`` on a batch of one): the fair comparison
   for the batching itself (same code, same start, same stopping test);
 * **eager loop**: a Python loop of `forward_solver.solve_equilibrium` per
   bay (the public single-bay API: grid sequencing; tapered bays are not
@@ -75,7 +75,7 @@ import numpy as np
 
 from forward_solver import Fabric, Parameters, Scene, forces, solve_equilibrium
 from forward_solver._precision import float64_scope
-from forward_solver.wing import _CHUNK, Wing, _stack, _wing_equilibrium, solve_bays, solve_wing
+from forward_solver.wing import BATCH_CHUNK, Wing, stack_trees, batched_equilibrium, solve_bays, solve_wing
 from targets import naca
 
 RTOL = 1e-10
@@ -119,12 +119,12 @@ def jit_loop(wing, fabric, grid):
     with float64_scope():
         params = scene.params(PARAMETERS.resolved(fabric))
         for bay in bays:
-            geometry = _stack([bay.geometry()])
+            geometry = stack_trees([bay.geometry()])
             bound = jnp.asarray([bay.chord + bay.rib_spacing], jnp.float64)
             zeros = jnp.zeros((1, *bay.shape, 3), jnp.float64)
-            nodes, result, _, s, _ = _wing_equilibrium(geometry, bound, zeros, None, None, params,
+            nodes, result, _, s, _ = batched_equilibrium(geometry, bound, zeros, None, None, params,
                                                        jnp.asarray(RTOL, jnp.float64), physics,
-                                                       -(-MAX_STEPS // _CHUNK))
+                                                       -(-MAX_STEPS // BATCH_CHUNK))
             jax.block_until_ready(nodes)
             assert int(result[0]) == 0
             steps.append(int(s[0]))
@@ -163,12 +163,12 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 
 
 def design_case(fabric, variables=("pressure",)) -> dict:
-    from inverse_design import cli
+    from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
-    from inverse_design.wing_cli import EXAMPLE_CASE
     from inverse_design import optimise_wing
+    from inverse_design.app.case import EXAMPLE_CASE
 
-    values = cli.read_config(EXAMPLE_CASE)
+    values = case_reader.read_config(EXAMPLE_CASE)
     ribs = values["wing"]
     af = naca("2412")
     wing = Wing(airfoils=(af,) * len(ribs), chords=tuple(r["chord"] for r in ribs),

@@ -72,14 +72,14 @@ def float64_scope(*traced_inputs):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _rounding_floor(geometry, params, physics, eps):
+def rounding_floor(geometry, params, physics, eps):
     physics = fk.static_physics(physics)
     return fk.rounding_residual_floor(fk.prepare(geometry, params, physics), params, physics, eps)
 
 
 def float32_floor(geometry, params, physics) -> float:
     """`forces.rounding_residual_floor` for float32 coordinates (float64 inputs, in a float64 scope)."""
-    return float(_rounding_floor(geometry, params, physics, FLOAT32_EPS))
+    return float(rounding_floor(geometry, params, physics, FLOAT32_EPS))
 
 
 def check_float32_tolerance(rtol: float, floor: float) -> None:

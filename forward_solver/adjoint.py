@@ -1,4 +1,4 @@
-"""Derivatives of the equilibrium shape (DESIGN section 5): the custom JVP of `solve_equilibrium`.
+"""Derivatives of the equilibrium shape: the custom JVP of `solve_equilibrium`.
 
 Implicit differentiation. At equilibrium the static residual of eq. (10)-(15)
 vanishes on the free degrees of freedom, ``R(x*(theta), theta) = 0``, so

@@ -1,6 +1,6 @@
 """The bay: the skin between two rigid ribs, as a structured grid.
 
-Grid convention (DESIGN section 2): index ``i`` runs along the span (alpha1,
+Grid convention (docs/architecture.md, "Conventions"): index ``i`` runs along the span (alpha1,
 ``n_span`` nodes, ``i = 0`` and ``i = n_span - 1`` on the ribs), index ``j``
 along the contour (alpha2). A closed contour (an airfoil) is periodic in
 ``j`` and runs in Selig order: trailing edge, upper surface, leading edge,

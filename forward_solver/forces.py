@@ -228,7 +228,7 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
     """Cut lengths and lumped areas for one solve.
 
     The fabric is cut shorter than the mounted geometry: reference length =
-    nominal length / (1 + prestrain) per fibre direction (DESIGN section 2).
+    nominal length / (1 + prestrain) per fibre direction (docs/architecture.md, "Conventions").
     """
     x0 = mounted_nodes(geometry, params)
     span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + params.prestrain_span)

@@ -1,4 +1,4 @@
-"""The sparse Jacobian ``dR/dx`` of the force residual, from coloured JVPs (DESIGN section 5).
+"""The sparse Jacobian ``dR/dx`` of the force residual (eq. 10-15), from coloured JVPs (docs/architecture.md).
 
 The static force residual ``R(x)`` of `forces.residual` couples each node to
 its 3x3 neighbourhood only, so a handful of Jacobian-vector products give the
@@ -79,7 +79,7 @@ class Sparsity(NamedTuple):
     n_colours: int
 
 
-class _FreePattern(NamedTuple):
+class FreePattern(NamedTuple):
     """The pattern restricted to free dofs, in CSC order, with its gather indices."""
 
     free_dofs: np.ndarray  # (nf,) full dof index of each free dof
@@ -179,7 +179,7 @@ def jacobian_sparsity(shape: tuple[int, int], periodic: bool) -> Sparsity:
 
 
 @functools.lru_cache(maxsize=16)
-def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> _FreePattern:
+def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> FreePattern:
     """The pattern of `jacobian_sparsity` on the free dofs, in CSC order."""
     sparsity = jacobian_sparsity(shape, periodic)
     free_node = np.frombuffer(free_key, dtype=bool).reshape(shape)
@@ -191,7 +191,7 @@ def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> _F
     rows, cols = rows[order], cols[order]
     n_free = int(free_dof.sum())
     indptr = np.concatenate([[0], np.cumsum(np.bincount(reduced[cols], minlength=n_free))])
-    pattern = _FreePattern(
+    pattern = FreePattern(
         free_dofs=np.flatnonzero(free_dof),
         indices=reduced[rows].astype(np.int32),
         indptr=indptr.astype(np.int32),
@@ -205,7 +205,7 @@ def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> _F
     return pattern
 
 
-def _pattern(ref: fk.Reference, periodic: bool) -> _FreePattern:
+def sparsity_pattern(ref: fk.Reference, periodic: bool) -> FreePattern:
     free_node = np.asarray(ref.free[..., 0]) > 0.5
     return _free_pattern(free_node.shape, bool(periodic), free_node.tobytes())
 
@@ -235,7 +235,7 @@ def _jacobian_values(x, ref, params, colours, gather_colour, gather_row, physics
     return r, compressed[gather_colour, gather_row]
 
 
-def _linearise(x, ref, params, physics, pattern: _FreePattern):
+def linearise(x, ref, params, physics, pattern: FreePattern):
     """``(J, R_free)`` at ``x``: the free-dof Jacobian (csc, N/m) and residual (N)."""
     r, data = _jacobian_values(jnp.asarray(x), ref, params, pattern.colours, pattern.gather_colour,
                                pattern.gather_row, physics, pattern.n_colours)
@@ -265,4 +265,4 @@ def assemble_jacobian(x, ref: fk.Reference, params: fk.Params, physics: fk.Physi
         ``(n_free, n_free)`` `scipy.sparse.csc_matrix` in N/m.
     """
     with float64_scope(x, ref, params):
-        return _linearise(x, ref, params, physics, _pattern(ref, physics.periodic))[0]
+        return linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))[0]

@@ -1,4 +1,4 @@
-"""Equilibrium by Newton's method on a coloured sparse Jacobian (DESIGN section 5).
+"""Equilibrium by Newton's method on a coloured sparse Jacobian (docs/architecture.md, "Derivatives").
 
 The static force residual ``R(x)`` of `forces.residual` is solved on the free
 degrees of freedom with Newton's method. Its Jacobian ``J = dR/dx`` (N/m) is
@@ -44,7 +44,7 @@ import scipy.sparse.linalg as spla
 
 from . import forces as fk
 from .scene import float64_scope
-from .jacobian import PERMC_SPEC, JacobianFactor, _FreePattern, _linearise, _pattern, free_dofs
+from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
 from .solution import Result
 
 __all__ = ["NewtonResult", "newton", "chord_newton"]
@@ -189,7 +189,7 @@ class _Stage(NamedTuple):
 class _Problem(NamedTuple):
     ref: fk.Reference
     physics: fk.Physics
-    pattern: _FreePattern
+    pattern: FreePattern
     shape: tuple
     dtype: object
     x_mounted: np.ndarray  # flat
@@ -227,7 +227,7 @@ def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_s
             return _Stage(x, Result.max_steps_reached, k, rel, factor, jac, factor_x, shift,
                           f"slow progress: the residual did not halve in {STAGNATION_WINDOW} iterations")
         x_j = jnp.asarray(x.reshape(problem.shape), problem.dtype)
-        jac, r_free = _linearise(x_j, problem.ref, params, problem.physics, pattern)
+        jac, r_free = linearise(x_j, problem.ref, params, problem.physics, pattern)
         factor_x = x
         diag = _shift_scale(jac)
         accepted = False
@@ -384,7 +384,7 @@ def newton(
         if divergence_bound is None:
             chord = 0.5 * float(geometry.chord_root + geometry.chord_tip)
             divergence_bound = chord + float(geometry.rib_spacing)
-        problem = _Problem(ref, physics, _pattern(ref, physics.periodic), shape, dtype,
+        problem = _Problem(ref, physics, sparsity_pattern(ref, physics.periodic), shape, dtype,
                            np.asarray(ref.nodes, dtype=np.float64).reshape(-1), float(divergence_bound))
         log = _Log()
         x0 = np.array(x_init, dtype=np.float64).reshape(-1)
@@ -410,7 +410,7 @@ def newton(
         factor, jac, factor_x, shift = stage.factor, stage.jacobian, stage.factor_x, stage.shift
         if stage.code == Result.converged and factor_at_solution:
             x_j = jnp.asarray(stage.x.reshape(shape), dtype)
-            jac_new, _ = _linearise(x_j, ref, params, physics, problem.pattern)
+            jac_new, _ = linearise(x_j, ref, params, physics, problem.pattern)
             try:
                 factor, jac, factor_x, shift = _factorise(jac_new), jac_new, stage.x, 0.0
             except RuntimeError:  # singular at the solution: keep the last factor

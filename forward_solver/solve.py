@@ -334,7 +334,7 @@ def _newton_solution(result, steps, *, start, parameters, bay, params, geometry,
                          factor=result.jacobian_factor())
 
 
-def _coarsenable(shape, periodic: bool) -> bool:
+def coarsenable(shape, periodic: bool) -> bool:
     ns, nc = shape
     contour_ok = (nc % 2 == 0) if periodic else (nc % 2 == 1)
     return ns % 2 == 1 and contour_ok and (ns + 1) // 2 >= _COARSEST_SPAN and nc // 2 >= _COARSEST_CONTOUR
@@ -375,7 +375,7 @@ def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, s
                      precision="float64", coarse_rtol=_COARSE_RTOL):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
     x0 = fk.mounted_nodes(geometry, params)
-    if not (sequencing and _coarsenable(geometry.free.shape, physics.periodic)):
+    if not (sequencing and coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
     xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing,

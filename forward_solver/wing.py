@@ -59,7 +59,7 @@ __all__ = ["Wing", "WingSolution", "check_rib_gaps", "solve_wing", "solve_bays",
 STRATEGIES = ("auto", "loop", "batch")
 
 #: Steps per chunk of the batched relaxation (as `solve.RELAX_CHUNK`).
-_CHUNK = 100
+BATCH_CHUNK = 100
 
 #: A bay is refused when rounding its node positions to float64 can leave a relative residual
 #: (`forces.rounding_residual_floor`) above this many times ``rtol``. Measured on 5x32 NACA 2412
@@ -244,7 +244,7 @@ class WingSolution:
         return np.asarray(self.nodes) - np.asarray(self.mounted)
 
 
-def _stack(trees):
+def stack_trees(trees):
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
 
 
@@ -255,13 +255,13 @@ def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, param
     mounted = fk.mounted_nodes(geometry, params)
     # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
     x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
-    nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, _CHUNK, max_chunks,
+    nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, BATCH_CHUNK, max_chunks,
                                half=False)
-    return nodes, out.result, out.residual, out.chunks * _CHUNK, jax.lax.stop_gradient(mounted)
+    return nodes, out.result, out.residual, out.chunks * BATCH_CHUNK, jax.lax.stop_gradient(mounted)
 
 
 @partial(jax.jit, static_argnames=("physics", "max_chunks"))
-def _wing_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip, params, rtol, physics,
+def batched_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip, params, rtol, physics,
                       max_chunks):
     solve = partial(_bay_equilibrium, physics=physics, max_chunks=max_chunks)
     return jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, None, None))(geometries, bounds, displacements, shapes_root,
@@ -286,12 +286,12 @@ def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, 
 
 
 def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> None:
-    from ._precision import _rounding_floor
+    from ._precision import rounding_floor
 
     eps = float(np.finfo(np.float64).eps)
     for k, bay in enumerate(bays):
         geometry = jax.tree_util.tree_map(jnp.asarray, bay.geometry())
-        floor = float(_rounding_floor(geometry, params, physics, eps))
+        floor = float(rounding_floor(geometry, params, physics, eps))
         if floor > ROUNDING_MARGIN * rtol:
             gap = bay.rib_spacing
             needed = gap * math.sqrt(floor / (ROUNDING_MARGIN * rtol))  # the floor falls as 1/gap^2
@@ -559,16 +559,16 @@ def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, line
     bays = [scene.bay for scene in scenes]
     physics = fk.static_physics(first.physics(dynamic=False))
     params = first.params(parameters)  # the fabric's constants: the same for every bay
-    geometries = _stack([bay.geometry() for bay in bays])
+    geometries = stack_trees([bay.geometry() for bay in bays])
     bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
     if initial is None:
         displacements = jnp.zeros((len(bays),) + first.bay.shape + (3,), jnp.float64)
     else:
         displacements = jnp.asarray(initial.displacements(), jnp.float64)
-    nodes, result, residual, steps, mounted = _wing_equilibrium(
+    nodes, result, residual, steps, mounted = batched_equilibrium(
         geometries, bounds, displacements, None if shapes is None else shapes[:-1],
         None if shapes is None else shapes[1:], params, jnp.asarray(rtol, jnp.float64), physics,
-        -(-max_steps // _CHUNK))
+        -(-max_steps // BATCH_CHUNK))
     return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
                         parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
                         mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes))

@@ -81,7 +81,7 @@ def _section_z(x, z0, camber, thickness_scale, coefficients):
     return camber + thickness_scale * (z0 - camber) + rib_offsets(x, coefficients)
 
 
-def _curvature(x, z):
+def curvature(x, z):
     """Signed curvature (1/chord) of the circle through each three consecutive points (Menger)."""
     a = jnp.stack([x[:-2], z[:-2]], -1)
     b = jnp.stack([x[1:-1], z[1:-1]], -1)
@@ -112,7 +112,7 @@ class RibGeometry:
         self.lower = n - 1 - self.upper
         with jax.enable_x64(True):
             t0 = self.z0[self.upper] - self.z0[self.lower]
-            radius0 = 1.0 / np.max(np.abs(np.asarray(_curvature(jnp.asarray(self.x), jnp.asarray(self.z0)))))
+            radius0 = 1.0 / np.max(np.abs(np.asarray(curvature(jnp.asarray(self.x), jnp.asarray(self.z0)))))
         self.thickness0 = t0
         self.start_radius = float(radius0)
         self.min_radius = 0.5 * radius0 if limits.min_radius is None else float(limits.min_radius)
@@ -129,14 +129,14 @@ class RibGeometry:
         z = self.section_z(parameters)
         thickness = z[self.upper] - z[self.lower]
         g_thickness = (thickness - self.limits.min_thickness * self.thickness0) / np.max(self.thickness0)
-        kappa = _curvature(jnp.asarray(self.x), z) * self.min_radius
+        kappa = curvature(jnp.asarray(self.x), z) * self.min_radius
         return jnp.concatenate([g_thickness, 1.0 - kappa, 1.0 + kappa])
 
     def measure(self, parameters: Parameters) -> dict:
         """The limits' measured values at concrete ``parameters``: least thickness ratio and radius."""
         with jax.enable_x64(True):
             z = np.asarray(self.section_z(parameters))
-            kappa = np.asarray(_curvature(jnp.asarray(self.x), jnp.asarray(z)))
+            kappa = np.asarray(curvature(jnp.asarray(self.x), jnp.asarray(z)))
         thickness = z[self.upper] - z[self.lower]
         inside = self.thickness0 > 1e-3 * np.max(self.thickness0)  # ratios where the rib has thickness
         return {"rib_min_thickness": float(np.min(thickness[inside] / self.thickness0[inside])),

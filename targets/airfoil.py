@@ -6,7 +6,7 @@ against the cumulative chord length of its points. Every geometric query
 (thickness, camber, leading-edge radius, resampling, signed distance) is
 answered on the spline, never on the polyline.
 
-Conventions (DESIGN.md section 2):
+Conventions (docs/architecture.md, "Conventions"):
 
 * Selig order: trailing edge -> upper surface -> leading edge -> lower
   surface -> trailing edge. With x to the right and z up this runs
@@ -672,7 +672,7 @@ class Airfoil:
             ValueError: If n_points is too small, or x is not monotonic along
                 a surface.
         """
-        n = _checked_n_points(n_points)
+        n = checked_n_points(n_points)
         contour = self._contour
         if contour.monotonic_error is not None:
             raise ValueError(f"airfoil {self.name!r}: {contour.monotonic_error}")
@@ -825,7 +825,7 @@ class Airfoil:
         return self.project(points).distance
 
 
-def _checked_n_points(n_points: int) -> int:
+def checked_n_points(n_points: int) -> int:
     """Validates a node count (an integer, at least MIN_POINTS)."""
     if isinstance(n_points, bool) or not isinstance(n_points, (int, np.integer)):
         raise ValueError(f"n_points must be an integer, got {n_points!r}")

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .airfoil import Airfoil, _checked_n_points
+from .airfoil import Airfoil, checked_n_points
 
 THICKNESS_COEFFICIENTS = (0.2969, -0.1260, -0.3516, 0.2843)
 """Coefficients of sqrt(x), x, x^2, x^3 in y_t / (5 t) (Report 824)."""
@@ -243,7 +243,7 @@ class NacaSection:
             An :class:`~targets.Airfoil` whose smooth representation is built
             from max(4097, n_points) analytic samples.
         """
-        n = _checked_n_points(n_points)
+        n = checked_n_points(n_points)
         x, z = self._contour(n)
         surface = self._contour(max(SURFACE_POINTS, n))
         return Airfoil(x, z, name=self.name, surface=surface)

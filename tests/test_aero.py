@@ -107,7 +107,7 @@ def test_bay_sections(bay_solution, target):
 
 def test_plot(bay_solution, target):
     _neuralfoil()
-    from inverse_design.plots import plot_aero
+    from inverse_design.app.plots import plot_aero
 
     comparison = aerodynamic_cost(bay_solution, target, 1.0, reynolds=RE, alphas=[0.0, 2.0, 4.0],
                                   model_size="small")
@@ -179,7 +179,7 @@ def test_cli_writes_aero(tmp_path):
     _neuralfoil()
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
                INFLATABLE_WING_CACHE=str(tmp_path / "cache"))
-    done = subprocess.run([sys.executable, "-m", "inverse_design.cli", "--aero", "--evaluate", "--n-span", "5",
+    done = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", "--aero", "--evaluate", "--n-span", "5",
                            "--n-contour", "32", "--reynolds", "5e5", "--alpha-range", "-2", "6", "2",
                            "--out", "out"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr

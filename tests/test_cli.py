@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import cli, export, interrupts, resources
+from inverse_design.app import case as case_reader, cli, command, export, interrupts, resources
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
@@ -45,7 +45,7 @@ def run_cli(cli_env):
     """Run the command in a subprocess: ``run_cli(*args, cwd=folder)``."""
 
     def run(*args, cwd, timeout=600):
-        return subprocess.run([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+        return subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *args], cwd=cwd, env=cli_env,
                               capture_output=True, text=True, timeout=timeout)
 
     return run
@@ -56,7 +56,7 @@ def start_cli(cli_env):
     """Start the command in a subprocess and return at once: ``start_cli(*args, cwd=folder)``."""
 
     def start(*args, cwd):
-        return subprocess.Popen([sys.executable, "-m", "inverse_design.cli", *args], cwd=cwd, env=cli_env,
+        return subprocess.Popen([sys.executable, "-m", "inverse_design.app.cli", *args], cwd=cwd, env=cli_env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     return start
@@ -105,6 +105,12 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert inputs["sources"] == {"n_span": "command line", "n_contour": "command line",
                                  "out": "command line"}
     assert summary["case"]["grid"] == [5, 32] and summary["mode"] == "optimise"
+    # One layout for a bay and a wing (schema 2): the bay axis has this bay's one entry.
+    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 1
+    (bay,) = summary["bays"]
+    assert bay["errors_after"]["rms"] == pytest.approx(summary["errors"]["after"]["rms"], rel=1e-12)
+    assert bay["errors_before"]["rms"] == pytest.approx(summary["errors"]["before"]["rms"], rel=1e-12)
+    assert bay["result"] == "converged" and bay["span_m"] == [0.0, pytest.approx(0.25)]
     results = summary["results"]
     assert results["success"] is True and results["message"]
     assert results["variables"] == ["pressure", "rib_thickness_scale"]
@@ -133,20 +139,23 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
 def test_a_start_that_broke_a_limit_is_said_on_the_console():
     # The numbers of `--target e387.dat` (17x64): the start wrinkled, the feasible design's error
     # is larger; without the line a worse design read as a plain success.
-    summary = {"constraints": {"violated": {}, "violated_at_start": {"min_tension": 624.6}},
+    from inverse_design.app.console import start_violation_line
+
+    summary = {"case": {"n_bays": 1}, "constraints": {"violated": {}, "violated_at_start": {"min_tension": 624.6}},
                "errors": {"before": {"rms": 6.807e-3}, "after": {"rms": 9.115e-3}}}
-    assert cli.start_violation_line(summary) == (
+    assert start_violation_line(summary) == (
         "  note: the start broke min_tension by 624.6 N/m; the design is feasible but its error is larger "
         "than the infeasible start's (9.115e-03 against 6.807e-03 chord)")
     summary["errors"]["after"]["rms"] = 5e-3
-    assert cli.start_violation_line(summary).endswith("; the design is feasible")
-    wing = {"constraints": {"violated": {"max_tension": {"bay 0": 2.0}},
-                            "violated_at_start": {"max_tension": {"bay 0": 10.0, "bay 2": 5.0}}},
+    assert start_violation_line(summary).endswith("; the design is feasible")
+    wing = {"case": {"n_bays": 3, "ribs": [{}] * 4},
+            "constraints": {"violated": {"max_tension": 2.0}, "violated_at_start": {"max_tension": 10.0},
+                            "violated_at_start_where": {"max_tension": {"bay 0": 10.0, "bay 2": 5.0}}},
             "errors": {"before": {"rms": 1e-2}, "after": {"rms": 2e-2}}}
-    assert cli.start_violation_line(wing) == ("  note: the start broke max_tension by 10 N/m in bay 0, by 5 N/m "
-                                              "in bay 2; the design still breaks a limit (above)")
+    assert start_violation_line(wing) == ("  note: the start broke max_tension by 10 N/m in bay 0, by 5 N/m "
+                                          "in bay 2; the design still breaks a limit (above)")
     summary["constraints"]["violated_at_start"] = {}
-    assert cli.start_violation_line(summary) is None
+    assert start_violation_line(summary) is None
 
 
 def test_the_npz_holds_the_equilibrium_and_its_parameters(default_run):
@@ -235,7 +244,7 @@ def test_case_file_values_are_checked_like_options(tmp_path):
     case = tmp_path / "case.toml"
     case.write_text('variables = ["pressure", "prestrain_span"]\npressure-bounds = [2e3, 5e4]\n'
                     'no_tension_constraints = true\nmax-iterations = 7\n')
-    args, sources = cli.parse_arguments(["--config", str(case), "--max-iterations", "9"])
+    args, sources = case_reader.parse_arguments(["--config", str(case), "--max-iterations", "9"])
     assert args.variables == "pressure,prestrain_span" and args.pressure_bounds == (2e3, 5e4)
     assert args.no_tension_constraints is True and args.max_iterations == 9
     assert sources["max_iterations"] == "command line" and sources["pressure_bounds"] == "config"
@@ -244,7 +253,7 @@ def test_case_file_values_are_checked_like_options(tmp_path):
                            ('method = "newton"\n', "method")]:
         case.write_text(text)
         with pytest.raises(cli.InputError, match=fragment):
-            cli.parse_arguments(["--config", str(case)])
+            case_reader.parse_arguments(["--config", str(case)])
 
 
 @pytest.mark.parametrize(
@@ -551,9 +560,9 @@ def test_a_stop_lost_in_a_gc_callback_still_ends_the_run_and_writes_nothing(tmp_
     # Issue 19: a Ctrl-C or SIGTERM arriving while JAX's gc callback ran was lost; the run wrote its
     # folder and exited 0. Here the stop is sent from inside a gc callback at the start of the run
     # (before the solve) or while the report is being written (inside its staging folder).
-    from inverse_design import summary
+    from inverse_design.app import report as summary
 
-    name, module = ("check_grid", cli) if where == "solving" else ("plot_section", summary)
+    name, module = ("check_grid", command) if where == "solving" else ("plot_section", summary)
     original = getattr(module, name)
 
     def lose_a_stop(*args, **kwargs):

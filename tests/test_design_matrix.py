@@ -32,7 +32,7 @@ import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene
 from inverse_design import Constraints, optimise_pressure
-from inverse_design.cli import parse_arguments
+from inverse_design.app.case import parse_arguments
 from inverse_design.methods import SLSQP_EVALUATIONS_PER_ITERATION
 from targets import naca
 
@@ -73,7 +73,7 @@ def defaults():
 
 @pytest.fixture(scope="module")
 def scenes(defaults):
-    """Scenes built as `inverse_design.cli.run` builds them (ribs = target), one per (target, grid)."""
+    """Scenes built as `inverse_design.app.command.run` builds them (ribs = target), one per (target, grid)."""
     built = {}
 
     def scene(target, grid):
@@ -89,7 +89,7 @@ def scenes(defaults):
 
 
 def command_options(args, variables, **changes):
-    """Start, bounds, constraints and optimiser options of `inverse_design.cli.run`."""
+    """Start, bounds, constraints and optimiser options of `inverse_design.app.command.run`."""
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
                   "rib_chord_scale": args.rib_chord_bounds}

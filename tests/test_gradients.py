@@ -80,7 +80,7 @@ def test_gradient_comes_with_the_concrete_solution(implicit_gradient, reference)
 
 
 def test_loose_pressure_keyword_is_differentiable(scene, weights, reference, implicit_gradient):
-    """DESIGN's form: ``jax.grad(lambda p: f(solve_equilibrium(scene, pressure=p, ...).nodes))``."""
+    """The documented form (README's API block): ``jax.grad(lambda p: f(solve_equilibrium(scene, pressure=p, ...).nodes))``."""
     with jax.enable_x64(True):
         grad = jax.grad(lambda p: jnp.sum(weights * solve_equilibrium(
             scene, pressure=p, prestrain=THETA.prestrain, stiffness=THETA.stiffness,

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import cli
+from inverse_design.app import case as case_reader, cli
 from targets import Airfoil, AirfoilWarning, load_airfoil, naca
 
 UIUC = Path(__file__).parent / "data" / "uiuc"
@@ -61,19 +61,19 @@ def test_a_folder_given_as_an_airfoil_file_says_a_file_is_needed(tmp_path):
 @pytest.mark.parametrize("value", ["-2e5", "-1E-3", "-.5", "-inf"])
 def test_negative_numbers_reach_the_options_own_check(option, value):
     with pytest.raises(cli.InputError) as info:
-        cli.parse_arguments([option, value])
+        case_reader.parse_arguments([option, value])
     message = str(info.value)
     assert "expected one argument" not in message and f"argument {option}" in message
     assert ("must be a positive number" in message) or ("finite" in message)
 
 
 def test_negative_values_where_they_are_allowed_still_parse():
-    args, _ = cli.parse_arguments(["--alpha-range", "-4", "10", "1", "--prestrain-span", "-2e-2",
+    args, _ = case_reader.parse_arguments(["--alpha-range", "-4", "10", "1", "--prestrain-span", "-2e-2",
                                    "--rib-shape-bounds", "-5e-2", "0.05", "--min-tension", "-1e2"])
     assert args.alpha_range == [-4.0, 10.0, 1.0] and args.prestrain_span == -0.02
     assert args.rib_shape_bounds == [-0.05, 0.05] and args.min_tension == -100.0
     with pytest.raises(cli.InputError, match="must be a positive number"):
-        cli.parse_arguments(["--pressure-bounds", "-1e3", "5e4"])
+        case_reader.parse_arguments(["--pressure-bounds", "-1e3", "5e4"])
 
 
 def test_case_file_paths_are_relative_to_the_case_file(tmp_path, monkeypatch):
@@ -85,9 +85,9 @@ def test_case_file_paths_are_relative_to_the_case_file(tmp_path, monkeypatch):
         '[[rib]]\nsection = "mg06.dat"\nchord = 1.0\nstation = 0.0\n'
         f'[[rib]]\nsection = "{UIUC / "s1020.dat"}"\ntarget = "naca0012"\nchord = 0.8\nstation = 0.3\n')
     monkeypatch.chdir(tmp_path)  # mg06.dat is not here
-    one = cli.read_config(folder / "one.toml")
+    one = case_reader.read_config(folder / "one.toml")
     assert one["target"] == str(folder / "mg06.dat") and one["rib"] == "naca2412"
-    ribs = cli.read_config(folder / "wing.toml")["wing"]
+    ribs = case_reader.read_config(folder / "wing.toml")["wing"]
     assert ribs[0]["section"] == str(folder / "mg06.dat")
     assert ribs[1]["section"] == str(UIUC / "s1020.dat") and ribs[1]["target"] == "naca0012"
 

@@ -4,7 +4,7 @@ Each block is preceded by a marker that says how it is checked::
 
     <!-- readme-test: run -->          run as written
     <!-- readme-test: small grid -->   run as written on a small grid (below)
-    <!-- readme-test: case file -->    a case file: read by the command's reader (`cli.read_config`)
+    <!-- readme-test: case file -->    a case file: read by the command's reader (`case.read_config`)
     <!-- readme-test: case file, small grid -->   ... and run with --config on the small grid
     <!-- readme-test: error of the case file above ... -->   the command's message, reproduced (below)
     <!-- readme-test: skip (why) -->   not run, and why
@@ -13,7 +13,7 @@ A block without a marker, or with another one, fails the test, so a new
 block gets a decision. Python blocks run in a subprocess with the
 repository first on PYTHONPATH, in a temporary folder; shell blocks run
 each command (``&&`` splits them) with ``optimise-pressure`` as
-``python -m inverse_design.cli`` (the code under test) and skip ``pip
+``python -m inverse_design.app.cli`` (the code under test) and skip ``pip
 install`` lines. "Small grid" is the one substitution: every ``n_span=N``
 and ``n_contour=N`` of a Python block becomes 5 and 48, and every
 ``optimise-pressure`` command gets ``--n-span 5 --n-contour 48``
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-from inverse_design import cli
+from inverse_design.app import case as case_reader
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -91,7 +91,7 @@ def _command(args: list, small: bool):
     if args[:4] == ["python", "-m", "pip", "install"] or args[:2] == ["pip", "install"]:
         return None
     if args[0] == "optimise-pressure":
-        return [sys.executable, "-m", "inverse_design.cli", *args[1:], *(SMALL_ARGS if small else [])]
+        return [sys.executable, "-m", "inverse_design.app.cli", *args[1:], *(SMALL_ARGS if small else [])]
     if args[0] == "python":
         return [sys.executable, *args[1:]]
     return args
@@ -122,7 +122,7 @@ def test_the_block_runs_as_written(index, env, tmp_path):
     small = "small grid" in marker
     if marker == ERROR_MARKER:
         (tmp_path / "wing.toml").write_text(_previous_case_file(index) + THIRD_RIB)
-        done = _run([sys.executable, "-m", "inverse_design.cli", "--config", "wing.toml"], tmp_path, env)
+        done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "wing.toml"], tmp_path, env)
         assert done.returncode == 2 and done.stdout == "", done.stderr
         assert done.stderr.strip() == text.strip()
     elif language == "python":
@@ -132,10 +132,10 @@ def test_the_block_runs_as_written(index, env, tmp_path):
     elif language == "toml":
         case = tmp_path / "case.toml"
         case.write_text(text)
-        values = cli.read_config(case)  # every key and value checked as the command checks them
+        values = case_reader.read_config(case)  # every key and value checked as the command checks them
         assert values
         if small:
-            done = _run([sys.executable, "-m", "inverse_design.cli", "--config", "case.toml", *SMALL_ARGS,
+            done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "case.toml", *SMALL_ARGS,
                          "--out", "out"], tmp_path, env)
             assert done.returncode == 0, f"README.md:{line}:\n{done.stderr[-3000:]}"
             assert (tmp_path / "out" / "summary.json").exists()
@@ -147,7 +147,7 @@ def test_the_block_runs_as_written(index, env, tmp_path):
         for command in commands:
             done = _run(command, tmp_path, env)
             assert done.returncode == 0, f"README.md:{line}: {shlex.join(command)}:\n{done.stderr[-3000:]}"
-            if command[1:3] == ["-m", "inverse_design.cli"]:  # the documented outcome: the folder
+            if command[1:3] == ["-m", "inverse_design.app.cli"]:  # the documented outcome: the folder
                 out = command[command.index("--out") + 1] if "--out" in command else "optimise-pressure-out"
                 assert (tmp_path / out / "summary.json").is_file() and f"wrote {tmp_path / out}" in done.stdout
     else:

@@ -20,8 +20,8 @@ import pytest
 from forward_solver import Bay, Fabric, Parameters, Scene, rib_section
 from forward_solver.rib_shape import class_function
 from inverse_design import optimise_pressure
-from inverse_design.rib_design import RibGeometry, RibLimits, _curvature, cut_lengths
-from inverse_design.summary import write_report
+from inverse_design.rib_design import RibGeometry, RibLimits, curvature, cut_lengths
+from inverse_design.app.report import write_report
 from inverse_design.variables import DesignVariables
 from targets import load_airfoil, naca
 
@@ -63,7 +63,7 @@ def test_vector_design_variables_round_trip():
 def test_menger_curvature_of_a_circle(x64):
     angle = np.linspace(0.2, 2.5, 50) ** 1.3  # uneven spacing: the circle through 3 points is still exact
     radius = 0.37
-    kappa = np.asarray(_curvature(jnp.asarray(radius * np.cos(angle)), jnp.asarray(radius * np.sin(angle))))
+    kappa = np.asarray(curvature(jnp.asarray(radius * np.cos(angle)), jnp.asarray(radius * np.sin(angle))))
     np.testing.assert_allclose(kappa, 1.0 / radius, rtol=1e-10)  # counter-clockwise: positive
 
 

@@ -8,7 +8,8 @@ import pytest
 import forward_solver
 import inverse_design.optimise
 from forward_solver import Bay, ConvergenceError, Fabric, Result, Scene, solve_equilibrium
-from inverse_design import cli, optimise_pressure
+from inverse_design import optimise_pressure
+from inverse_design.app import case as case_reader, cli, command
 from targets import naca
 
 
@@ -56,9 +57,9 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(forward_solver, "solve_equilibrium", spy)
-    args, _ = cli.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
+    args, _ = case_reader.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
                                    "newton", "--max-steps", "777", "--out", str(tmp_path / "out")])
-    cli.run(args)
+    command.run(args)
     assert seen["method"] == "newton" and seen["max_steps"] == 777
 
     class Stop(Exception):
@@ -71,15 +72,15 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
     monkeypatch.setattr(inverse_design.optimise, "optimise_pressure", fake)
     case = tmp_path / "case.toml"
     case.write_text('equilibrium-method = "relax"\nmax-steps = 4321\nn-span = 5\nn-contour = 32\n')
-    args, _ = cli.parse_arguments(["--config", str(case), "--out", str(tmp_path / "out2")])
+    args, _ = case_reader.parse_arguments(["--config", str(case), "--out", str(tmp_path / "out2")])
     with pytest.raises(Stop):
-        cli.run(args)
+        command.run(args)
     assert seen["solver_options"] == {"method": "relax", "max_steps": 4321}
 
 
 def test_bad_equilibrium_options_are_refused():
     with pytest.raises(cli.InputError, match="equilibrium-method"):
-        cli.parse_arguments(["--equilibrium-method", "fast"])
+        case_reader.parse_arguments(["--equilibrium-method", "fast"])
     bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
         optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver_options={"max_steps": 0})

@@ -16,7 +16,7 @@ import pytest
 
 from forward_solver import Bay, Fabric
 from forward_solver.wing import Wing, solve_wing
-from inverse_design import cli
+from inverse_design.app import cli
 from targets import AirfoilWarning, common_trailing_edge, load_airfoil, naca
 
 UIUC = Path(__file__).parent / "data" / "uiuc"

@@ -5,7 +5,7 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene, solve_equilibrium
 from forward_solver.closed_forms import circle_contour, cylinder_radius, hoop_tension
-from forward_solver.solve import _coarsenable
+from forward_solver.solve import coarsenable
 from targets import Airfoil, naca
 
 
@@ -87,8 +87,8 @@ def test_default_wing_bay_converges_under_refinement(refinement):
 
 
 def test_nested_grids_for_sequencing():
-    assert _coarsenable((17, 128), periodic=True) and not _coarsenable((17, 129), periodic=True)
-    assert _coarsenable((17, 129), periodic=False)
+    assert coarsenable((17, 128), periodic=True) and not coarsenable((17, 129), periodic=True)
+    assert coarsenable((17, 129), periodic=False)
 
 
 def test_tapered_bay_solves_between_different_ribs():

@@ -12,8 +12,8 @@ import re
 import numpy as np
 import pytest
 
-from inverse_design import cli
-from inverse_design.wing_cli import EXAMPLE_CASE
+from inverse_design.app import case as case_reader, cli
+from inverse_design.app.case import EXAMPLE_CASE
 
 RIBS = """
 [[rib]]
@@ -68,10 +68,11 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert (out / "rib_0.dat.orig").read_bytes() == b"the user's rib"
     assert (out / "wing.toml").read_bytes() == b"# the user's case"
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["mode"] == "wing" and summary["results"]["success"]
+    assert summary["mode"] == "optimise" and summary["results"]["success"]
+    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
     assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
     assert summary["case"]["ribs"][3]["target"] == "NACA 4415"
-    bays = summary["results"]["bays"]
+    bays = summary["bays"]
     assert [b["result"] for b in bays] == ["converged"] * 3
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
     assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
@@ -92,12 +93,12 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
 def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, capsys, monkeypatch):
     # Bay 1 spans 100 m. The lines come before the optimisation, which is stopped there (as
     # Ctrl-C would) so that no 100 m bay is solved.
-    from inverse_design import wing_design
+    from inverse_design import optimise as design_module
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(wing_design, "optimise_wing", stop)
+    monkeypatch.setattr(design_module, "optimise_wing", stop)
     case = tmp_path / "wing.toml"
     case.write_text(CASE.replace("station = 0.5", "station = 100.25").replace("station = 0.75", "station = 100.5"))
     code = cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache"])
@@ -111,7 +112,7 @@ def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, c
 
 
 def test_the_built_in_example_is_a_valid_wing_case():
-    values = cli.read_config(EXAMPLE_CASE)
+    values = case_reader.read_config(EXAMPLE_CASE)
     assert len(values["wing"]) == 4 and values["n_span"] == 17
 
 
@@ -127,7 +128,7 @@ def test_the_built_in_example_is_a_valid_wing_case():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root is not available for a wing .*; use slsqp"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):

@@ -210,3 +210,21 @@ def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(de
     assert design.n_bays == 3 and design.solution is design.wing_solution
     assert design.solution.bay_solution(2).converged
     assert design.max_error == pytest.approx(float(np.max(design.bay_max_error)))
+
+
+def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
+    # The 9x32 wing design re-run on 17x32 from its optimum: refine_design records both grids and
+    # the move, keeps the coarse start's errors and counts both grids' solves. The pressure moves
+    # with the span resolution (9 span nodes: docs' grid study), but stays inside its bounds and the
+    # fine design is itself a success.
+    from inverse_design import refine_design
+
+    fine = refine_design(design, n_span=17, n_contour=32, bounds=BOUNDS, max_iterations=30)
+    change = fine.grid_change
+    assert change["grids"] == [[9, 32], [17, 32]]
+    assert change["values"]["pressure"][0] == pytest.approx(design.pressure, rel=1e-12)
+    assert change["values"]["pressure"][1] == pytest.approx(fine.pressure, rel=1e-12)
+    assert change["change"]["pressure"] == pytest.approx((fine.pressure - design.pressure) / design.pressure)
+    assert fine.success and fine.n_bays == 3 and np.shape(fine.wing_solution.nodes)[1:3] == (17, 32)
+    assert fine.solves > design.solves and fine.initial_rms_error == design.initial_rms_error
+    assert BOUNDS["pressure"][0] <= fine.pressure <= BOUNDS["pressure"][1]

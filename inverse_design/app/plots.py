@@ -2,7 +2,7 @@
 
 The ``plot_*`` functions return `matplotlib.figure.Figure` objects built
 without pyplot (no global state, an Agg canvas), so they serve notebooks and
-scripts as well as the command line (`inverse_design.summary.write_report`
+scripts as well as the command line (`inverse_design.app.report.write_report`
 saves them into the output folder). Maps of the whole bay are drawn on the
 developed skin: the horizontal axis is the distance along the rib contour
 from the trailing edge over the upper surface, the leading edge and the
@@ -18,8 +18,8 @@ import numpy as np
 from forward_solver import Solution
 
 from .export import deviation
-from .objectives import section_errors
-from .optimise import DesignResult
+from ..objectives import section_errors
+from ..optimise import DesignResult
 
 __all__ = [
     "MAGNIFIED_DEVIATION",
@@ -329,7 +329,7 @@ def plot_rib_design(parameters, start_rib, chord: float, limits=None):
     Returns:
         A `matplotlib.figure.Figure`.
     """
-    from .rib_design import RibGeometry, RibLimits
+    from ..rib_design import RibGeometry, RibLimits
 
     geometry = RibGeometry(start_rib, limits or RibLimits())
     import jax

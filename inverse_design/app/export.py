@@ -29,7 +29,7 @@ import numpy as np
 from forward_solver import Solution
 
 from . import interrupts
-from .optimise import DesignResult
+from ..optimise import DesignResult
 
 try:
     import fcntl
@@ -56,7 +56,7 @@ def deviation(solution: Solution, target, chord: float) -> np.ndarray:
 
     Positive outside the target. ``chord`` (m) scales the nodes to the target's
     chord-normalised frame (the bay's mean chord, as the objectives use). It is
-    stored in ``equilibrium.npz`` and drawn by `inverse_design.plots.plot_deviation`.
+    stored in ``equilibrium.npz`` and drawn by `inverse_design.app.plots.plot_deviation`.
     """
     points = np.asarray(solution.nodes)[..., [0, 2]] / chord
     return np.asarray(target.distance(points), dtype=np.float64)
@@ -141,7 +141,7 @@ def write_npz(path, solution: Solution, target, scene, result: DesignResult | No
     (names) and, after an optimisation, ``history_objective`` and
     ``history_values`` (iterate x component; a rib shape takes 2 K columns).
     """
-    from .rib_design import cut_lengths
+    from ..rib_design import cut_lengths
 
     bay = scene.bay
     values = solution.parameters
@@ -201,7 +201,7 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     ``span_mounted_m`` (its mounted length). The ``# `` header lines give
     the prestrains and each row's cut perimeter.
     """
-    from .rib_design import cut_lengths
+    from ..rib_design import cut_lengths
 
     cuts = cut_lengths(scene, parameters)
     bay = scene.bay
@@ -226,7 +226,7 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     return path
 
 
-#: Names of the files a report writes (`summary.write_report`, `wing_report.write_wing_report`). An
+#: Names of the files a report writes (`report.write_report`). An
 #: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
 #: that no earlier report there wrote (`written_files`), before the long work.
 REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|cut_pattern\.csv|"

@@ -1,0 +1,170 @@
+"""``optimise-pressure``: the command line, a thin layer over the public API.
+
+It parses the options (and a TOML case file, ``--config``), builds the
+`forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
+``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
+to `inverse_design.app.report.write_report`, which writes the output folder. No
+physics lives here.
+
+Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
+nothing written; or the optimiser stopped without converging: the folder is
+written and says so); 2 bad input (one line on stderr), a grid too large
+for the machine among it (`inverse_design.app.resources.check_grid`); 130
+interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
+Ctrl-C, so the staging folder is removed). A stop that Python loses (raised
+inside a garbage-collection callback) is recorded and raised again at the
+next safe point (`inverse_design.app.interrupts`), at the latest before the
+folder's files are put in place.
+
+The solvers run in their own thread-local float64 scope. Unlike the
+library, the command turns on JAX's persistent compilation cache for its own
+process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
+``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
+else ``~/.cache/inflatable-wing/jax``;
+``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
+second run of a grid compiles nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from . import interrupts
+from .case import parse_arguments
+from .console import describe
+from .interrupts import Terminated
+from .options import PROG, InputError
+from .command import run
+
+__all__ = ["EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main"]
+
+#: Exit codes of a run stopped by Ctrl-C (SIGINT) or SIGTERM: 128 + the signal number, as a shell reports it.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+def _exit_now(code: int) -> None:
+    """End the process at once (``os._exit``) after flushing the output.
+
+    An interruption can abandon an XLA compilation that goes on in a thread
+    of JAX's own; the interpreter's normal shutdown then destroys the CPU
+    client under it and the process dies of SIGSEGV instead of exiting with
+    ``code`` (seen with JAX 0.10.2, Ctrl-C and SIGTERM alike). The output
+    folder's staging has been cleaned up by then (the exception unwound it).
+    """
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``optimise-pressure`` console script; returns the exit code.
+
+    While it runs, SIGTERM raises `Terminated`, which unwinds like Ctrl-C
+    (the staging folder is removed): exit code 143, or 130 for Ctrl-C. Both
+    are recorded too (`interrupts.install`), so that one lost inside a
+    callback is raised again at the next safe point. The previous handlers
+    are restored on return. Run as the command
+    (``argv`` None), an interrupted or terminated run ends the process
+    itself with that code (see `_exit_now`); called with ``argv`` it returns.
+    """
+    started = time.perf_counter()
+    previous = interrupts.install()
+    try:
+        code = _main(argv, started)
+    except Terminated:  # before the run (importing JAX) or after its folder was written
+        print(f"{PROG}: terminated", file=sys.stderr)
+        code = EXIT_TERMINATED
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        code = EXIT_INTERRUPTED
+    finally:
+        interrupts.restore(previous)
+    if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        _exit_now(code)
+    return code
+
+
+def compilation_cache_dir() -> Path:
+    """Where the command keeps JAX's compiled functions between runs (module docstring)."""
+    for variable in ("INFLATABLE_WING_CACHE", "JAX_COMPILATION_CACHE_DIR"):
+        if os.environ.get(variable):
+            return Path(os.environ[variable])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "inflatable-wing" / "jax"
+
+
+def use_compilation_cache(path: Path) -> None:
+    """Turn on JAX's persistent compilation cache in ``path`` for this process (every entry kept:
+    the solver's functions compile in 0.3-6 s each and load in milliseconds)."""
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+
+
+def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
+    """The one-line message and exit code of a run stopped by Ctrl-C or SIGTERM."""
+    terminated = isinstance(exc, Terminated)
+    print(f"{PROG}: {'terminated' if terminated else 'interrupted'}; nothing was written to {out}",
+          file=sys.stderr)
+    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None, started: float) -> int:
+    try:
+        args, sources = parse_arguments(argv)
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    progress = sys.stderr.isatty() and not (args.quiet or args.json)
+    try:
+        from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
+
+        if not args.no_compilation_cache:
+            use_compilation_cache(compilation_cache_dir())
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc, args.out)
+    try:
+        summary = run(args, sources, progress=progress, started=started)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
+        return _interrupted(exc, args.out)
+    except ConvergenceError as exc:  # a forward solve failed: the reason, exit 1
+        print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
+        return 1
+    except ValueError as exc:  # bad input: one line, no traceback
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # input files are read (and checked) before: this is the output
+        print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
+        return 1
+    try:
+        interrupts.check()  # a stop that arrived while the files were put in place
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
+              f"in {summary['out']}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    elif not args.quiet:
+        print("\n".join(describe(summary)))
+    if not summary["results"]["success"]:
+        why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
+               else "the optimiser did not converge")
+        print(f"{PROG}: failed: {why}: {summary['results']['message']} "
+              f"(the results are in {summary['out']})", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

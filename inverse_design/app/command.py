@@ -1,0 +1,185 @@
+"""The one command path: a parsed case to a design (or one equilibrium) and its output folder.
+
+`run` checks the grid, loads the sections, builds the bays, calls the design
+library (`inverse_design.optimise_pressure`, `inverse_design.optimise_wing`,
+`inverse_design.refine_design`; ``--evaluate``: `forward_solver.solve_equilibrium`
+once) and the aerodynamic comparison, and hands the result to the report
+writer. No physics lives here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from . import interrupts
+from .case import design_inputs, load_section
+from .options import PROG, InputError
+from .resources import check_grid
+
+__all__ = ["NOT_FOR_A_WING", "plausibility", "run", "safe_point"]
+
+#: Options that have no meaning for a wing, or that the command does not run for one, and why.
+NOT_FOR_A_WING = {
+    "chord": "give each rib's chord in its [[rib]] table",
+    "rib_spacing": "give each rib's station in its [[rib]] table",
+    "rib": "give each rib's section in its [[rib]] table",
+    "evaluate": ("the command evaluates a single bay; solve a wing once with forward_solver.solve_wing, or "
+                 "design it (the report then shows the start's errors too)"),
+    "aero": ("NeuralFoil compares one bay's mid-bay and bay-average sections with its target; run the bay "
+             "of interest as a single bay (--target, --rib, --chord, --rib-spacing) with --aero"),
+}
+
+
+def safe_point(entry=None) -> None:
+    """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
+    interrupts.check()
+
+
+def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = False,
+        started: float | None = None) -> dict:
+    """Run the case described by ``args`` (one bay, or a wing of ``[[rib]]`` tables), write the output
+    folder and return its summary.
+
+    One path for both: the sections are loaded and checked before JAX is
+    imported, the output folder is checked before the long work, the design
+    runs (`optimise_pressure` for one bay, `optimise_wing` for a wing; every
+    method, ``--refine``, the solver options), and `report.write_report`
+    writes the folder. A wing refuses the options of `NOT_FOR_A_WING` with
+    one line that says why.
+
+    ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
+    start of `main`, so that it includes importing JAX.
+
+    Raises:
+        ValueError: bad input (`InputError` among them).
+        forward_solver.ConvergenceError: a forward solve failed (nothing written).
+    """
+    start = time.perf_counter() if started is None else started
+    sources = dict(sources or {})
+    wing_ribs = getattr(args, "wing", None)  # [[rib]] tables of a case file, or None: one bay
+    if wing_ribs is not None:
+        for option, why in NOT_FOR_A_WING.items():
+            if option in sources:
+                raise InputError(f"{option.replace('_', '-')} does not apply to a wing ([[rib]] tables in "
+                                 f"{args.config}): {why}")
+        if args.method == "root":
+            raise InputError(f"method root does not apply to a wing ([[rib]] tables in {args.config}): it solves "
+                             "one scalar condition at one bay's mid-bay section: use slsqp, least_squares or optax")
+    check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
+    if args.max_steps < 1:
+        raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
+    alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
+    # The sections, before importing JAX: bad input fails fast.
+    if wing_ribs is None:
+        target = load_section(args.target, "--target")
+        rib = target if args.rib is None else load_section(args.rib, "--rib")
+    else:
+        where = args.config
+        common = load_section(args.target, "--target") if "target" in sources else None
+        sections = [load_section(r["section"], f"{where}: rib {k}: section") for k, r in enumerate(wing_ribs)]
+        targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
+                    common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
+    from forward_solver import Bay, ConvergenceError, Fabric, Scene, Wing, solve_equilibrium
+
+    from ..optimise import optimise_pressure, optimise_wing, refine_design
+    from .export import check_output_folder
+    from .report import write_report
+
+    out = check_output_folder(args.out)  # before the long work, not after it
+    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
+    initial, variables, rib_limits, bounds, constraints = design_inputs(args)
+    options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
+                   tolerance=args.tolerance, progress=progress, rib_limits=rib_limits, callback=safe_point,
+                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
+    if wing_ribs is not None:
+        try:
+            wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in wing_ribs),
+                        stations=tuple(r["station"] for r in wing_ribs), trailing_edge=args.trailing_edge)
+        except ValueError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        chords, stations = wing.chords, wing.stations
+        notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
+                                                     for k in range(len(chords) - 1)], bounds)
+        timings = {"setup": time.perf_counter() - start}
+        t = time.perf_counter()
+        result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
+                               method=args.method, n_span=args.n_span, n_contour=args.n_contour, **options)
+        if args.refine:
+            result = refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
+        timings["optimisation"] = time.perf_counter() - t
+        interrupts.check()
+        return write_report(out, result, bounds=bounds, inputs={**vars(args), "sources": sources},
+                            timings=timings, magnification=args.magnification, warnings=notes)
+
+    def scene_on(n_span: int) -> Scene:
+        bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
+                               n_contour=args.n_contour)
+        return Scene(bay, fabric)
+
+    scene = scene_on(args.n_span)
+    notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds)
+    inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
+    report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
+                  rib=rib, rib_limits=rib_limits, warnings=notes)
+    timings = {"setup": time.perf_counter() - start}
+    if args.evaluate:
+        t = time.perf_counter()
+        result = solve_equilibrium(scene, initial, max_steps=args.max_steps, method=args.equilibrium_method,
+                                   throw=False)
+        timings["equilibrium"] = time.perf_counter() - t
+        if not result.converged:
+            raise ConvergenceError(result)
+        aero = _aero(args, result, target, alphas, timings)
+        interrupts.check()
+        return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
+    options.update(root_condition=args.root_condition, rib=rib)
+    t = time.perf_counter()
+    result = optimise_pressure(scene, target, variables=variables, initial=initial,
+                               objective=args.objective, method=args.method, **options)
+    if args.refine:
+        scene = scene_on(2 * args.n_span - 1)
+        result = refine_design(result, scene, target, **options)
+    timings["optimisation"] = time.perf_counter() - t
+    aero = _aero(args, result.solution, target, alphas, timings)
+    interrupts.check()
+    return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
+
+
+def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds) -> list[str]:
+    """`inverse_design.plausibility.check_plausibility`'s lines for the inputs, each shown on stderr as
+    one ``warning:`` line (unless ``--quiet``); the caller records them in the summary."""
+    from ..plausibility import check_plausibility
+
+    lines = check_plausibility(fabric, parameters, bays, bounds, warn=False)
+    if not args.quiet:
+        for line in lines:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+    return lines
+
+
+def _aero_angles(args: argparse.Namespace):
+    """The angles of ``--aero``, after checking that NeuralFoil is installed (`InputError` if not)."""
+    from ..aero import AeroUnavailable, alpha_range, require_neuralfoil
+
+    try:
+        require_neuralfoil()
+    except AeroUnavailable as exc:
+        raise InputError(f"--aero: {exc}") from None
+    try:
+        return alpha_range(*args.alpha_range)
+    except ValueError as exc:
+        raise InputError(f"--alpha-range: {exc}") from None
+
+
+def _aero(args: argparse.Namespace, solution, target, alphas, timings: dict):
+    """The `inverse_design.aero.AeroComparison` of ``--aero`` (None without it); times it."""
+    if not args.aero:
+        return None
+    from ..aero import aerodynamic_cost
+
+    t = time.perf_counter()
+    comparison = aerodynamic_cost(solution, target, args.chord, reynolds=args.reynolds, alphas=alphas)
+    timings["aero"] = time.perf_counter() - t
+    return comparison

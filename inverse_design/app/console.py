@@ -1,0 +1,130 @@
+"""What the command prints when a run ends: a few lines from its summary."""
+
+from __future__ import annotations
+
+__all__ = ["describe", "describe_wing", "start_violation_line"]
+
+#: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
+_VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
+
+
+def _amount_text(name: str, amount) -> str:
+    """``"by 12.3 N/m"``; a per-bay (per-rib) amount ``{where: amount}`` as ``"by 12.3 N/m in bay 0, ..."``."""
+    unit = _VIOLATION_UNITS.get(name, " N/m")
+    if isinstance(amount, dict):
+        return ", ".join(f"by {v:.4g}{unit} in {where}" for where, v in amount.items())
+    return f"by {amount:.4g}{unit}"
+
+
+def start_violation_line(summary: dict) -> str | None:
+    """The console line of a design whose start broke a limit (``constraints.violated_at_start``),
+    or None when the start met every limit.
+
+    The start's error is then no fair yardstick: a design that meets the
+    limit may have a larger error than the infeasible start, and the line
+    says so rather than leave a worse error unexplained. A wing's amounts
+    are given per bay (``violated_at_start_where``).
+    """
+    constraints = summary["constraints"]
+    at_start = constraints.get("violated_at_start") or {}
+    if not at_start:
+        return None
+    where = constraints.get("violated_at_start_where") or {}
+    several = "ribs" in summary.get("case", {})
+    broke = "; ".join(f"{name} {_amount_text(name, where[name] if several and name in where else amount)}"
+                      for name, amount in at_start.items())
+    err = summary["errors"]
+    if constraints["violated"]:
+        verdict = "the design still breaks a limit (above)"
+    elif err["after"]["rms"] > err["before"]["rms"]:
+        verdict = ("the design is feasible but its error is larger than the infeasible start's "
+                   f"({err['after']['rms']:.3e} against {err['before']['rms']:.3e} chord)")
+    else:
+        verdict = "the design is feasible"
+    return f"  note: the start broke {broke}; {verdict}"
+
+def _value_text(name: str, value) -> str:
+    """``name value`` for the console (a vector variable as its rounded components)."""
+    if isinstance(value, list):
+        return f"{name} [{', '.join(f'{v:.4f}' for v in value)}]"
+    return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
+
+
+def describe(summary: dict) -> list[str]:
+    """The console lines of a finished run."""
+    if "ribs" in summary["case"]:  # a wing case (any number of bays)
+        return describe_wing(summary)
+    case, res, err = summary["case"], summary["results"], summary["errors"]
+    v = res["values"]
+    lines = [f"{case['target']}, {case['grid'][0]}x{case['grid'][1]} grid, {err['objective']} objective"]
+    if summary["mode"] == "evaluate":
+        eq = res["equilibrium"]
+        lines.append(f"  equilibrium at {v['pressure_pa']:.6g} Pa: {eq['result']} in {eq['steps']} steps")
+        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} chord "
+                     f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
+    else:
+        chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n]) for n in res["variables"])
+        lines.append(f"  {res['method']}: {chosen}")
+        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} chord, "
+                     f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
+        violated = summary["constraints"]["violated"] or {}
+        lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
+                     f"violated: {', '.join(f'{k} {_amount_text(k, v)}' for k, v in violated.items()) or 'none'}; "
+                     f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+        start_line = start_violation_line(summary)
+        if start_line:
+            lines.append(start_line)
+        grid = res.get("grid_change")
+        if grid:
+            moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
+                              for n, c in grid["change"].items())  # a vector: its largest move
+            lines.append(f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> "
+                         f"{grid['grids'][1][0]}x{grid['grids'][1][1]}: {moves}")
+    aero = summary.get("aero")
+    if aero:
+        worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
+        lines.append(f"  aerodynamics at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: mid-bay "
+                     f"max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
+                     f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
+    wrinkled = res["equilibrium"]["wrinkled_fraction"]
+    if wrinkled:
+        lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
+    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    return lines
+
+
+def describe_wing(summary: dict) -> list[str]:
+    """The console lines of a finished wing run."""
+    res, err = summary["results"], summary["errors"]
+    v = res["values"]
+    ribs = summary["case"]["ribs"]
+    lines = [f"wing of {len(ribs) - 1} bays ({ribs[0]['chord_m']:g} to {ribs[-1]['chord_m']:g} m chord, "
+             f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
+             f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
+    chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}" + (" Pa" if n == "pressure" else "")
+                       for n in res["variables"] if n != "rib_shape")
+    if "rib_shape" in res["variables"]:
+        chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
+    trailing = summary["case"].get("trailing_edge") or {}
+    for change in trailing.get("changed", []):
+        source = change.get("file") or change["section"]
+        lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
+                     f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
+                     f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
+    lines.append(f"  {res['method']}: {chosen}")
+    lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
+    for bay in summary["bays"]:
+        lines.append(f"  bay {bay['bay']}: {bay['result']}, rms {bay['errors_before']['rms']:.3e} -> "
+                     f"{bay['errors_after']['rms']:.3e}, max {bay['errors_after']['max']:.3e} chord, "
+                     f"tension {bay['min_tension_n_per_m']:.4g} to {bay['max_tension_n_per_m']:.4g} N/m")
+    where = summary["constraints"]["violated_where"] or {}
+    shown = ", ".join(f"{name} {_amount_text(name, places)}" for name, places in where.items())
+    lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
+                 f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
+    start_line = start_violation_line(summary)
+    if start_line:
+        lines.append(start_line)
+    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    return lines

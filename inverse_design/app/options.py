@@ -1,0 +1,284 @@
+"""The options of ``optimise-pressure``: one table (`OPTIONS`) for the command line and case files.
+
+Each option is ``(group, flag, argparse keywords)``; `build_parser` builds the
+parser from it and `case.read_config` converts a case file's values with the
+same types and choices, so an option means the same in both places. Bad
+input raises `InputError` (exit code 2, one line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+
+from .resources import MAX_NODES
+
+__all__ = ["DEFAULT_VARIABLES", "InputError", "OPTIONS", "OPTION_SPECS", "PROG", "build_parser"]
+
+PROG = "optimise-pressure"
+#: ``--variables`` of the default case.
+DEFAULT_VARIABLES = "pressure,rib_thickness_scale"
+
+
+class InputError(ValueError):
+    """Bad command-line or case-file input (exit code 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Anything that reads as a negative number (-2e5, -.5, -inf, not only argparse's -4 and -0.5) is a
+        # value, so that it reaches the option's own check ("must be a positive number") instead of
+        # argparse's "expected one argument"; no option of ours looks like a number.
+        self._negative_number_matcher = _NEGATIVE_NUMBER
+
+    def error(self, message):  # one line, no usage block: the caller prints it and exits 2
+        raise InputError(f"{message} (see {PROG} --help)")
+
+
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+
+
+# ------------------------------------------------------------------ option types
+def _number(unit: str = "", positive: bool = False):
+    """A type function for a finite (optionally positive) float; ``unit`` goes into the message."""
+    where = f" ({unit})" if unit else ""
+
+    def number(text):
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected a number{where}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"expected a finite number{where}, got {text!r}")
+        if positive and not value > 0:
+            raise argparse.ArgumentTypeError(f"must be a positive number{where}, got {text!r}")
+        return value
+
+    return number
+
+
+def _whole(text):
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+# One entry per option: (group, flag, argparse keyword arguments). The TOML
+# reader converts a case file's values with the same types and choices.
+_GROUPS = {
+    "target": "target and ribs",
+    "bay": "bay and grid",
+    "fabric": "fabric",
+    "design": "design variables and bounds",
+    "constraints": "tension constraints",
+    "rib": "rib shape (--variables ...,rib_shape)",
+    "optimiser": "optimiser",
+    "aero": "aerodynamics",
+    "output": "input and output",
+}
+OPTIONS = (
+    ("target", "--target", dict(default="naca2412", metavar="SPEC",
+                                help="target profile: a NACA 4- or 5-digit code (naca2412, naca23012) or a "
+                                "Selig/Lednicer .dat file (default naca2412)")),
+    ("target", "--rib", dict(default=None, metavar="SPEC",
+                             help="rib profile, same forms as --target (default: the target)")),
+    ("target", "--rib-thickness-scale", dict(type=_number(positive=True), default=1.0, metavar="X",
+                                             help="rib thickness over the rib profile's, about its camber "
+                                             "line: the start if optimised, else fixed (default 1.0)")),
+    ("target", "--rib-chord-scale", dict(type=_number(positive=True), default=1.0, metavar="X",
+                                         help="rib chord over --chord: the start if optimised, else fixed "
+                                         "(default 1.0)")),
+    ("target", "--trailing-edge", dict(default="close", choices=("close", "open", "as-given"),
+                                       help="a wing ([[rib]] tables) whose ribs mix closed and open trailing "
+                                       "edges: close the open ones over the last 5%% of chord (a fabric "
+                                       "seam), open the closed ones to the largest gap, or refuse the mix "
+                                       "(default close; a single bay has one rib section)")),
+    ("bay", "--chord", dict(type=_number("m", positive=True), default=1.0, metavar="M",
+                            help="chord of the ribs, m (default 1.0)")),
+    ("bay", "--rib-spacing", dict(type=_number("m", positive=True), default=0.25, metavar="M",
+                                  help="distance between the two ribs, m (default 0.25)")),
+    ("bay", "--n-span", dict(type=_whole, default=17, metavar="N",
+                             help="grid nodes along the span, ribs included (default 17: with fewer, "
+                             "the skin's contour strain next to the ribs is under-resolved and shows "
+                             "spurious compression, which the wrinkle constraint then obeys)")),
+    ("bay", "--n-contour", dict(type=_whole, default=64, metavar="N",
+                                help="grid nodes around the contour (default 64)")),
+    ("bay", "--allow-large-grid", dict(action="store_true",
+                                       help="run a grid that is refused otherwise: one whose estimated peak "
+                                       "memory exceeds half of the available memory, or with more than "
+                                       f"{MAX_NODES:,} nodes (hours per design)")),
+    ("fabric", "--stiffness-span", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
+                                        help="tensile stiffness E11 of the span fibres per unit width, N/m "
+                                        "(default 2e5)")),
+    ("fabric", "--stiffness-chord", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
+                                         help="tensile stiffness E22 of the contour fibres, N/m (default 2e5)")),
+    ("fabric", "--poisson", dict(type=_number(), default=0.25, metavar="NU",
+                                 help="Poisson coupling nu12 = nu21, in [0, 1) (default 0.25)")),
+    ("fabric", "--prestrain-span", dict(type=_number("fraction"), default=0.02, metavar="E",
+                                        help="span prestrain, fraction: the fabric is cut 1 + E times "
+                                        "shorter (start if optimised, default 0.02)")),
+    ("fabric", "--prestrain-chord", dict(type=_number("fraction"), default=0.02, metavar="E",
+                                         help="contour prestrain, fraction (start if optimised, default 0.02)")),
+    ("design", "--pressure", dict(type=_number("Pa", positive=True), default=1e4, metavar="PA",
+                                  help="internal overpressure, Pa: the start of the optimisation, or the "
+                                  "value evaluated with --evaluate (default 1e4)")),
+    ("design", "--variables", dict(default=DEFAULT_VARIABLES, metavar="NAMES",
+                                   help="comma-separated design variables among pressure, prestrain_span, "
+                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale, rib_shape "
+                                   f"(default {DEFAULT_VARIABLES})")),
+    ("design", "--pressure-bounds", dict(type=_number("Pa", positive=True), nargs=2, default=(1e3, 1e5),
+                                         metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")),
+    ("design", "--prestrain-bounds", dict(type=_number("fraction"), nargs=2, default=(0.0, 0.05),
+                                          metavar=("LOW", "HIGH"),
+                                          help="bounds of both prestrains, fraction (default 0 0.05)")),
+    ("design", "--rib-thickness-bounds", dict(type=_number(positive=True), nargs=2, default=(0.7, 1.0),
+                                              metavar=("LOW", "HIGH"),
+                                              help="bounds of the rib thickness scale (default 0.7 1.0)")),
+    ("design", "--rib-chord-bounds", dict(type=_number(positive=True), nargs=2, default=(0.5, 1.5),
+                                          metavar=("LOW", "HIGH"),
+                                          help="bounds of the rib chord scale (default 0.5 1.5)")),
+    ("constraints", "--min-tension", dict(type=_number("N/m"), default=0.0, metavar="N/M",
+                                          help="floor of every fibre tension, N/m: 0 keeps the skin free "
+                                          "of wrinkles (default 0)")),
+    ("constraints", "--max-tension", dict(type=_number("N/m", positive=True), default=None, metavar="N/M",
+                                          help="ceiling of every fibre tension (the fabric's allowable), "
+                                          "N/m (default none)")),
+    ("constraints", "--no-tension-constraints", dict(action="store_true",
+                                                     help="drop both tension constraints (keep the bounds)")),
+    ("rib", "--rib-shape-terms", dict(type=_whole, default=4, metavar="K",
+                                      help="Bernstein terms per surface of the rib's outward offset (2 K "
+                                      "coefficients, started at zero; default 4)")),
+    ("rib", "--rib-shape-bounds", dict(type=_number("chord"), nargs=2, default=(-0.05, 0.05),
+                                       metavar=("LOW", "HIGH"),
+                                       help="bounds of every rib-shape coefficient, fraction of chord "
+                                       "(default -0.05 0.05: offsets up to about 1%% of chord)")),
+    ("rib", "--min-rib-thickness", dict(type=_number("fraction", positive=True), default=0.8, metavar="F",
+                                        help="least local thickness of the shaped rib, as a fraction of the "
+                                        "starting rib's at the same x (default 0.8)")),
+    ("rib", "--min-rib-radius", dict(type=_number("chord", positive=True), default=None, metavar="R",
+                                     help="least radius of curvature of the shaped rib, fraction of chord "
+                                     "(default: half the starting rib's nose radius)")),
+    ("rib", "--no-rib-limits", dict(action="store_true",
+                                    help="drop both rib limits (keep the coefficient bounds)")),
+    ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
+                                      help="sections that must match the target: the mid-bay one, every "
+                                      "row from rib to rib, or the worst row (default average)")),
+    ("optimiser", "--method", dict(default="slsqp", choices=("slsqp", "least_squares", "root", "optax"),
+                                   help="optimiser: slsqp (the tension limits as constraints), "
+                                   "least_squares or optax (as penalties), root (brentq; takes "
+                                   "--variables pressure) (default slsqp)")),
+    ("optimiser", "--root-condition", dict(default="thickness", choices=("thickness", "mean_offset"),
+                                           help="scalar condition of --method root at mid-bay "
+                                           "(default thickness)")),
+    ("optimiser", "--max-iterations", dict(type=_whole, default=50, metavar="N",
+                                           help="cap on the optimiser's iterations (default 50)")),
+    ("optimiser", "--tolerance", dict(type=_number(positive=True), default=None, metavar="TOL",
+                                      help="convergence tolerance of the optimiser (default: slsqp 1e-6 "
+                                      "of the starting objective, the others 1e-8)")),
+    ("optimiser", "--refine", dict(action="store_true",
+                                   help="confirm and polish the design on a grid with twice the span "
+                                   "resolution (2 n-span - 1 nodes) and report how far it moved")),
+    ("optimiser", "--evaluate", dict(action="store_true",
+                                     help="only solve the equilibrium at the given values and report it "
+                                     "(no optimisation, no history plot)")),
+    ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
+                                      help="step cap of each relaxation of every equilibrium solve, in every "
+                                      "mode (default 200000)")),
+    ("optimiser", "--equilibrium-method", dict(default="auto", choices=("auto", "relax", "newton", "relax+newton"),
+                                               help="equilibrium solver: auto tries relax+newton, then Newton from "
+                                               "where it stopped, then Newton with load continuation, before "
+                                               "failing; or one method alone (default auto; a wing: auto or "
+                                               "relax, its bays relaxed together)")),
+    ("aero", "--aero", dict(action="store_true",
+                            help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
+                            "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
+                            "writes aero.png and summary.json's aero entry")),
+    ("aero", "--reynolds", dict(type=_number(positive=True), default=1e6, metavar="RE",
+                                help="chord Reynolds number of --aero (default 1e6)")),
+    ("aero", "--alpha-range", dict(type=_number("deg"), nargs=3, default=(-4.0, 10.0, 1.0),
+                                   metavar=("START", "STOP", "STEP"),
+                                   help="angles of attack of --aero, deg, stop included, within +-20 "
+                                   "(default -4 10 1)")),
+    ("output", "--config", dict(default=None, metavar="CASE.TOML",
+                                help="read options from a TOML file (keys: the long option names); "
+                                "command-line options override it")),
+    ("output", "--out", dict(default="optimise-pressure-out", metavar="DIR",
+                             help="output folder (may be . or hold other files, which are never touched): "
+                             "an earlier report's files in it are replaced (or removed) when the new "
+                             "report is complete (default optimise-pressure-out)")),
+    ("output", "--magnification", dict(type=_number(positive=True), default=None, metavar="X",
+                                       help="deviation factor of the section plot (default: automatic, "
+                                       "1, 2, 5, 10, ...)")),
+    ("output", "--json", dict(action="store_true", help="print the summary as JSON on stdout, nothing else")),
+    ("output", "--quiet", dict(action="store_true", help="print nothing but errors")),
+    ("output", "--no-compilation-cache", dict(action="store_true",
+                                              help="do not keep JAX's compiled functions between runs "
+                                              "(default: kept in $INFLATABLE_WING_CACHE, else "
+                                              "~/.cache/inflatable-wing/jax)")),
+)
+OPTION_SPECS = {flag[2:].replace("-", "_"): kwargs for _, flag, kwargs in OPTIONS}
+
+_DESCRIPTION = """\
+Inflatable wing bay: choose the internal pressure (and prestrain or rib geometry)
+so that the pressurised skin matches a target profile, and write a report folder.
+
+With no arguments it runs the built-in default case: NACA 2412 target and ribs,
+chord 1 m, ribs 0.25 m apart, fabric 2e5 N/m both ways, 2% prestrain, 17x64 grid;
+the pressure (1-100 kPa) and the rib thickness scale (0.7-1) are chosen so that
+every section from rib to rib matches the target, with a wrinkle-free skin.
+"""
+
+_EPILOG = """\
+output folder (--out DIR): the report is written to a temporary folder (beside a new
+DIR, inside an existing one) and put in place when complete. DIR may be . or hold
+other files: only the report's files are written, each replacing only a file of an
+earlier report (one its summary.json lists); the earlier report's files this run
+does not write (e.g. rib.dat) are removed; nothing else is touched. A DIR holding a
+file of a report's name that no report wrote is refused (exit 2). Temporary folders
+left by a killed run are removed by the next run to DIR:
+  summary.json          inputs, results, errors before/after, active constraints,
+                        timings, package version, the files written
+  equilibrium.npz       nodes (n_span, n_contour, 3) m, tensions N/m, wrinkled
+                        cells, deviation from the target, parameters
+  skin.obj, skin.stl    the equilibrium skin as a mesh, metres
+  mid_bay_section.png   mid-bay section against the rib and the target (magnified)
+  deviation.png         deviation from the target over the whole bay
+  tensions.png          fibre tensions with the wrinkled cells marked
+  history.png           the optimiser's iterates (not with --evaluate)
+  aero.png              lift, drag and moment against the target (with --aero)
+  cut_pattern.csv       the fabric's cut lengths along the contour and the span
+  rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
+                        (with --variables ...,rib_shape)
+
+case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
+it are relative to the case file's folder; options on the command line override it):
+  target = "naca4415"
+  chord = 0.8                      # m
+  variables = ["pressure", "prestrain_span", "prestrain_chord"]
+  pressure-bounds = [2e3, 5e4]     # Pa
+  n-span = 17
+  n-contour = 128
+
+grid size: a grid whose estimated peak memory exceeds half of the available memory,
+or with more than {max_nodes:,} nodes, is refused before the run (exit 2, with the
+estimate); --allow-large-grid runs it anyway.
+
+exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input; 130 interrupted
+(Ctrl-C); 143 terminated (SIGTERM). Interrupted or terminated, nothing is written.
+""".format(max_nodes=MAX_NODES)
+
+
+def build_parser(suppress_defaults: bool = False) -> argparse.ArgumentParser:
+    """The argument parser; with ``suppress_defaults`` only the options given appear in the namespace."""
+    parser = _Parser(prog=PROG, description=_DESCRIPTION, epilog=_EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    groups = {key: parser.add_argument_group(title) for key, title in _GROUPS.items()}
+    for group, flag, kwargs in OPTIONS:
+        kwargs = dict(kwargs)
+        if suppress_defaults:
+            kwargs["default"] = argparse.SUPPRESS
+        groups[group].add_argument(flag, **kwargs)
+    return parser

@@ -1,0 +1,560 @@
+"""The one report writer: the summary of a design and its output folder, for one bay or a wing.
+
+`write_report` turns a `DesignResult` (or a single equilibrium `Solution`)
+into a folder. ``summary.json`` has the same layout for a single bay and a
+wing (`SCHEMA_VERSION`): ``schema``, ``mode``, ``inputs``, ``case`` (with
+``n_bays``), ``results``, ``errors``, ``constraints`` (``violated``: the
+largest amount per limit; ``violated_where``: the amount per bay or rib;
+``violated_at_start``), ``timings_s``, ``history`` and ``bays``, the bay
+axis: one entry per bay (ribs, span, chords, weight, targets, result code,
+steps, residual, errors before and after, tensions, wrinkled fraction).
+
+A single bay's folder::
+
+    summary.json          inputs, results, errors before and after, constraints,
+                          timings, package version, the files written (`summarise`)
+    equilibrium.npz       nodes, tensions, wrinkled cells, deviation, target, parameters
+                          (`export.write_npz`)
+    skin.obj, skin.stl    the equilibrium skin as a mesh (metres)
+    mid_bay_section.png   the mid-bay section against the rib and the target,
+                          deviations magnified (`plots.plot_section`)
+    deviation.png         the deviation from the target over the whole bay (`plot_deviation`)
+    tensions.png          fibre tensions with the wrinkled cells marked (`plot_tensions`)
+    history.png           the optimiser's iterates (`plot_history`; skipped for a
+                          single equilibrium)
+    aero.png              lift, drag and moment against the target (`plot_aero`; only
+                          with an `inverse_design.aero.AeroComparison`)
+    cut_pattern.csv       the fabric's cut lengths along the contour and the span
+                          (`export.write_cut_pattern`)
+    rib.dat               the designed rib as a Selig file (`export.write_selig`; only
+                          for a shaped rib)
+    rib_design.png        the rib's template offset and the thickness kept
+                          (`plot_rib_design`; only for a shaped rib)
+
+A wing's folder::
+
+    summary.json                 as above, with a bay entry per bay
+    wing.npz                     every bay stacked: nodes (n_bays, n_span, n_contour, 3) m
+                                 (each bay in its own frame, root rib at y = 0), tensions,
+                                 wrinkled cells, deviation from the row targets, ribs
+    skin.obj, skin.stl           the whole wing's skin in one mesh (bays joined at their ribs,
+                                 y from the root rib), metres
+    bay_K_mid_bay_section.png    bay K's mid-bay section against its rib and its target
+    rib_K.dat                    rib K's designed section (Selig), when the rib shapes were
+                                 optimised
+    history.png                  the optimiser's iterates
+
+The folder is written by `export.staged_folder`: only the tool's own files
+are replaced, nothing else in the folder is touched.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from forward_solver import Solution
+
+from .export import (check_output_folder, staged_folder, write_cut_pattern, write_npz, write_obj, write_selig,
+                     write_stl)
+from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
+from ..optimise import DesignResult
+from .plots import plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions
+from ..rib_design import RibGeometry, RibLimits, cut_lengths
+
+__all__ = ["SCHEMA_VERSION", "summarise", "wing_deviation", "wing_nodes", "write_report"]
+
+#: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
+#: ``bays`` (one entry per bay, also for a single bay) and ``constraints.violated_where``; a wing's
+#: ``mode`` is "optimise" like a bay's.
+SCHEMA_VERSION = 2
+
+#: Resolution of the PNG files in the folder, dots per inch.
+_DPI = 150
+
+
+# ------------------------------------------------------------------ inputs
+def _unpack(result) -> tuple[Solution, DesignResult | None]:
+    if isinstance(result, DesignResult):
+        return result.solution, result
+    if isinstance(result, Solution):
+        return result, None
+    raise TypeError(f"expected an inverse_design.DesignResult or a forward_solver.Solution, "
+                    f"got {type(result).__name__}")
+
+
+# ------------------------------------------------------------------ summary
+def _version(distribution: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(distribution)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _jsonable(value):
+    """Plain JSON types; non-finite floats become None (JSON has no inf or NaN)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def summarise(result, target=None, scene=None, *, objective: str | None = None,
+              inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
+              rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
+    """The summary of a design or a single equilibrium, as `write_report` stores it.
+
+    Args:
+        result: a `DesignResult`, or a `Solution` (a single equilibrium).
+        target: a single bay's target `targets.Airfoil`; None for a wing's
+            summary (any number of bays, the result's own targets).
+        scene: a single bay's `forward_solver.Scene`.
+        objective: the sections the errors are measured on (default the
+            result's objective, or "mid_bay" for a `Solution`).
+        inputs: the caller's options (stored as given).
+        timings: seconds, e.g. ``{"setup": ..., "optimisation": ...}``.
+        aero: an `inverse_design.aero.AeroComparison` of the result, stored as
+            ``summary["aero"]`` (`AeroComparison.as_dict`); None leaves the key out.
+        rib: the rib's starting section (default the target), for the rib
+            entry of a shaped rib.
+        rib_limits: the `rib_design.RibLimits` the design used (default the defaults).
+        warnings: lines about the inputs (`inverse_design.plausibility`),
+            stored as ``summary["warnings"]`` (default none).
+
+    Returns:
+        A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
+        value that does not exist (no upper tension limit, a gradient not
+        computed).
+    """
+    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):
+        return _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
+    solution, design = _unpack(result)
+    objective = objective or (design.objective if design is not None else "mid_bay")
+    params = solution.parameters.as_dict()
+    chord = scene.bay.chord
+    rms, largest = design_errors(solution.nodes, target, chord, objective)
+    mid = section_errors(solution, target, chord)
+    bay, fabric = scene.bay, scene.fabric
+    summary = {
+        "schema": SCHEMA_VERSION,
+        "package": {"name": "inflatable-wing", "version": _version("inflatable-wing")},
+        "versions": {"python": platform.python_version(), "jax": _version("jax"),
+                     "numpy": np.__version__},
+        "mode": "optimise" if design is not None else "evaluate",
+        "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
+        "case": {
+            "n_bays": 1, "target": str(target.name), "rib": bay.name, "chord_m": chord,
+            "rib_spacing_m": bay.rib_spacing, "grid": [bay.n_span, bay.n_contour],
+            "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
+                       "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
+        },
+        "results": {
+            "success": bool(design.success if design is not None else solution.converged),
+            "message": design.message if design is not None else solution.message,
+            "values": {"pressure_pa": params["pressure"], "prestrain_span": params["prestrain_span"],
+                       "prestrain_chord": params["prestrain_chord"],
+                       "rib_thickness_scale": params["rib_thickness_scale"],
+                       "rib_chord_scale": params["rib_chord_scale"],
+                       "stiffness_span_n_per_m": params["stiffness_span"],
+                       "stiffness_chord_n_per_m": params["stiffness_chord"],
+                       "rib_shape": params["rib_shape"]},
+            "variables": list(design.variables) if design is not None else [],
+            "method": design.method if design is not None else None,
+            "iterations": len(design.history) if design is not None else 0,
+            "forward_solves": design.solves if design is not None else 1,
+            "grid_change": design.grid_change if design is not None else None,
+            "equilibrium": {"result": solution.result.name, "converged": solution.converged,
+                            "steps": int(solution.steps), "relative_residual": solution.residual,
+                            "method": solution.method,
+                            "wrinkled_fraction": solution.wrinkled_fraction},
+        },
+        "errors": {
+            "unit": "fraction of chord",
+            "objective": objective,
+            "before": (None if design is None else
+                       {"rms": design.initial_rms_error, "max": design.initial_max_error}),
+            "after": {"rms": rms, "max": largest},
+            "mid_bay_after": {"rms": mid.rms, "max": mid.max},
+        },
+        "constraints": {
+            "active": list(design.active_constraints) if design is not None else None,
+            "violated": ({name: float(v) for name, v in design.violated_constraints.items()}
+                         if design is not None else None),
+            "violated_where": _violated_where(design.violated_constraints) if design is not None else None,
+            "violated_at_start": ({name: float(v) for name, v in design.violated_at_start.items()}
+                                  if design is not None else None),
+            "violated_at_start_where": (_violated_where(design.violated_at_start) if design is not None
+                                        else None),
+            "values": (dict(design.constraint_values) if design is not None else
+                       {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
+                        "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),
+            "unit": "N/m",
+        },
+        "timings_s": dict(timings or {}),
+        "history": list(design.history) if design is not None else [],
+        "bays": (_bay_entries(design) if design is not None else
+                 [_equilibrium_entry(solution, scene, target, rms, largest)]),
+    }
+    if design is None:
+        summary["constraints"]["note"] = ("a single equilibrium: constraints are not enforced; "
+                                          "tensions are the solver's (compression clamped to zero)")
+    if aero is not None:
+        summary["aero"] = aero.as_dict()
+    cuts = cut_lengths(scene, solution.parameters)
+    mid_row = bay.n_span // 2
+    summary["cut_lengths"] = {
+        "unit": "m", "file": "cut_pattern.csv",
+        "contour_perimeter": {"root_rib": cuts["contour_cut_m"][0], "mid_bay": cuts["contour_cut_m"][mid_row],
+                              "tip_rib": cuts["contour_cut_m"][-1]},
+        "span_fibre": {"min": float(np.min(cuts["span_cut_m"])), "max": float(np.max(cuts["span_cut_m"]))},
+    }
+    if solution.parameters.rib_shape is not None:
+        geometry = RibGeometry(target if rib is None else rib, rib_limits or RibLimits())
+        summary["rib"] = {"coefficients": solution.parameters.rib_shape,
+                          "terms_per_surface": int(np.size(solution.parameters.rib_shape)) // 2,
+                          "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
+                                             "upper-surface coefficients, then lower (forward_solver.rib_shape)",
+                          "limits": geometry.measure(solution.parameters), "file": "rib.dat"}
+    return _jsonable(summary)
+
+
+def _violated_where(violated: dict) -> dict:
+    """``{name: {"bay k" or "rib k": amount}}`` of a design's `constraints.Violation`s."""
+    where = {}
+    for name, violation in violated.items():
+        label = "rib" if name.startswith("rib_") else "bay"
+        where[name] = {f"{label} {k}": float(v) for k, v in violation.items()}
+    return where
+
+
+def _bay_entries(result: DesignResult) -> list:
+    """The bay axis of the summary: one entry per bay of a design (also of a single bay)."""
+    sol = result.wing_solution
+    if result.wing is not None:
+        stations = np.asarray(result.wing.stations, np.float64)
+    else:  # a flat panel: one bay from y = 0
+        stations = np.asarray([0.0, sol.bays[0].rib_spacing])
+    entries = []
+    for k, bay in enumerate(sol.bays):
+        entries.append({
+            "bay": k, "ribs": [k, k + 1], "span_m": [stations[k], stations[k + 1]],
+            "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.weights[k],
+            "targets": [result.targets[k].name, result.targets[k + 1].name],
+            "result": result.bay_results[k], "steps": int(np.asarray(sol.steps)[k]),
+            "relative_residual": float(np.asarray(sol.residual)[k]),
+            "errors_before": {"rms": result.initial_bay_rms_error[k], "max": result.initial_bay_max_error[k]},
+            "errors_after": {"rms": result.bay_rms_error[k], "max": result.bay_max_error[k]},
+            "min_tension_n_per_m": result.bay_min_tension[k], "max_tension_n_per_m": result.bay_max_tension[k],
+            "wrinkled_fraction": sol.bay_solution(k).wrinkled_fraction,
+        })
+    return entries
+
+
+def _equilibrium_entry(solution: Solution, scene, target, rms: float, largest: float) -> dict:
+    """The one bay entry of a single equilibrium (``--evaluate``): no start, solver tensions."""
+    bay = scene.bay
+    return {"bay": 0, "ribs": [0, 1], "span_m": [0.0, bay.rib_spacing], "chords_m": [bay.chord_root, bay.chord_tip],
+            "weight": 1.0, "targets": [target.name, target.name], "result": solution.result.name,
+            "steps": int(solution.steps), "relative_residual": solution.residual, "errors_before": None,
+            "errors_after": {"rms": rms, "max": largest},
+            "min_tension_n_per_m": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
+            "max_tension_n_per_m": float(max(np.max(solution.tension_span), np.max(solution.tension_chord))),
+            "wrinkled_fraction": solution.wrinkled_fraction}
+
+
+# ------------------------------------------------------------------ the folder
+def write_report(out_dir, result, target=None, *, scene=None, objective: str | None = None,
+                 bounds: dict | None = None, inputs: dict | None = None,
+                 timings: dict | None = None, magnification: float | None = None, aero=None,
+                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
+    """Write the output folder of a design (or of a single equilibrium) and return its summary.
+
+    Args:
+        out_dir: the folder to create, or to write into (replacing only an earlier
+            report's files: `staged_folder`).
+        result: a `DesignResult` (`optimise_pressure`, `optimise_wing`: one
+            bay or several), or a single bay's `Solution`.
+        target: a single bay's target `targets.Airfoil` (chord-normalised);
+            None for a wing's folder (any number of bays; its targets are the
+            result's own, one per rib).
+        scene: a single bay's `forward_solver.Scene` it was solved on.
+        objective, inputs, warnings: as `summarise`.
+        bounds: variable bounds to draw in the history plot.
+        timings: seconds spent before the report (e.g. ``setup``,
+            ``optimisation``); ``report`` and, unless given, ``total`` (their
+            sum) are added.
+        magnification: deviation factor of the section plot (default automatic).
+        aero: an `inverse_design.aero.AeroComparison`: stored in the summary
+            and drawn as ``aero.png`` (default none).
+        rib, rib_limits: the rib's starting section (default the target)
+            and its `rib_design.RibLimits`: a shaped rib is written as
+            ``rib.dat`` and drawn against it in ``rib_design.png``.
+
+    Returns:
+        The summary (as written to ``summary.json``), with ``files`` (names in
+        the folder), ``skipped`` (files not written and why) and ``out`` (the
+        folder's absolute path).
+
+    Raises:
+        ValueError: if ``out_dir`` cannot be written (`check_output_folder`).
+        TypeError: if ``result`` is neither a `DesignResult` nor a `Solution`.
+    """
+    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):  # a wing's folder
+        if aero is not None:
+            raise ValueError("the aerodynamic comparison is of one bay's sections; a wing's report has none")
+        return _write_wing_folder(out_dir, result, bounds=bounds, inputs=inputs, timings=timings,
+                                  magnification=magnification, warnings=warnings)
+    if target is None or scene is None:
+        raise TypeError("a single bay's report needs its target and scene")
+    start = time.perf_counter()
+    out = check_output_folder(out_dir)
+    solution, design = _unpack(result)
+    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero,
+                        rib=rib, rib_limits=rib_limits, warnings=warnings)
+    files, skipped = [], {}
+    start_rib = target if rib is None else rib
+    shaped = solution.parameters.rib_shape is not None
+    with staged_folder(out) as staging:
+        write_npz(staging / "equilibrium.npz", solution, target, scene, design)
+        write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
+        write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
+        write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
+        files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
+        if shaped:
+            from forward_solver import rib_section
+
+            section = rib_section(start_rib, solution.parameters.rib_shape,
+                                  float(solution.parameters.rib_thickness_scale),
+                                  name=f"{start_rib.name} designed rib")
+            chord = scene.bay.chord * float(solution.parameters.rib_chord_scale)
+            write_selig(staging / "rib.dat", section, comment=f"chord {chord:g} m")
+            files.append("rib.dat")
+        figures = [("mid_bay_section.png", lambda: plot_section(solution, target, scene,
+                                                                magnification=magnification,
+                                                                start_rib=start_rib if shaped else None)),
+                   ("deviation.png", lambda: plot_deviation(solution, target, scene)),
+                   ("tensions.png", lambda: plot_tensions(solution, scene))]
+        if design is not None and design.history:
+            figures.append(("history.png", lambda: plot_history(design, bounds)))
+        else:
+            skipped["history.png"] = "a single equilibrium has no optimiser history"
+        if aero is not None:
+            figures.append(("aero.png", lambda: plot_aero(aero)))
+        if shaped:
+            figures.append(("rib_design.png", lambda: plot_rib_design(
+                solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
+                rib_limits)))
+        for name, make in figures:
+            make().savefig(staging / name, dpi=_DPI)
+            files.append(name)
+        times = dict(summary["timings_s"])
+        times["report"] = time.perf_counter() - start
+        times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
+        summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
+        text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
+        (staging / "summary.json").write_text(text + "\n")
+    return summary
+
+
+# ------------------------------------------------------------------ a wing of several bays
+def wing_nodes(result: DesignResult) -> np.ndarray:
+    """``(n_bays (n_span - 1) + 1, n_contour, 3)`` m: the bays joined at their shared ribs, y the
+    span station (`Wing.stations`)."""
+    sol = result.wing_solution
+    stations = np.asarray(result.wing.stations, np.float64)
+    parts = []
+    for k in range(len(sol.bays)):
+        nodes = np.array(sol.nodes[k], dtype=np.float64)
+        nodes[..., 1] += stations[k]
+        parts.append(nodes if k == 0 else nodes[1:])  # the first row is the previous bay's tip rib
+    return np.concatenate(parts)
+
+
+def wing_deviation(result: DesignResult) -> np.ndarray:
+    """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
+    fractions of the local chord (positive outside; `objectives` module docstring)."""
+    import jax
+
+    sol, targets = result.wing_solution, result.targets
+    out = []
+    with jax.enable_x64(True):
+        for k, bay in enumerate(sol.bays):
+            etas = np.linspace(0.0, 1.0, bay.n_span)
+            rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
+            out.append(np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas))))
+    return np.stack(out)
+
+
+def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None,
+                    warnings: list | None = None) -> dict:
+    """The summary of a design of several bays (`summarise` for a single bay; module docstring)."""
+    sol = result.wing_solution
+    params = result.parameters.resolved(sol.fabric).as_dict()
+    specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
+    bays = _bay_entries(result)
+    fabric = sol.fabric
+    summary = {
+        "package": {"name": "inflatable-wing", "version": _version("inflatable-wing")},
+        "versions": {"python": platform.python_version(), "jax": _version("jax"), "numpy": np.__version__},
+        "schema": SCHEMA_VERSION,
+        "mode": "optimise",
+        "inputs": dict(inputs or {}),
+        "warnings": list(warnings or []),
+        "case": {
+            "n_bays": result.n_bays,
+            "ribs": [{"section": af.name, "target": t.name, "chord_m": c, "station_m": y}
+                     for af, t, c, y in zip(result.wing.airfoils, result.targets, result.wing.chords,
+                                            result.wing.stations)],
+            "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
+            "trailing_edge": {"option": result.wing.trailing_edge, "unit": "chord",
+                              "changed": [{"rib": c["index"], "section": result.wing.airfoils[c["index"]].name,
+                                           **({"file": specs[c["index"]]} if c["index"] < len(specs) else {}),
+                                           "gap_before": c["gap_before"], "gap_after": c["gap_after"],
+                                           "blend": c["blend"]} for c in result.wing.trailing_edge_changes]},
+            "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
+                       "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
+        },
+        "results": {
+            "success": result.success, "message": result.message,
+            "values": {"pressure_pa": params["pressure"], "prestrain_span": params["prestrain_span"],
+                       "prestrain_chord": params["prestrain_chord"],
+                       "rib_thickness_scale": params["rib_thickness_scale"],
+                       "rib_chord_scale": params["rib_chord_scale"],
+                       "stiffness_span_n_per_m": params["stiffness_span"],
+                       "stiffness_chord_n_per_m": params["stiffness_chord"]},
+            "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
+            "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
+            "rib_limits": list(result.rib_limits),
+            "variables": list(result.variables), "method": result.method,
+            "iterations": len(result.history), "forward_solves": result.solves,
+            "wall_time_s": result.wall_time,
+        },
+        "errors": {
+            "unit": "fraction of the local chord", "objective": result.objective,
+            "weighting": "bay planform area",
+            "before": {"rms": result.initial_rms_error}, "after": {"rms": result.rms_error},
+        },
+        "constraints": {
+            "active": list(result.active_constraints),
+            "violated": {name: float(v) for name, v in result.violated_constraints.items()},
+            "violated_where": _violated_where(result.violated_constraints),
+            "violated_at_start": {name: float(v) for name, v in result.violated_at_start.items()},
+            "violated_at_start_where": _violated_where(result.violated_at_start),
+            "values": dict(result.constraint_values), "unit": "N/m",
+        },
+        "timings_s": dict(timings or {}),
+        "history": list(result.history),
+        "bays": bays,
+    }
+    return _jsonable(summary)
+
+
+class _SharedHistory:
+    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes
+    are many coefficients; they are in summary.json's history and the rib_K.dat files)."""
+
+    def __init__(self, result: DesignResult):
+        names = tuple(n for n in result.variables if n != "rib_shape")
+        self.variables, self.method, self.objective = names, result.method, result.objective
+        self.rms_error, self.success, self.values = result.rms_error, result.success, result.values
+        self.history = [{**h, "values": {n: h["values"][n] for n in names}} for h in result.history]
+
+
+def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = None,
+                      inputs: dict | None = None, timings: dict | None = None,
+                      magnification: float | None = None, warnings: list | None = None) -> dict:
+    """Write the output folder of a wing design and return its summary (module docstring).
+
+    Args:
+        out_dir: the folder to create, or to write into (replacing only an earlier
+            report's files: `export.staged_folder`).
+        result: the `optimise.DesignResult` of the wing.
+        bounds: variable bounds to draw in the history plot.
+        inputs: the caller's options (stored as given).
+        timings: seconds spent before the report; ``report`` and ``total`` are added.
+        magnification: deviation factor of the section plots (default automatic).
+
+    Returns:
+        The summary, with ``files``, ``skipped`` and ``out``.
+
+    Raises:
+        ValueError: if ``out_dir`` cannot be written (`export.check_output_folder`).
+    """
+    start = time.perf_counter()
+    out = check_output_folder(out_dir)
+    summary = _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
+    sol = result.wing_solution
+    files, skipped = [], {}
+    with staged_folder(out) as staging:
+        solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
+        params = result.parameters
+        shared = [n for n in result.variables if n != "rib_shape"]
+        with open(staging / "wing.npz", "wb") as f:
+            np.savez_compressed(
+                f, nodes=np.stack([s.nodes for s in solutions]),
+                tension_span=np.stack([s.tension_span for s in solutions]),
+                tension_chord=np.stack([s.tension_chord for s in solutions]),
+                wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
+                deviation=wing_deviation(result), weights=np.asarray(result.weights),
+                stations=np.asarray(result.wing.stations, np.float64),
+                chords=np.asarray(result.wing.chords, np.float64),
+                result=np.asarray(sol.result), residual=np.asarray(sol.residual, np.float64),
+                pressure=np.float64(params.pressure), prestrain=np.array(params.prestrain, np.float64),
+                rib_thickness_scale=np.float64(params.rib_thickness_scale),
+                rib_chord_scale=np.float64(params.rib_chord_scale),
+                target_names=np.array([t.name for t in result.targets], dtype=str),
+                variables=np.array(list(shared), dtype=str),
+                history_objective=np.array([h["objective"] for h in result.history], np.float64),
+                history_values=np.array([[h["values"][n] for n in shared] for h in result.history],
+                                        np.float64).reshape(-1, len(shared)),
+                rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes))
+        joined = wing_nodes(result)
+        write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
+        write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
+        files += ["wing.npz", "skin.obj", "skin.stl"]
+        for k, bay in enumerate(sol.bays):
+            target = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip,
+                                 [0.5])[0]
+            name = f"bay_{k}_mid_bay_section.png"
+            fig = plot_section(solutions[k], target, sol.scene(k), magnification=magnification)
+            fig.suptitle(f"bay {k} (ribs {k}-{k + 1}): {fig.get_suptitle()}")
+            fig.savefig(staging / name, dpi=_DPI)
+            files.append(name)
+        if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
+            from forward_solver import rib_section
+
+            for k, (airfoil, row) in enumerate(zip(result.wing.sections, np.asarray(result.rib_shapes))):
+                section = rib_section(airfoil, row, float(result.parameters.rib_thickness_scale),
+                                      name=f"{airfoil.name} rib {k}")
+                write_selig(staging / f"rib_{k}.dat", section, comment=f"chord {result.wing.chords[k]:g} m")
+                files.append(f"rib_{k}.dat")
+        if result.history:
+            plot_history(_SharedHistory(result), bounds).savefig(staging / "history.png", dpi=_DPI)
+            files.append("history.png")
+        else:
+            skipped["history.png"] = "no optimiser history"
+        times = dict(summary["timings_s"])
+        times["report"] = time.perf_counter() - start
+        times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
+        summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
+        (staging / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
+    return summary
