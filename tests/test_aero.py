@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inverse_design import aero, cli
+from inverse_design import aero
+from inverse_design.app import cli
 from inverse_design.aero import AeroUnavailable, aerodynamic_cost, alpha_range, compare_sections
 from targets import Airfoil, naca
 
