@@ -82,6 +82,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
                     common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
     from forward_solver import Bay, ConvergenceError, Fabric, Scene, Wing, solve_equilibrium
+    from forward_solver.adjoint import GRADIENT_RTOL
+    from forward_solver.wing import check_rib_gaps
 
     from ..optimise import optimise_pressure, optimise_wing, refine_design
     from .export import check_output_folder
@@ -100,6 +102,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         except ValueError as exc:
             raise InputError(f"{where}: {exc}") from None
         chords, stations = wing.chords, wing.stations
+        # Ribs too close for the grid are refused before any warning about the inputs is shown.
+        check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
         notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
                                                      for k in range(len(chords) - 1)], bounds)
         timings = {"setup": time.perf_counter() - start}
