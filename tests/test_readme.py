@@ -65,7 +65,7 @@ BLOCKS = _blocks()
 def env(request, tmp_path_factory):
     # Compilation is most of the blocks' time (about 3 minutes of it on a loaded 2-core machine,
     # 40 s once compiled), so the cache lives in pytest's own cache folder and outlasts the session.
-    cache = (request.config.cache.mkdir("readme-jax-cache") if request.config.cache is not None
+    cache = (request.config.cache.mkdir("readme-jax-cache") if getattr(request.config, "cache", None) is not None
              else tmp_path_factory.mktemp("jax-cache"))
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
                 JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
