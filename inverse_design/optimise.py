@@ -67,7 +67,7 @@ from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
 from .constraints import UNMET_ADVICE, Constraints, constraint_report
-from .methods import least_squares, optax_descent, root, slsqp
+from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
 from .objectives import check_objective, same_section
 from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
@@ -76,8 +76,10 @@ from .variables import VARIABLES, DesignVariables
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult", "optimise_wing", "optimise_pressure",
            "refine_design"]
 
-METHODS = ("slsqp", "least_squares", "optax", "root")
+METHODS = ("slsqp", "gauss_newton", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
+#: Default tolerance of ``method="gauss_newton"``: the predicted fall of the merit, relative to it.
+GN_TOLERANCE = 1e-5
 
 
 @dataclass(frozen=True, eq=False)
@@ -410,16 +412,20 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
     if method == "root":
         if n_bays > 1:
             raise ValueError(f"method='root' solves one scalar condition at one bay's mid-bay section; this "
-                             f"wing has {n_bays} bays: use slsqp, least_squares or optax")
+                             f"wing has {n_bays} bays: use slsqp, gauss_newton, least_squares or optax")
         if design.names != ("pressure",):
             raise ValueError(f"method='root' solves for the pressure alone; got variables {design.names}")
         if root_condition not in ROOT_CONDITIONS:
             raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
     geometries = []
+    if method == "gauss_newton" and objective == "worst":
+        raise ValueError("method='gauss_newton' fits the rows in the least-squares sense; the objective "
+                         "'worst' is a smooth maximum over rows: use method='slsqp' for it, or objective "
+                         "'average' or 'mid_bay'")
     if "rib_shape" in design.names and rib_limits is not None:
-        if method != "slsqp":
+        if method not in ("slsqp", "gauss_newton"):
             raise ValueError(f"the rib limits (minimum thickness, curvature) are constraints that only "
-                             f"method='slsqp' enforces, got method={method!r}: use slsqp, or pass "
+                             f"method='slsqp' and 'gauss_newton' enforce, got method={method!r}: use one, or pass "
                              "rib_limits=None to leave the rib shape free within its bounds")
         if design.rib_shapes is not None:  # each rib against its own starting section
             geometries = [(k, RibGeometry(section, rib_limits)) for k, section in enumerate(ribs)]
@@ -428,9 +434,10 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
                       if not any(same_section(section, ribs[j]) for j in range(k))]
             geometries = [(k, RibGeometry(ribs[k], rib_limits)) for k in firsts]
     if tolerance is None:
-        tolerance = 1e-6 if method == "slsqp" else 1e-8
+        tolerance = {"slsqp": 1e-6, "gauss_newton": GN_TOLERANCE}.get(method, 1e-8)
     start = time.perf_counter()
-    with jax.enable_x64(True), _progress_bar(progress, max_iterations, name) as bar:
+    cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations if method == "slsqp" else max_iterations
+    with jax.enable_x64(True), _progress_bar(progress, cap, name) as bar:
         problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol,
                                 solver_options=solver_options,
                                 rib_geometries=[g for _, g in geometries],
@@ -442,6 +449,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             sol0 = problem.evaluate(u0)[-1]  # the first iterate's solve, with its gradients
         elif method == "least_squares":
             sol0 = problem.residuals_and_jacobian(u0)[-1]
+        elif method == "gauss_newton":
+            sol0 = problem.linearised(u0)[-1]
         else:
             sol0 = problem.solve(u0)
         before = problem.measure(sol0, u0)
@@ -457,6 +466,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
                 u, success, message = root(problem, root_condition, max_iterations, tolerance)
             elif method == "slsqp":
                 u, success, message = slsqp(problem, u0, max_iterations, tolerance)
+            elif method == "gauss_newton":
+                u, success, message = gauss_newton(problem, u0, max_iterations, tolerance)
             elif method == "least_squares":
                 u, success, message = least_squares(problem, u0, max_iterations, tolerance)
             else:
@@ -596,14 +607,16 @@ def _failed_solve_message(failure: WingConvergenceError) -> str:
 
 
 # ------------------------------------------------------------------ progress
-def _progress_bar(progress: bool, max_iterations: int, name: str):
-    """A tqdm counter on stderr: iterates so far against the cap; a silent no-op when off.
+def _progress_bar(progress: bool, cap: int, name: str):
+    """A tqdm counter on stderr: wing solves so far (one per iterate, every bay solved once) against the
+    cap; a silent no-op when off.
 
     No percentage or ETA: the cap is an upper bound, not the expected count.
     """
-    return tqdm(total=max_iterations, desc=name, unit="iterate", disable=not progress,
+    return tqdm(total=cap, desc=name, unit="wing solve", disable=not progress,
                 leave=False, dynamic_ncols=True,
-                bar_format="{desc}: iterate {n_fmt} (cap {total_fmt}), {elapsed} elapsed{postfix}")
+                bar_format="{desc}: wing solve {n_fmt} (cap {total_fmt}), {elapsed} elapsed, "
+                           "{rate_inv_fmt}{postfix}")
 
 
 def _notify(bar, callback, method: str):

@@ -77,7 +77,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
     assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
-                                     "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
+                                     "wing_overview.png", "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
                                      "bay_2_mid_bay_section.png"}
     assert {p.name for p in out.iterdir()} == set(summary["files"]) | {"rib_0.dat.orig", "wing.toml"}
     with np.load(out / "wing.npz") as npz:
@@ -128,7 +128,7 @@ def test_the_built_in_example_is_a_valid_wing_case():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, least_squares or optax"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, gauss_newton, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):
