@@ -17,6 +17,15 @@ constraints and their derivatives in `problem.DesignProblem`):
   reverse mode through the implicit equilibrium (``jax.vjp`` of
   `forward_solver.solve_bays`): one forward solve and one adjoint solve per
   function per iterate, whatever the number of variables.
+* ``"gauss_newton"``: trust-region SQP with the Gauss-Newton Hessian
+  (`methods.gauss_newton`): each iterate is one forward solve with the
+  Jacobian of the stacked row distances and of every cell's tension rows by
+  forward mode through the implicit equilibrium (``jax.jacfwd``: per bay one
+  back-solve per variable with the solve's own LU factor); the step solves a
+  small QP of the linearised fit with the linearised tension and rib limits
+  as constraints, without a forward solve. Its number of solves barely grows
+  with the number of variables (SLSQP learns its Hessian one iterate at a
+  time). Not for the objective "worst" (no sum of squares).
 * ``"least_squares"``: `scipy.optimize.least_squares` (trust-region
   reflective, with the bounds) on the vector of section distances
   (`objectives.distance_residuals`, each bay's scaled by the square root of
@@ -249,16 +258,18 @@ def optimise_wing(
             (`objectives`); combined over bays weighted by planform area.
         constraints: tension limits over every cell of every bay (`Constraints`;
             default a wrinkle-free skin below the fabric's allowable), or None.
-        method: "slsqp" (default), "least_squares" or "optax" ("root" is for
-            one bay: `optimise_pressure`).
+        method: "slsqp" (default), "gauss_newton", "least_squares" or "optax"
+            ("root" is for one bay: `optimise_pressure`).
         max_iterations: cap on iterations (SLSQP iterations, and twice that in
-            forward solves; least-squares Jacobian evaluations; optax steps;
+            forward solves; Gauss-Newton forward solves; least-squares Jacobian evaluations; optax steps;
             brentq iterations).
         tolerance: convergence tolerance: SLSQP's ``ftol`` on the objective
             relative to its starting value (default 1e-6: a change of one
             part in a million of the mean square error, far below what the
             grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
-            the relative pressure tolerance of brentq (1e-8), the scaled
+            the relative pressure tolerance of brentq (1e-8), the model's
+            predicted fall of the merit relative to it for gauss_newton
+            (`GN_TOLERANCE`, 1e-5), the scaled
             gradient norm of optax relative to its starting loss (1e-8; optax
             also ends, converged, when its loss levels off: `methods.optax_descent`).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
@@ -274,12 +285,12 @@ def optimise_wing(
             `forward_solver.fallback`), "relax", "newton" or "relax+newton".
         rib_limits: manufacturability limits of every shaped rib against its
             own starting section (`rib_design.RibLimits`: minimum thickness,
-            curvature bound), SLSQP inequality constraints when ``rib_shape``
+            curvature bound), inequality constraints (slsqp, gauss_newton) when ``rib_shape``
             is a variable; None leaves the shapes free within their bounds.
         rib_shape: "per_rib" (default: one shape per rib) or "shared" (one
             shape for every rib), when ``rib_shape`` is a variable.
         n_span, n_contour: the grid of every bay.
-        progress: show a tqdm progress bar on stderr, one tick per iterate
+        progress: show a tqdm progress bar on stderr, one tick per wing solve
             (off by default: library code prints nothing unless asked).
         callback: called as ``callback(entry)`` after every iterate with the
             new `DesignResult.history` entry; an exception it raises stops the
@@ -292,7 +303,8 @@ def optimise_wing(
         TypeError: for a target that is not a `targets.Airfoil`.
         ValueError: for an unknown method, objective or variable, bad bounds,
             targets or limits, ribs too close for the grid, rib limits with a
-            method other than SLSQP, or ``method="root"``.
+            method other than slsqp or gauss_newton, ``method="root"``, or
+            gauss_newton with the objective "worst".
         WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
             solve at the start (or the final solve at a clipped design never
             solved before) does not converge; a failure in between ends the
