@@ -180,7 +180,7 @@ OPTIONS = (
                                            help="cap on the optimiser's iterations (default 50)")),
     ("optimiser", "--tolerance", dict(type=_number(positive=True), default=None, metavar="TOL",
                                       help="convergence tolerance of the optimiser (default: slsqp 1e-6 "
-                                      "of the starting objective, gauss_newton 1e-5 of the merit (the model's predicted "
+                                      "of the starting objective, gauss_newton 1e-4 of the merit (the model's predicted "
                                       "fall), the others 1e-8)")),
     ("optimiser", "--refine", dict(action="store_true",
                                    help="confirm and polish the design on a grid with twice the span "
