@@ -115,7 +115,8 @@ class DesignResult(ParameterViews):
             objective in the scaled variables; NaN where not computed),
             ``constraints`` (the smooth constraint values, >= 0 feasible,
             with the least thickness and curvature row of the rib limits;
-            slsqp only) and ``steps`` (forward-solve steps of the slowest bay).
+            slsqp; for gauss_newton each tension limit's least cell row)
+            and ``steps`` (forward-solve steps of the slowest bay).
         success: the method converged, every bay's final solve converged and
             no tension or rib limit is violated.
         message: the method's message, and what was violated.
