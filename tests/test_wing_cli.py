@@ -116,6 +116,15 @@ def test_the_built_in_example_is_a_valid_wing_case():
     assert len(values["wing"]) == 4 and values["n_span"] == 17
 
 
+def test_the_40_cell_case_is_a_tapered_wing_of_40_bays():
+    values = case_reader.read_config(EXAMPLE_CASE.parent / "wing_40_cells.toml")
+    chords = [r["chord"] for r in values["wing"]]
+    assert len(chords) == 41 and (values["n_span"], values["n_contour"]) == (17, 64)
+    assert values["method"] == "gauss_newton"
+    assert values["variables"] == "pressure,prestrain_span,prestrain_chord"
+    assert chords[0] == 2.4 and chords[-1] == pytest.approx(1.0, abs=1e-3) and all(np.diff(chords) < 0)
+
+
 @pytest.mark.parametrize("text, message", [
     ('[[rib]]\nsection = "naca2412"\nchord = 1.0\nstation = 0.0\n',
      r"wing.toml: a wing needs at least two \[\[rib\]\] tables \(root and tip\), got 1; add ribs"),
