@@ -43,7 +43,7 @@ from forward_solver import Parameters
 from forward_solver import forces as fk
 
 __all__ = ["Constraints", "Violation", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS",
-           "cell_tensions", "constraint_functions", "penalty_residuals", "constraint_report", "tension_scale",
+           "cell_tensions", "cell_constraints", "constraint_functions", "penalty_residuals", "constraint_report", "tension_scale",
            "UNMET_ADVICE"]
 
 #: A constraint is reported active when within this fraction of its scale of
@@ -157,6 +157,22 @@ def constraint_functions(constraints: Constraints | None, tensions, fabric, scal
     if math.isfinite(ceiling):
         parts.append(ceiling / scale - _ks_max(t, KS_SHARPNESS))
     return jnp.stack(parts) if parts else jnp.zeros(0)
+
+
+def cell_constraints(constraints: Constraints | None, tensions, fabric, scale: float):
+    """Every cell's constraint rows ``>= 0`` (dimensionless): ``(T - floor) / scale`` for every tension,
+    then ``(ceiling - T) / scale``, for the limits of `Constraints.names` in that order (``T`` the
+    unclamped cell tensions, N/m). Their least values are the true extremes that `constraint_report`
+    checks (`constraint_functions` aggregates them smoothly instead)."""
+    if constraints is None:
+        return jnp.zeros(0)
+    parts = []
+    if constraints.min_tension is not None:
+        parts.append((tensions - constraints.min_tension) / scale)
+    ceiling = constraints.ceiling(fabric)
+    if math.isfinite(ceiling):
+        parts.append((ceiling - tensions) / scale)
+    return jnp.concatenate(parts) if parts else jnp.zeros(0)
 
 
 def penalty_residuals(constraints: Constraints | None, tensions, fabric, scale: float):

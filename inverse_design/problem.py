@@ -31,7 +31,7 @@ from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.wing import WingSolution, default_strategy
 
-from .constraints import cell_tensions, constraint_functions, penalty_residuals, tension_scale
+from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          mean_square, row_targets, station_etas)
 from .variables import DesignVariables
@@ -259,6 +259,68 @@ class DesignProblem:
                 recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
             self._cache = {key: (y[0], rows[0], y[1:], rows[1:], sol)}
             self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
+        return self._cache[key]
+
+    # ------------------------------------------------------- gauss-newton
+    def shape_residuals(self, nodes):
+        """The stacked row distances: each bay's `objectives.distance_residuals` times the square root
+        of its weight, so that their sum of squares is the objective ("mid_bay", "average")."""
+        return jnp.concatenate([math.sqrt(w) * distance_residuals(d, self.objective)
+                                for w, d in zip(self.weights, self.distances(nodes))])
+
+    @property
+    def shape_size(self) -> int:
+        """Length of `shape_residuals`."""
+        per_bay = self.bays[0].n_contour * (1 if self.objective == "worst" else len(self.etas))
+        return per_bay * len(self.bays)
+
+    def linearised(self, u):
+        """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`shape_residuals`, ``r @ r``
+        the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
+        (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
+        holds over a longer step) and the rib limits' rows, with their Jacobians by
+        forward mode through the implicit equilibrium (``jax.jacfwd``: one forward solve, then per bay
+        one back-solve per variable with the solve's own LU factor; the rib limits' rows without a
+        solve). One wing solve, whatever the number of variables.
+
+        Raises:
+            WingConvergenceError: if a bay does not converge from the mounted shape.
+        """
+        key = key_of(u)
+        if key not in self._cache:
+
+            def outputs(v, sol):
+                shape = self.shape_residuals(sol.nodes)
+                if self.constraints is None:
+                    return shape
+                t = jnp.concatenate(self.tensions(sol.nodes, v))
+                return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
+                                                                self.tension_scale)])
+
+            def jacobian(wrapped, v):
+                def twice(w):  # the value comes back as the auxiliary output
+                    y, aux = wrapped(w)
+                    return y, (y, aux)
+
+                jac, (y, aux) = jax.jacfwd(twice, has_aux=True)(v)
+                return y, jac, aux
+
+            (y, jac), sol = self._transformed(jacobian, outputs, u)
+            y, jac = np.asarray(y), np.asarray(jac)
+            n = self.shape_size
+            r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
+            # history: the least row of each tension limit (as `evaluate`'s aggregates, >= 0 feasible)
+            per_limit = g.reshape(-1, max(g.size // max(len(self.constraints.names(self.fabric)), 1), 1)) \
+                if self.constraints is not None and g.size else np.zeros((0, 1))
+            recorded = per_limit.min(axis=1)
+            if self.rib_geometries:
+                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
+                g, jg = np.concatenate([g, g_rib]), np.vstack([jg, jac_rib])
+                per_rib = g_rib.reshape(len(self.rib_geometries), -1)
+                n_thick = self.rib_geometries[0].upper.size
+                recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
+            self._cache = {key: (r, jr, g, jg, sol)}
+            self.record(u, r @ r, np.linalg.norm(2.0 * jr.T @ r), solution=sol, constraints=recorded)
         return self._cache[key]
 
     # ------------------------------------------------------ penalty methods

@@ -124,7 +124,7 @@ def test_an_unreachable_rib_limit_is_a_failure_with_its_amount(scene):
 
 
 def test_rib_limits_need_slsqp(scene):
-    with pytest.raises(ValueError, match="only method='slsqp' enforces"):
+    with pytest.raises(ValueError, match="only method='slsqp' and 'gauss_newton' enforce"):
         optimise_pressure(scene, TARGET, variables=("pressure", "rib_shape"), initial=START,
                           method="least_squares")
 

@@ -77,7 +77,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
     assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
-                                     "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
+                                     "wing_overview.png", "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
                                      "bay_2_mid_bay_section.png"}
     assert {p.name for p in out.iterdir()} == set(summary["files"]) | {"rib_0.dat.orig", "wing.toml"}
     with np.load(out / "wing.npz") as npz:
@@ -116,6 +116,15 @@ def test_the_built_in_example_is_a_valid_wing_case():
     assert len(values["wing"]) == 4 and values["n_span"] == 17
 
 
+def test_the_40_cell_case_is_a_tapered_wing_of_40_bays():
+    values = case_reader.read_config(EXAMPLE_CASE.parent / "wing_40_cells.toml")
+    chords = [r["chord"] for r in values["wing"]]
+    assert len(chords) == 41 and (values["n_span"], values["n_contour"]) == (17, 64)
+    assert values["method"] == "gauss_newton"
+    assert values["variables"] == "pressure,prestrain_span,prestrain_chord"
+    assert chords[0] == 2.4 and chords[-1] == pytest.approx(1.0, abs=1e-3) and all(np.diff(chords) < 0)
+
+
 @pytest.mark.parametrize("text, message", [
     ('[[rib]]\nsection = "naca2412"\nchord = 1.0\nstation = 0.0\n',
      r"wing.toml: a wing needs at least two \[\[rib\]\] tables \(root and tip\), got 1; add ribs"),
@@ -128,7 +137,7 @@ def test_the_built_in_example_is_a_valid_wing_case():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, least_squares or optax"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, gauss_newton, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
                                  f"{args.config}): {why}")
         if args.method == "root":
             raise InputError(f"method root does not apply to a wing ([[rib]] tables in {args.config}): it solves "
-                             "one scalar condition at one bay's mid-bay section: use slsqp, least_squares or optax")
+                             "one scalar condition at one bay's mid-bay section: use slsqp, gauss_newton, least_squares or optax")
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")

@@ -166,8 +166,11 @@ OPTIONS = (
     ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
                                       help="sections that must match the target: the mid-bay one, every "
                                       "row from rib to rib, or the worst row (default average)")),
-    ("optimiser", "--method", dict(default="slsqp", choices=("slsqp", "least_squares", "root", "optax"),
-                                   help="optimiser: slsqp (the tension limits as constraints), "
+    ("optimiser", "--method", dict(default="slsqp", choices=("slsqp", "gauss_newton", "least_squares", "root",
+                                                             "optax"),
+                                   help="optimiser: slsqp (the tension limits as constraints), gauss_newton "
+                                   "(trust-region SQP on the row distances with their Jacobian, the limits "
+                                   "as constraints: few solves for many variables), "
                                    "least_squares or optax (as penalties), root (brentq; takes "
                                    "--variables pressure) (default slsqp)")),
     ("optimiser", "--root-condition", dict(default="thickness", choices=("thickness", "mean_offset"),
@@ -177,7 +180,8 @@ OPTIONS = (
                                            help="cap on the optimiser's iterations (default 50)")),
     ("optimiser", "--tolerance", dict(type=_number(positive=True), default=None, metavar="TOL",
                                       help="convergence tolerance of the optimiser (default: slsqp 1e-6 "
-                                      "of the starting objective, the others 1e-8)")),
+                                      "of the starting objective, gauss_newton 1e-4 of the merit (the model's predicted "
+                                      "fall), the others 1e-8)")),
     ("optimiser", "--refine", dict(action="store_true",
                                    help="confirm and polish the design on a grid with twice the span "
                                    "resolution (2 n-span - 1 nodes) and report how far it moved")),

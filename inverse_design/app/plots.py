@@ -30,6 +30,7 @@ __all__ = [
     "plot_rib_design",
     "plot_section",
     "plot_tensions",
+    "plot_wing_overview",
 ]
 
 #: Largest magnified deviation in the section plot, fraction of chord
@@ -475,4 +476,61 @@ def plot_aero(comparison):
                  f"{comparison.model_size}): mid-bay max |\u0394CL| {worst['cl']:.3g}, "
                  f"|\u0394CD| {worst['cd']:.3g}, |\u0394CM| {worst['cm']:.3g}; open circles: "
                  f"confidence < 0.5", fontsize="medium")
+    return fig
+
+
+def plot_wing_overview(result, deviation: np.ndarray):
+    """One figure of every bay of a wing design: the deviation over the whole skin and the per-bay figures.
+
+    Top: the signed normal distance of every node from its row's target
+    (fractions of the local chord, ``deviation`` of `report.wing_deviation`)
+    over the span (rows of all bays joined, y from the root rib) and around
+    the contour (node index: trailing edge, upper surface, leading edge,
+    lower surface). Middle: each bay's RMS and largest distance, before and
+    after, at its mid-span station. Bottom: each bay's smallest and largest
+    fibre tension at the design, with the tension floor.
+
+    Args:
+        result: the wing's `optimise.DesignResult`.
+        deviation: ``(n_bays, n_span, n_contour)`` fractions of the local chord.
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    stations = np.asarray(result.wing.stations, np.float64)
+    n_bays, n_span, n_contour = deviation.shape
+    rows = [stations[k] + np.linspace(0.0, stations[k + 1] - stations[k], n_span) for k in range(n_bays)]
+    y = np.concatenate([r if k == 0 else r[1:] for k, r in enumerate(rows)])
+    joined = np.concatenate([deviation[k] if k == 0 else deviation[k][1:] for k in range(n_bays)])
+    middle = 0.5 * (stations[:-1] + stations[1:])
+    fig = _figure(10.0, 9.0)
+    ax_map, ax_err, ax_ten = fig.subplots(3, 1, sharex=True, height_ratios=(1.4, 1.0, 1.0))
+    limit = float(np.max(np.abs(joined))) or 1.0
+    mesh = ax_map.pcolormesh(y, np.arange(n_contour), joined.T, cmap="RdBu_r", vmin=-limit, vmax=limit,
+                             shading="nearest")
+    fig.colorbar(mesh, ax=ax_map, label="distance / local chord (+ outside)")
+    for s in stations:
+        ax_map.axvline(s, color="0.4", lw=0.3)
+    ax_map.set_ylabel("contour node\n(TE, upper, LE, lower)")
+    ax_err.plot(middle, result.initial_bay_rms_error, "o--", color="0.5", ms=3, label="rms, start")
+    ax_err.plot(middle, result.bay_rms_error, "o-", color="C0", ms=3, label="rms, design")
+    ax_err.plot(middle, result.bay_max_error, "s-", color="C3", ms=3, label="max, design")
+    ax_err.set_yscale("log")
+    ax_err.set_ylabel("distance / local chord")
+    ax_err.grid(alpha=0.3, which="both")
+    ax_err.legend(fontsize="small", ncol=3)
+    ax_ten.plot(middle, result.bay_min_tension, "o-", color="C2", ms=3, label="min fibre tension")
+    ax_ten.plot(middle, result.bay_max_tension, "s-", color="C1", ms=3, label="max fibre tension")
+    floor = result.constraint_values.get("min_tension_floor")
+    if floor is not None:
+        ax_ten.axhline(floor, color="0.3", ls="--", lw=1.0, label=f"floor {floor:g} N/m")
+    ax_ten.set_yscale("symlog", linthresh=10.0)
+    ax_ten.set_ylabel("tension, N/m")
+    ax_ten.set_xlabel("span station y, m (ribs: grey lines above)")
+    ax_ten.grid(alpha=0.3, which="both")
+    ax_ten.legend(fontsize="small", ncol=3)
+    status = "success" if result.success else "not a success"
+    fig.suptitle(f"{n_bays} bays at {_kpa(float(result.parameters.pressure))}: wing rms "
+                 f"{result.initial_rms_error:.3e} -> {result.rms_error:.3e} of the local chord, {status} "
+                 f"({result.method}, {result.solves} wing solves)")
     return fig

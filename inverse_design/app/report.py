@@ -39,7 +39,10 @@ A wing's folder::
                                  wrinkled cells, deviation from the row targets, ribs
     skin.obj, skin.stl           the whole wing's skin in one mesh (bays joined at their ribs,
                                  y from the root rib), metres
-    bay_K_mid_bay_section.png    bay K's mid-bay section against its rib and its target
+    wing_overview.png            every bay in one figure: the deviation over the whole skin,
+                                 each bay's errors and tensions (`plots.plot_wing_overview`)
+    bay_K_mid_bay_section.png    bay K's mid-bay section against its rib and its target (only
+                                 for a wing of at most `PER_BAY_PLOTS` bays)
     rib_K.dat                    rib K's designed section (Selig), when the rib shapes were
                                  optimised
     history.png                  the optimiser's iterates
@@ -64,7 +67,8 @@ from .export import (check_output_folder, staged_folder, write_cut_pattern, writ
                      write_stl)
 from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
 from ..optimise import DesignResult
-from .plots import plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions
+from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
+                    plot_wing_overview)
 from ..rib_design import RibGeometry, RibLimits, cut_lengths
 
 __all__ = ["SCHEMA_VERSION", "summarise", "wing_deviation", "wing_nodes", "write_report"]
@@ -76,6 +80,9 @@ SCHEMA_VERSION = 2
 
 #: Resolution of the PNG files in the folder, dots per inch.
 _DPI = 150
+#: A wing of at most this many bays also gets one mid-bay section plot per bay (more: only
+#: ``wing_overview.png``, which shows every bay; a plot per bay took 0.3 s each and 15 s of a 40-bay report).
+PER_BAY_PLOTS = 8
 
 
 # ------------------------------------------------------------------ inputs
@@ -508,13 +515,14 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
         params = result.parameters
         shared = [n for n in result.variables if n != "rib_shape"]
+        deviation = wing_deviation(result)
         with open(staging / "wing.npz", "wb") as f:
             np.savez_compressed(
                 f, nodes=np.stack([s.nodes for s in solutions]),
                 tension_span=np.stack([s.tension_span for s in solutions]),
                 tension_chord=np.stack([s.tension_chord for s in solutions]),
                 wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
-                deviation=wing_deviation(result), weights=np.asarray(result.weights),
+                deviation=deviation, weights=np.asarray(result.weights),
                 stations=np.asarray(result.wing.stations, np.float64),
                 chords=np.asarray(result.wing.chords, np.float64),
                 result=np.asarray(sol.result), residual=np.asarray(sol.residual, np.float64),
@@ -531,7 +539,9 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
         write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
         files += ["wing.npz", "skin.obj", "skin.stl"]
-        for k, bay in enumerate(sol.bays):
+        plot_wing_overview(result, deviation).savefig(staging / "wing_overview.png", dpi=_DPI)
+        files.append("wing_overview.png")
+        for k, bay in enumerate(sol.bays if len(sol.bays) <= PER_BAY_PLOTS else ()):
             target = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip,
                                  [0.5])[0]
             name = f"bay_{k}_mid_bay_section.png"
@@ -539,6 +549,9 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
             fig.suptitle(f"bay {k} (ribs {k}-{k + 1}): {fig.get_suptitle()}")
             fig.savefig(staging / name, dpi=_DPI)
             files.append(name)
+        if len(sol.bays) > PER_BAY_PLOTS:
+            skipped["bay_K_mid_bay_section.png"] = (f"{len(sol.bays)} bays: more than {PER_BAY_PLOTS}, so "
+                                                    "wing_overview.png shows every bay in one figure")
         if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
             from forward_solver import rib_section
 
