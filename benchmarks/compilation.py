@@ -14,10 +14,13 @@ name). Runs:
    prestrain 2%) at 17x256, no persistent cache, imports included; then a
    second solve at a new pressure and prestrain (the compilations it adds
    must be none);
-3. ``resolve``: for the ratio of item 3, one process: a cold ``auto`` solve
-   of the default bay (17x64), then re-solves warm-started from it after a
-   1% change of pressure and of the chord prestrain, with their steps and
-   wall time as fractions of the cold solve's.
+3. ``resolve``: for the ratio of item 3, one process: the default bay
+   (17x64) at the default case's start (10 kPa, prestrain 2%), re-solved
+   (method "auto") warm-started from its equilibrium after a 1% change of
+   the pressure, the chord prestrain or the rib thickness scale, against a
+   cold solve of the same change: steps and wall time (medians of 5,
+   alternating, after a warm-up that compiles both paths), the largest node
+   difference, and the compilations a warm re-solve adds (none).
 
 Prints a table (wall time, compilations, compile seconds, the top compile
 consumers) and writes ``benchmarks/results/compilation.json``.
@@ -48,9 +51,20 @@ import atexit, json, time, collections
 import jax.monitoring as _monitoring
 _EVENTS = []
 _T0 = time.perf_counter()
+import os as _os, sys as _sys
+_ROOT = _os.getcwd() + _os.sep
+def _site():
+    # the innermost frame of the repository (not this listener) that led to the compilation
+    frame = _sys._getframe(2)
+    while frame is not None:
+        name = frame.f_code.co_filename
+        if name.startswith(_ROOT) and "site-packages" not in name:
+            return f"{name[len(_ROOT):]}:{frame.f_lineno} ({frame.f_code.co_name})"
+        frame = frame.f_back
+    return "?"
 def _listen(event, duration, **kwargs):
     if event == "/jax/core/compile/backend_compile_duration":
-        _EVENTS.append((kwargs.get("fun_name", "?"), float(duration), time.perf_counter() - _T0))
+        _EVENTS.append((kwargs.get("fun_name", "?"), float(duration), time.perf_counter() - _T0, _site()))
 _monitoring.register_event_duration_secs_listener(_listen)
 def _dump():
     with open(__REPORT__, "w") as f:
@@ -78,22 +92,26 @@ _RESOLVE = r"""
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
 from targets import naca
 scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=__NS__, n_contour=__NC__), Fabric())
-base = Parameters(pressure=1e3, prestrain_span=0.02, prestrain_chord=0.02)
-changes = {"pressure +1%": base.replace(pressure=1.01e3),
-           "prestrain_chord +1%": base.replace(prestrain_chord=0.0202)}
+base = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)  # the default case's start
+changes = {"pressure +1%": base.replace(pressure=1.01e4),
+           "prestrain_chord +1%": base.replace(prestrain_chord=0.0202),
+           "rib_thickness -1%": base.replace(rib_thickness_scale=0.99)}
 # warm-up: compile every program both paths use (same shapes), then time
 w = solve_equilibrium(scene, base, method="auto", rtol=1e-8)
 for p in changes.values():
     solve_equilibrium(scene, p, method="auto", rtol=1e-8, initial=w)
     solve_equilibrium(scene, p, method="auto", rtol=1e-8)
+import numpy as np
 rows = []
 for name, p in changes.items():
-    t = time.perf_counter(); cold = solve_equilibrium(scene, p, method="auto", rtol=1e-8); tc = time.perf_counter() - t
-    t = time.perf_counter(); c0 = solve_equilibrium(scene, base, method="auto", rtol=1e-8); t0 = time.perf_counter() - t
-    n0 = len(_EVENTS)
-    t = time.perf_counter(); warm = solve_equilibrium(scene, p, method="auto", rtol=1e-8, initial=c0); tw = time.perf_counter() - t
-    import numpy as np
-    rows.append(dict(change=name, cold_s=tc, cold_steps=int(cold.steps), warm_s=tw, warm_steps=int(warm.steps),
+    cold_t, warm_t = [], []
+    for _ in range(__REPEATS__):  # alternating, medians: the machine is shared
+        t = time.perf_counter(); cold = solve_equilibrium(scene, p, method="auto", rtol=1e-8); cold_t.append(time.perf_counter() - t)
+        c0 = solve_equilibrium(scene, base, method="auto", rtol=1e-8)
+        n0 = len(_EVENTS)
+        t = time.perf_counter(); warm = solve_equilibrium(scene, p, method="auto", rtol=1e-8, initial=c0); warm_t.append(time.perf_counter() - t)
+    rows.append(dict(change=name, cold_s=float(np.median(cold_t)), cold_steps=int(cold.steps),
+                     cold_method=cold.method, warm_s=float(np.median(warm_t)), warm_steps=int(warm.steps),
                      warm_how=warm.extra.get("warm_start", warm.method),
                      newton_iterations=warm.extra.get("newton_iterations"),
                      max_node_difference_m=float(np.max(np.abs(np.asarray(warm.nodes) - np.asarray(cold.nodes)))),
@@ -116,14 +134,21 @@ def _child(code: str, report: Path, argv: list[str] | None = None, env=None) -> 
 
 def _summary(label: str, wall: float, report: dict, top: int) -> dict:
     by_name: dict[str, list] = {}
-    for name, seconds, _ in report["events"]:
+    for name, seconds, *_ in report["events"]:
         entry = by_name.setdefault(name, [0, 0.0])
         entry[0] += 1
         entry[1] += seconds
     ranked = sorted(by_name.items(), key=lambda kv: -kv[1][1])
+    sites: dict[str, list] = {}
+    for name, seconds, _, site in report["events"]:
+        entry = sites.setdefault(f"{name} <- {site}", [0, 0.0])
+        entry[0] += 1
+        entry[1] += seconds
     return {"run": label, "wall_s": wall, "compilations": len(report["events"]),
-            "compile_s": sum(s for _, s, _ in report["events"]), "distinct_functions": len(by_name),
+            "compile_s": sum(e[1] for e in report["events"]), "distinct_functions": len(by_name),
             "top": [{"function": n, "count": c, "seconds": s} for n, (c, s) in ranked[:top]],
+            "sites": [{"site": n, "count": c, "seconds": s}
+                      for n, (c, s) in sorted(sites.items(), key=lambda kv: -kv[1][1])],
             "marks": report["marks"]}
 
 
@@ -151,8 +176,9 @@ def first_solve_run(tmp: Path, top: int, shape=(17, 256)) -> dict:
     return _summary(f"first solve {shape[0]}x{shape[1]}", wall, report, top)
 
 
-def resolve_run(tmp: Path, shape=(17, 64)) -> dict:
-    code = _RESOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+def resolve_run(tmp: Path, shape=(17, 64), repeats: int = 5) -> dict:
+    code = (_RESOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+            .replace("__REPEATS__", str(repeats)))
     env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="false")
     wall, report, _ = _child(code, tmp / "report-resolve.json", env=env)
     return {"run": f"re-solve {shape[0]}x{shape[1]}", "wall_s": wall, "rows": report["marks"]["resolve"]}
