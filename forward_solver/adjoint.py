@@ -106,7 +106,10 @@ def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
     """
     tangents = {name: getattr(dparameters, name) for name in PARAMETER_NAMES}
     tangents["rib_shape_root"], tangents["rib_shape_tip"] = dparameters.rib_shapes
-    return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None else tangents[name]
+    # Cast to the primal's dtype: a weakly typed tangent (a Python zero) would be another jit
+    # signature of the kernels it reaches than a strongly typed one, and recompile them.
+    return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None
+                       else jnp.asarray(tangents[name], dtype=getattr(like, name).dtype)
                        for name in fk.Params._fields))
 
 

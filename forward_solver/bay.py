@@ -251,10 +251,12 @@ class Bay:
             contour_tip=jnp.asarray(self.contour_tip),
             camber_root=jnp.asarray(self.camber_root),
             camber_tip=jnp.asarray(self.camber_tip),
-            chord_root=jnp.asarray(self.chord_root),
-            chord_tip=jnp.asarray(self.chord_tip),
-            rib_spacing=jnp.asarray(self.rib_spacing),
-            free=jnp.asarray(~self.fixed, dtype=jnp.asarray(self.contour_root).dtype),
+            # numpy scalars, not Python floats: a weakly typed scalar is another jit signature
+            # than the strongly typed one (a recompile of every kernel it reaches).
+            chord_root=jnp.asarray(np.float64(self.chord_root)),
+            chord_tip=jnp.asarray(np.float64(self.chord_tip)),
+            rib_spacing=jnp.asarray(np.float64(self.rib_spacing)),
+            free=jnp.asarray((~np.asarray(self.fixed)).astype(np.float64)),
         )
 
     def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0, rib_shape=None,

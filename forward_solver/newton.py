@@ -45,7 +45,7 @@ import scipy.sparse.linalg as spla
 from . import forces as fk
 from .scene import float64_scope
 from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
-from .solution import Result
+from .solution import Result, static_state
 
 __all__ = ["NewtonResult", "newton", "chord_newton"]
 
@@ -123,18 +123,6 @@ class NewtonResult(NamedTuple):
 
 
 # -------------------------------------------------------------------- newton
-@functools.partial(jax.jit, static_argnames=("physics",))
-def _relative_residual(x, ref, params, physics):
-    """`forces.relative_residual`, NaN when a coordinate is not finite.
-
-    A NaN residual already gives NaN (`forces.safe_norm` keeps it); the
-    coordinate check also refuses a state with an infinite node, whose
-    residual need not be NaN.
-    """
-    rel = fk.relative_residual(x, ref, params, physics)
-    return jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
-
-
 _prepare = jax.jit(fk.prepare, static_argnames=("physics",))
 
 
@@ -187,6 +175,7 @@ class _Stage(NamedTuple):
 
 
 class _Problem(NamedTuple):
+    geometry: fk.Geometry
     ref: fk.Reference
     physics: fk.Physics
     pattern: FreePattern
@@ -198,7 +187,7 @@ class _Problem(NamedTuple):
 
 def _rel(problem: _Problem, params, x_flat) -> float:
     x = jnp.asarray(x_flat.reshape(problem.shape), problem.dtype)
-    return float(_relative_residual(x, problem.ref, params, problem.physics))
+    return float(static_state(x, problem.geometry, params, problem.physics)[1])
 
 
 def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_search, log,
@@ -384,7 +373,7 @@ def newton(
         if divergence_bound is None:
             chord = 0.5 * float(geometry.chord_root + geometry.chord_tip)
             divergence_bound = chord + float(geometry.rib_spacing)
-        problem = _Problem(ref, physics, sparsity_pattern(ref, physics.periodic), shape, dtype,
+        problem = _Problem(geometry, ref, physics, sparsity_pattern(ref, physics.periodic), shape, dtype,
                            np.asarray(ref.nodes, dtype=np.float64).reshape(-1), float(divergence_bound))
         log = _Log()
         x0 = np.array(x_init, dtype=np.float64).reshape(-1)
@@ -433,12 +422,6 @@ def newton(
         )
 
 
-@functools.partial(jax.jit, static_argnames=("physics",))
-def _residual_and_relative(x, ref, params, physics):
-    r = fk.residual(x, ref, params, physics)
-    return r, _relative_residual(x, ref, params, physics)
-
-
 def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rtol: float,
                  max_iterations: int = 12) -> NewtonResult | None:
     """Warm-started Newton that reuses a nearby solution's factorised Jacobian.
@@ -467,8 +450,7 @@ def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rt
         return None
     with float64_scope():
         physics = fk.static_physics(physics)
-        ref = _prepare(geometry, params, physics)
-        free = free_dofs(ref)
+        free = free_dofs(_prepare(geometry, params, physics))
         if not np.array_equal(free, previous.free_dofs):
             return None
         dtype = geometry.contour_root.dtype
@@ -477,7 +459,8 @@ def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rt
         log = _Log()
         last = math.inf
         for iteration in range(max_iterations + 1):
-            r, rel = _residual_and_relative(jnp.asarray(x.reshape(shape), dtype), ref, params, physics)
+            f, rel = static_state(jnp.asarray(x.reshape(shape), dtype), geometry, params, physics)
+            r = f.total
             rel = float(rel)
             log.add(rel, 1.0, 0.0, float(params.pressure))
             if not math.isfinite(rel) or rel > 0.5 * last:

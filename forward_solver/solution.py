@@ -15,7 +15,7 @@ from .jacobian import JacobianFactor
 from .parameters import Parameters, ParameterViews
 
 __all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
-           "make_solution", "initial_nodes", "static_forces"]
+           "make_solution", "initial_nodes", "static_forces", "static_state"]
 
 
 class Result(enum.IntEnum):
@@ -312,7 +312,22 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def static_forces(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> fk.Forces:
-    """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped)."""
+def static_state(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics):
+    """``(forces, relative)`` at nodes ``x``: the `forces.Forces` of the static residual (velocity
+    terms dropped) and ``||R_free||_2 / (p A)`` (`forces.relative_residual`; NaN when a coordinate
+    is not finite).
+
+    One compiled program serves Newton's residuals and line search, chord Newton and the
+    returned solution's tensions (`static_forces`): every extra program of the force kernel is
+    another XLA compilation of it (about a second on a 2-core machine).
+    """
     physics = fk.static_physics(physics)
-    return fk.forces(x, fk.prepare(geometry, params, physics), params, physics)
+    ref = fk.prepare(geometry, params, physics)
+    f = fk.forces(x, ref, params, physics)
+    rel = fk.safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
+    return f, jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
+
+
+def static_forces(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> fk.Forces:
+    """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped); `static_state`."""
+    return static_state(x, geometry, params, physics)[0]

@@ -1,0 +1,232 @@
+"""XLA compilations and compile seconds of the default case and of a first solve, in fresh processes.
+
+Each run is a fresh Python process with a `jax.monitoring` listener on
+``/jax/core/compile/backend_compile_duration`` (one event per XLA
+compilation, or persistent-cache retrieval, with the compiled function's
+name). Runs:
+
+1. ``default``: the default case of the command (``python -m
+   inverse_design.app.cli --quiet --out DIR``), (a) without the persistent
+   compilation cache (``--no-compilation-cache``), (b) with an empty cache
+   (it fills it), (c) with that cache;
+2. ``first_solve``: a notebook's first ``solve_equilibrium`` on the default
+   bay (NACA 2412, chord 1 m, ribs 0.25 m apart, default fabric, 1 kPa,
+   prestrain 2%) at 17x256, no persistent cache, imports included; then a
+   second solve at a new pressure and prestrain (the compilations it adds
+   must be none);
+3. ``resolve``: for the ratio of item 3, one process: the default bay
+   (17x64) at the default case's start (10 kPa, prestrain 2%), re-solved
+   (method "auto") warm-started from its equilibrium after a 1% change of
+   the pressure, the chord prestrain or the rib thickness scale, against a
+   cold solve of the same change: steps and wall time (medians of 5,
+   alternating, after a warm-up that compiles both paths), the largest node
+   difference, and the compilations a warm re-solve adds (none).
+
+Prints a table (wall time, compilations, compile seconds, the top compile
+consumers) and writes ``benchmarks/results/compilation.json``.
+
+Run:  python -m benchmarks.compilation [--skip-default] [--top N]
+
+Absolute times depend on the machine and its load: quote them with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+#: Prepended to every child: the listener, and a JSON dump of what it saw at exit.
+_LISTENER = r"""
+import atexit, json, time, collections
+import jax.monitoring as _monitoring
+_EVENTS = []
+_T0 = time.perf_counter()
+import os as _os, sys as _sys
+_ROOT = _os.getcwd() + _os.sep
+def _site():
+    # the innermost frame of the repository (not this listener) that led to the compilation
+    frame = _sys._getframe(2)
+    while frame is not None:
+        name = frame.f_code.co_filename
+        if name.startswith(_ROOT) and "site-packages" not in name:
+            return f"{name[len(_ROOT):]}:{frame.f_lineno} ({frame.f_code.co_name})"
+        frame = frame.f_back
+    return "?"
+def _listen(event, duration, **kwargs):
+    if event == "/jax/core/compile/backend_compile_duration":
+        _EVENTS.append((kwargs.get("fun_name", "?"), float(duration), time.perf_counter() - _T0, _site()))
+_monitoring.register_event_duration_secs_listener(_listen)
+def _dump():
+    with open(__REPORT__, "w") as f:
+        json.dump({"events": _EVENTS, "marks": _MARKS}, f)
+_MARKS = {}
+atexit.register(_dump)
+"""
+
+_FIRST_SOLVE = r"""
+_MARKS["imports_start"] = time.perf_counter() - _T0
+from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
+from targets import naca
+_MARKS["imported"] = time.perf_counter() - _T0
+scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=__NS__, n_contour=__NC__), Fabric())
+sol = solve_equilibrium(scene, Parameters(pressure=1e3, prestrain_span=0.02, prestrain_chord=0.02))
+_MARKS["first_solve"] = time.perf_counter() - _T0
+_MARKS["first_steps"] = int(sol.steps)
+_MARKS["compiles_after_first"] = len(_EVENTS)
+sol2 = solve_equilibrium(scene, Parameters(pressure=1.3e3, prestrain_span=0.021, prestrain_chord=0.019))
+_MARKS["second_solve"] = time.perf_counter() - _T0
+_MARKS["compiles_after_second"] = len(_EVENTS)
+"""
+
+_RESOLVE = r"""
+from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
+from targets import naca
+scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=__NS__, n_contour=__NC__), Fabric())
+base = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)  # the default case's start
+changes = {"pressure +1%": base.replace(pressure=1.01e4),
+           "prestrain_chord +1%": base.replace(prestrain_chord=0.0202),
+           "rib_thickness -1%": base.replace(rib_thickness_scale=0.99)}
+# warm-up: compile every program both paths use (same shapes), then time
+w = solve_equilibrium(scene, base, method="auto", rtol=1e-8)
+for p in changes.values():
+    solve_equilibrium(scene, p, method="auto", rtol=1e-8, initial=w)
+    solve_equilibrium(scene, p, method="auto", rtol=1e-8)
+import numpy as np
+rows = []
+for name, p in changes.items():
+    cold_t, warm_t = [], []
+    for _ in range(__REPEATS__):  # alternating, medians: the machine is shared
+        t = time.perf_counter(); cold = solve_equilibrium(scene, p, method="auto", rtol=1e-8); cold_t.append(time.perf_counter() - t)
+        c0 = solve_equilibrium(scene, base, method="auto", rtol=1e-8)
+        n0 = len(_EVENTS)
+        t = time.perf_counter(); warm = solve_equilibrium(scene, p, method="auto", rtol=1e-8, initial=c0); warm_t.append(time.perf_counter() - t)
+    rows.append(dict(change=name, cold_s=float(np.median(cold_t)), cold_steps=int(cold.steps),
+                     cold_method=cold.method, warm_s=float(np.median(warm_t)), warm_steps=int(warm.steps),
+                     warm_how=warm.extra.get("warm_start", warm.method),
+                     newton_iterations=warm.extra.get("newton_iterations"),
+                     max_node_difference_m=float(np.max(np.abs(np.asarray(warm.nodes) - np.asarray(cold.nodes)))),
+                     new_compilations=len(_EVENTS) - n0))
+_MARKS["resolve"] = rows
+"""
+
+
+def _child(code: str, report: Path, argv: list[str] | None = None, env=None) -> tuple[float, dict, str]:
+    """Run ``code`` (after the listener) in a fresh interpreter; wall time, the report, stderr."""
+    source = _LISTENER.replace("__REPORT__", repr(str(report))) + code
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", source, *(argv or [])], cwd=ROOT, env=env,
+                          capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if done.returncode != 0:
+        raise RuntimeError(f"child failed ({done.returncode}): {done.stderr[-3000:]}")
+    return wall, json.loads(report.read_text()), done.stderr
+
+
+def _summary(label: str, wall: float, report: dict, top: int) -> dict:
+    by_name: dict[str, list] = {}
+    for name, seconds, *_ in report["events"]:
+        entry = by_name.setdefault(name, [0, 0.0])
+        entry[0] += 1
+        entry[1] += seconds
+    ranked = sorted(by_name.items(), key=lambda kv: -kv[1][1])
+    sites: dict[str, list] = {}
+    for name, seconds, _, site in report["events"]:
+        entry = sites.setdefault(f"{name} <- {site}", [0, 0.0])
+        entry[0] += 1
+        entry[1] += seconds
+    return {"run": label, "wall_s": wall, "compilations": len(report["events"]),
+            "compile_s": sum(e[1] for e in report["events"]), "distinct_functions": len(by_name),
+            "top": [{"function": n, "count": c, "seconds": s} for n, (c, s) in ranked[:top]],
+            "sites": [{"site": n, "count": c, "seconds": s}
+                      for n, (c, s) in sorted(sites.items(), key=lambda kv: -kv[1][1])],
+            "marks": report["marks"]}
+
+
+def default_case_runs(tmp: Path, top: int) -> list[dict]:
+    env = dict(os.environ, INFLATABLE_WING_CACHE=str(tmp / "cache"))
+    code = ("import sys\nfrom inverse_design.app.cli import main\n"
+            "_MARKS['exit'] = main(sys.argv[1:])\n")
+    rows = []
+    for label, extra in [("default, no cache", ["--no-compilation-cache"]), ("default, empty cache", []),
+                         ("default, cached", [])]:
+        out = tmp / f"out-{len(rows)}"
+        wall, report, _ = _child(code, tmp / f"report-{len(rows)}.json", ["--quiet", "--out", str(out), *extra], env)
+        row = _summary(label, wall, report, top)
+        summary = json.loads((out / "summary.json").read_text())
+        row["summary"] = {k: summary.get(k) for k in ("success", "forward_solves", "timings_s")}
+        row["summary"]["design"] = summary.get("design", summary.get("parameters"))
+        rows.append(row)
+    return rows
+
+
+def first_solve_run(tmp: Path, top: int, shape=(17, 256)) -> dict:
+    code = _FIRST_SOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+    env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="false")
+    wall, report, _ = _child(code, tmp / "report-first.json", env=env)
+    return _summary(f"first solve {shape[0]}x{shape[1]}", wall, report, top)
+
+
+def resolve_run(tmp: Path, shape=(17, 64), repeats: int = 5) -> dict:
+    code = (_RESOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+            .replace("__REPEATS__", str(repeats)))
+    env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="false")
+    wall, report, _ = _child(code, tmp / "report-resolve.json", env=env)
+    return {"run": f"re-solve {shape[0]}x{shape[1]}", "wall_s": wall, "rows": report["marks"]["resolve"]}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--skip-default", action="store_true", help="skip the default case runs")
+    parser.add_argument("--skip-first", action="store_true", help="skip the first 17x256 solve")
+    parser.add_argument("--skip-resolve", action="store_true", help="skip the warm re-solve ratios")
+    parser.add_argument("--top", type=int, default=12, help="compile consumers listed per run")
+    args = parser.parse_args(argv)
+    load = os.getloadavg()
+    machine = f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cores, load {load[0]:.1f}"
+    print(f"machine: {machine}; python {platform.python_version()}")
+    runs = []
+    with tempfile.TemporaryDirectory() as name:
+        tmp = Path(name)
+        if not args.skip_default:
+            runs += default_case_runs(tmp, args.top)
+        if not args.skip_first:
+            runs.append(first_solve_run(tmp, args.top))
+        if not args.skip_resolve:
+            runs.append(resolve_run(tmp))
+    for run in runs:
+        if "rows" in run:
+            print(f"\n{run['run']} (process {run['wall_s']:.1f} s)")
+            for r in run["rows"]:
+                print(f"  {r['change']:<22} cold {r['cold_steps']:6d} steps {r['cold_s']:6.3f} s | warm "
+                      f"{r['warm_steps']:4d} steps {r['warm_s']:6.3f} s ({r['warm_how']}) | ratio steps "
+                      f"{r['warm_steps'] / max(r['cold_steps'], 1):.3f} time {r['warm_s'] / r['cold_s']:.3f} | "
+                      f"max |x_warm - x_cold| {r['max_node_difference_m']:.1e} m | new compilations "
+                      f"{r['new_compilations']}")
+            continue
+        print(f"\n{run['run']}: wall {run['wall_s']:.1f} s, {run['compilations']} compilations "
+              f"({run['distinct_functions']} functions), {run['compile_s']:.1f} s compiling")
+        if run.get("summary"):
+            print(f"  summary: {run['summary']}")
+        marks = {k: (round(v, 2) if isinstance(v, float) else v) for k, v in run["marks"].items()}
+        if marks:
+            print(f"  marks: {marks}")
+        for t in run["top"]:
+            print(f"    {t['seconds']:6.2f} s  {t['count']:3d}x  {t['function']}")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / "compilation.json"
+    path.write_text(json.dumps({"machine": machine, "date": time.strftime("%Y-%m-%d"), "runs": runs}, indent=1))
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()
