@@ -106,6 +106,7 @@ def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
     """
     tangents = {name: getattr(dparameters, name) for name in PARAMETER_NAMES}
     tangents["rib_shape_root"], tangents["rib_shape_tip"] = dparameters.rib_shapes
+    tangents["cut_pattern"] = dparameters.cut_pattern
     return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None else tangents[name]
                        for name in fk.Params._fields))
 
