@@ -29,7 +29,7 @@ OPTIONS = dict(rtol=1e-11, method="relax+newton")
 
 @pytest.fixture(scope="module")
 def scene():
-    return Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())
+    return Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +56,9 @@ def test_cut_lengths_follow_the_field(scene):
     cuts = cut_lengths(scene, BASE.replace(cut_pattern=FIELD))
     plain = cut_lengths(scene, BASE)
     geometry = scene.bay
-    s_nodes, s_edges = (np.asarray(v) for v in contour_parameter(geometry.contour_root, geometry.contour_tip, True))
+    with jax.enable_x64(True):
+        s_nodes, s_edges = (np.asarray(v) for v in contour_parameter(
+            jnp.asarray(geometry.contour_root), jnp.asarray(geometry.contour_tip), True))
     span, chord = field_values(s_nodes, 0.01, 0.005, FIELD)
     _, chord_edges = field_values(s_edges, 0.01, 0.005, FIELD)
     np.testing.assert_allclose(cuts["span_prestrain"], span, atol=1e-15)
@@ -82,12 +84,12 @@ def test_a_constant_field_is_the_uniform_prestrain(scene, patterned):
 
 def test_field_gradient_matches_central_differences(scene, patterned):
     def bulge(q):
-        return solve_equilibrium(scene, q, initial=patterned, **OPTIONS).nodes[4, 8, 2]
+        return solve_equilibrium(scene, q, initial=patterned, **OPTIONS).nodes[2, 8, 2]
 
     q = BASE.replace(cut_pattern=FIELD)
     with jax.enable_x64(True):
         grad = np.asarray(jax.grad(bulge)(q).cut_pattern)
-        for k in (1, 3, 6):
+        for k in (1, 6):
             step = np.zeros_like(FIELD)
             step[k] = 1e-6
             fd = (bulge(q.replace(cut_pattern=FIELD + step)) - bulge(q.replace(cut_pattern=FIELD - step))) / 2e-6
@@ -95,34 +97,28 @@ def test_field_gradient_matches_central_differences(scene, patterned):
     assert np.abs(grad).max() > 0
 
 
-def test_field_gradient_through_two_bays():
-    """A wing's bays share one field; the derivative through solve_bays agrees with central differences."""
-    scenes = [Scene(Bay.from_airfoil(naca("2412"), chord=c, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
-              for c in (1.0, 0.9)]
-
-    def bulge(c):
-        wing = solve_bays(scenes, BASE.replace(cut_pattern=c), rtol=1e-11, method="relax+newton")
-        return wing.nodes[1, 2, 8, 2] + wing.nodes[0, 2, 20, 2]
-
-    with jax.enable_x64(True):
-        grad = np.asarray(jax.grad(bulge)(jnp.asarray(FIELD)))
-        k, step = 5, np.eye(FIELD.size)[5] * 1e-6
-        fd = (bulge(FIELD + step) - bulge(FIELD - step)) / 2e-6
-    assert grad[k] == pytest.approx(float(fd), rel=1e-6, abs=1e-9 * np.abs(grad).max())
+def test_a_wing_shares_the_field(scene, patterned):
+    """solve_bays gives every bay the one field: a bay of the wing is the bay solved alone."""
+    other = Scene(Bay.from_airfoil(naca("2412"), chord=0.9, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
+    wing = solve_bays([scene, other], BASE.replace(cut_pattern=FIELD), rtol=1e-11, method="relax+newton")
+    scale = np.abs(patterned.nodes - scene.bay.nominal_nodes()).max()
+    np.testing.assert_allclose(np.asarray(wing.nodes[0]), patterned.nodes, atol=1e-8 * scale)
+    alone = solve_equilibrium(other, BASE.replace(cut_pattern=FIELD), **OPTIONS)
+    np.testing.assert_allclose(np.asarray(wing.nodes[1]), alone.nodes, atol=1e-8 * scale)
 
 
-def test_a_cut_pattern_design_beats_the_uniform_cut():
-    scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
+def test_a_cut_pattern_design_beats_the_uniform_cut(scene):
+    """Both designs carry a cut pattern (zero and fixed in the uniform one), so they share compilations."""
     target = naca("2412")
-    start = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.0)
+    start = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.0, cut_pattern=np.zeros(4))
     common = dict(objective="average", max_iterations=30, bounds={"pressure": (1e3, 1e5)})
     uniform = optimise_pressure(scene, target, variables=("pressure", "prestrain_span", "prestrain_chord"),
                                 initial=start, **common)
     bounds = {"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)}
-    field = optimise_pressure(scene, target, variables=("pressure", "cut_pattern"),
-                              initial=start.replace(cut_pattern=np.zeros(8)), **{**common, "bounds": bounds})
+    field = optimise_pressure(scene, target, variables=("pressure", "cut_pattern"), initial=start,
+                              **{**common, "bounds": bounds})
     assert uniform.success and field.success
-    assert field.rms_error < 0.9 * uniform.rms_error
+    assert field.rms_error < 0.8 * uniform.rms_error  # two terms a direction: measured -39%
     local = field_values(np.linspace(0, 1, 201), 0.02, 0.0, field.parameters.cut_pattern)
     assert min(v.min() for v in local) >= -0.02 - 1e-9 and max(v.max() for v in local) <= 0.05 + 1e-9
     assert min(np.min(field.solution.tension_span), np.min(field.solution.tension_chord)) >= -1e-6
@@ -146,3 +142,20 @@ def test_bad_fields_are_refused(scene):
     assert design.size == 13  # pressure and 2 x 6 coefficients (the default terms)
     np.testing.assert_allclose(design.lower[1:7] * 0.01, -0.03)  # local bound less the uniform span prestrain
     np.testing.assert_allclose(design.upper[7:] * 0.01, 0.045)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--cut-pattern-bounds", "0.03", "0.05"],
+     "error: the starting cut pattern's local prestrain reaches 0.02..0.02 (uniform prestrain plus each "
+     "coefficient), outside its bounds (0.03, 0.05): change the bounds or the starting prestrains"),
+    (["--cut-pattern-terms", "0"], "error: --cut-pattern-terms must be at least 1, got 0"),
+], ids=["bounds", "terms"])
+def test_the_command_refuses_a_field_outside_its_bounds(tmp_path, capsys, args, message):
+    from inverse_design.app import cli
+
+    out = tmp_path / "out"
+    code = cli.main(["--variables", "pressure,cut_pattern", *args, "--n-span", "5", "--n-contour", "32",
+                     "--no-compilation-cache", "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].endswith(message), err
+    assert not out.exists()
