@@ -13,7 +13,9 @@ d. pressure, rib thickness scale and the cut pattern (K = 6 B-splines per
    fibre direction, local prestrain within -2% .. 5%; the uniform
    prestrains stay at their 2% start, the field's constant part replaces
    them);
-e. as d with K = 12.
+e. as d with K = 12;
+f. as a with both uniform prestrains within d's local bounds (-2% .. 5%):
+   what the wider bounds alone give, without a field.
 
 Each design is re-solved on finer grids (2 n_span - 1 span nodes, and 2
 n_contour contour nodes) at the same parameters. The leading-edge recession
@@ -80,6 +82,9 @@ def main() -> None:
               ("pressure", "rib_thickness_scale", "cut_pattern"), thickness, start.replace(cut_pattern=np.zeros(12))),
         "e": ("pressure + thickness scale + cut pattern, K = 12",
               ("pressure", "rib_thickness_scale", "cut_pattern"), thickness, start.replace(cut_pattern=np.zeros(24))),
+        "f": ("pressure + both prestrains (-2% .. 5%) + thickness scale (uniform cut)",
+              ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale"),
+              {**thickness, "prestrain_span": (-0.02, 0.05), "prestrain_chord": (-0.02, 0.05)}, start),
     }
     base = scene(args.n_span, args.n_contour)
     finer = [] if args.no_finer else [(2 * args.n_span - 1, args.n_contour), (args.n_span, 2 * args.n_contour)]
