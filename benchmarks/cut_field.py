@@ -15,7 +15,12 @@ d. pressure, rib thickness scale and the cut pattern (K = 6 B-splines per
    them);
 e. as d with K = 12;
 f. as a with both uniform prestrains within d's local bounds (-2% .. 5%):
-   what the wider bounds alone give, without a field.
+   what the wider bounds alone give, without a field;
+g. as f with the prestrains up to 10%;
+h. as d with the local prestrain up to 10%;
+i. the cut pattern (K = 6, -2% .. 5%) started from f's design (its uniform
+   prestrains, a zero field): what the field adds to the best uniform cut
+   (needs f earlier in the same run).
 
 Each design is re-solved on finer grids (2 n_span - 1 span nodes, and 2
 n_contour contour nodes) at the same parameters. The leading-edge recession
@@ -85,17 +90,31 @@ def main() -> None:
         "f": ("pressure + both prestrains (-2% .. 5%) + thickness scale (uniform cut)",
               ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale"),
               {**thickness, "prestrain_span": (-0.02, 0.05), "prestrain_chord": (-0.02, 0.05)}, start),
+        "g": ("pressure + both prestrains (-2% .. 10%) + thickness scale (uniform cut)",
+              ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale"),
+              {**thickness, "prestrain_span": (-0.02, 0.10), "prestrain_chord": (-0.02, 0.10)}, start),
+        "h": ("pressure + thickness scale + cut pattern, K = 6, local prestrain -2% .. 10%",
+              ("pressure", "rib_thickness_scale", "cut_pattern"), {**thickness, "cut_pattern": (-0.02, 0.10)},
+              start.replace(cut_pattern=np.zeros(12))),
+        "i": ("pressure + thickness scale + cut pattern, K = 6, from f's design",
+              ("pressure", "rib_thickness_scale", "cut_pattern"), {**thickness, "cut_pattern": (-0.02, 0.05)}, None),
     }
     base = scene(args.n_span, args.n_contour)
     finer = [] if args.no_finer else [(2 * args.n_span - 1, args.n_contour), (args.n_span, 2 * args.n_contour)]
-    rows = []
+    rows, designs = [], {}
     for key in args.cases.split(","):
         label, variables, bounds, initial = cases[key]
+        if key == "i":
+            if "f" not in designs:
+                raise SystemExit("case i starts from case f's design: run --cases f,i")
+            initial = designs["f"].parameters.replace(cut_pattern=np.zeros(12), stiffness_span=None,
+                                                      stiffness_chord=None)
         bounds = {"pressure": (1e3, 1e5), **bounds}
         t = time.perf_counter()
         result = optimise_pressure(base, target, variables=variables, initial=initial, bounds=bounds,
                                    objective="average", max_iterations=args.max_iterations)
         wall = time.perf_counter() - t
+        designs[key] = result
         p = result.parameters
         mid = section_errors(result.solution, target, 1.0)
         s = np.linspace(0.0, 1.0, 201)

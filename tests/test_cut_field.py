@@ -114,19 +114,26 @@ def test_a_wing_shares_the_field(scene, patterned):
     np.testing.assert_allclose(np.asarray(wing.nodes[1]), alone.nodes, atol=1e-8 * scale)
 
 
-def test_a_cut_pattern_design_beats_the_uniform_cut(scene):
-    """Both designs carry a cut pattern (zero and fixed in the uniform one), so they share compilations."""
+def test_a_cut_pattern_design_from_the_best_uniform_cut(scene):
+    """The field, started from the best uniform cut within the same bounds, keeps or lowers its error,
+    inside the local prestrain bounds and the wrinkle floor.
+
+    Both designs carry a cut pattern (zero and fixed in the uniform one), so they share compilations.
+    Measured on this grid: 4.35e-4 -> 4.31e-4 (-1%); on 17x64 see benchmarks/cut_field.py.
+    """
     target = naca("2412")
     start = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.0, cut_pattern=np.zeros(4))
-    common = dict(objective="average", max_iterations=30, bounds={"pressure": (1e3, 1e5)})
+    bounds = {"pressure": (1e3, 1e5), "prestrain_span": (-0.02, 0.05), "prestrain_chord": (-0.02, 0.05)}
     uniform = optimise_pressure(scene, target, variables=("pressure", "prestrain_span", "prestrain_chord"),
-                                initial=start, **common)
-    bounds = {"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)}
-    field = optimise_pressure(scene, target, variables=("pressure", "cut_pattern"), initial=start,
-                              **{**common, "bounds": bounds})
+                                initial=start, objective="average", max_iterations=30, bounds=bounds)
+    best = uniform.parameters.replace(stiffness_span=None, stiffness_chord=None)
+    field = optimise_pressure(scene, target, variables=("pressure", "cut_pattern"), initial=best,
+                              objective="average", max_iterations=30,
+                              bounds={"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)})
     assert uniform.success and field.success
-    assert field.rms_error < 0.8 * uniform.rms_error  # two terms a direction: measured -52% (5x32)
-    local = field_values(np.linspace(0, 1, 201), 0.02, 0.0, field.parameters.cut_pattern)
+    assert uniform.parameters.prestrain_chord < -0.005  # the best uniform cut has the contour fabric cut long
+    assert field.rms_error <= uniform.rms_error * (1 + 1e-9)
+    local = field_values(np.linspace(0, 1, 201), *best.prestrain, field.parameters.cut_pattern)
     assert min(v.min() for v in local) >= -0.02 - 1e-9 and max(v.max() for v in local) <= 0.05 + 1e-9
     assert min(np.min(field.solution.tension_span), np.min(field.solution.tension_chord)) >= -1e-6
 
