@@ -106,6 +106,7 @@ def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
     """
     tangents = {name: getattr(dparameters, name) for name in PARAMETER_NAMES}
     tangents["rib_shape_root"], tangents["rib_shape_tip"] = dparameters.rib_shapes
+    tangents["cut_pattern"] = dparameters.cut_pattern
     # Cast to the primal's dtype: a weakly typed tangent (a Python zero) would be another jit
     # signature of the kernels it reaches than a strongly typed one, and recompile them.
     return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None

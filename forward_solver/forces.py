@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from .cut_field import local_prestrain
 from .rib_shape import rib_offsets
 
 __all__ = [
@@ -87,6 +88,7 @@ class Params(NamedTuple):
     rib_chord_scale: jnp.ndarray  # dimensionless
     rib_shape_root: jnp.ndarray  # (2K,) rib-shape coefficients of the root rib (`rib_shape`); (0,): none
     rib_shape_tip: jnp.ndarray  # (2K,) the same for the tip rib
+    cut_pattern: jnp.ndarray  # (2K,) cut-pattern coefficients, span then chord (`cut_field`); (0,): uniform
 
 
 @dataclass(frozen=True)
@@ -228,12 +230,15 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
     """Cut lengths and lumped areas for one solve.
 
     The fabric is cut shorter than the mounted geometry: reference length =
-    nominal length / (1 + prestrain) per fibre direction (docs/architecture.md, "Conventions").
+    nominal length / (1 + prestrain) per fibre direction (docs/architecture.md, "Conventions");
+    with a cut pattern the prestrain is the local one of `cut_field.local_prestrain`
+    (span fibres at their contour node, contour fibres at their edge's midpoint).
     """
     x0 = mounted_nodes(geometry, params)
-    span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + params.prestrain_span)
+    prestrain_span, prestrain_chord = local_prestrain(geometry, params, physics.periodic)
+    span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + prestrain_span)
     contour_length = safe_norm(_next_j(x0, physics.periodic) - _this_j(x0, physics.periodic))
-    contour_length = contour_length / (1.0 + params.prestrain_chord)
+    contour_length = contour_length / (1.0 + prestrain_chord)
     h1_cell = 0.5 * (_this_j(span_length, physics.periodic) + _next_j(span_length, physics.periodic))
     h2_cell = 0.5 * (contour_length[:-1] + contour_length[1:])
     quarter = 0.25 * h1_cell * h2_cell

@@ -24,8 +24,8 @@ from typing import Any, Mapping
 import jax
 import numpy as np
 
-__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "PARAMETER_UNITS", "as_parameters",
-           "ParameterViews"]
+__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES", "PARAMETER_UNITS",
+           "as_parameters", "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
 
@@ -44,6 +44,12 @@ PARAMETER_NAMES = (
 #: (`forward_solver.rib_shape`), None when the ribs keep their sections.
 SHAPE_NAMES = ("rib_shape", "rib_shape_tip")
 
+#: Array-valued fields of `Parameters` that are not rib shapes: the cut
+#: pattern's coefficients (`forward_solver.cut_field`), None for a uniform cut.
+FIELD_NAMES = ("cut_pattern",)
+
+_ARRAY_NAMES = SHAPE_NAMES + FIELD_NAMES
+
 #: Unit of each parameter, for messages and reports.
 PARAMETER_UNITS = {
     "pressure": "Pa",
@@ -55,6 +61,7 @@ PARAMETER_UNITS = {
     "rib_chord_scale": "",
     "rib_shape": "chord",
     "rib_shape_tip": "chord",
+    "cut_pattern": "",
 }
 
 
@@ -79,6 +86,13 @@ class Parameters:
             both ribs of the bay unless ``rib_shape_tip`` is given.
         rib_shape_tip: None (the tip rib takes ``rib_shape``), or the tip
             rib's own ``(2 K,)`` coefficients (a wing's bays, per-rib shapes).
+        cut_pattern: None (a uniform cut), or ``(2 K,)`` B-spline
+            coefficients of the prestrain added along the contour (K for the
+            span fibres, then K for the contour fibres;
+            `forward_solver.cut_field`): the local prestrain is
+            ``prestrain_span + sum_k a_k N_k(s)`` (likewise chord), so zero
+            coefficients are the uniform cut and a constant ``a`` the uniform
+            prestrain ``prestrain_span + a``.
 
     Construction does not validate, because JAX rebuilds pytrees with
     placeholder leaves; `check` does, and every solver calls it.
@@ -93,11 +107,12 @@ class Parameters:
     rib_chord_scale: Scalar = 1.0
     rib_shape: Any = None
     rib_shape_tip: Any = None
+    cut_pattern: Any = None
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, Parameters):
             return NotImplemented
-        return all(_same(getattr(self, n), getattr(other, n)) for n in PARAMETER_NAMES + SHAPE_NAMES)
+        return all(_same(getattr(self, n), getattr(other, n)) for n in PARAMETER_NAMES + _ARRAY_NAMES)
 
     __hash__ = None  # mutable-valued (arrays): not hashable
 
@@ -123,15 +138,15 @@ class Parameters:
         )
 
     def as_dict(self) -> dict:
-        """``{name: value}`` for every field (the rib shapes as they are: None or arrays)."""
-        return {name: getattr(self, name) for name in PARAMETER_NAMES + SHAPE_NAMES}
+        """``{name: value}`` for every field (the rib shapes and cut pattern as they are: None or arrays)."""
+        return {name: getattr(self, name) for name in PARAMETER_NAMES + _ARRAY_NAMES}
 
     def as_floats(self) -> "Parameters":
-        """A copy with every set scalar a Python float and every rib shape a float64 numpy array."""
+        """A copy with every set scalar a Python float and every array field a float64 numpy array."""
         values = {k: (None if v is None else float(np.asarray(v)))
                   for k, v in self.as_dict().items() if k in PARAMETER_NAMES}
         shapes = {k: (None if getattr(self, k) is None else np.asarray(getattr(self, k), np.float64))
-                  for k in SHAPE_NAMES}
+                  for k in _ARRAY_NAMES}
         return Parameters(**values, **shapes)
 
     @property
@@ -142,10 +157,10 @@ class Parameters:
     @classmethod
     def from_mapping(cls, values: Mapping) -> "Parameters":
         """From ``{name: value}``; unknown names raise a ValueError naming them."""
-        unknown = sorted(set(values) - set(PARAMETER_NAMES + SHAPE_NAMES))
+        unknown = sorted(set(values) - set(PARAMETER_NAMES + _ARRAY_NAMES))
         if unknown:
             raise ValueError(f"unknown parameter(s) {unknown}; the parameters are "
-                             f"{PARAMETER_NAMES + SHAPE_NAMES}")
+                             f"{PARAMETER_NAMES + _ARRAY_NAMES}")
         return cls(**values)
 
     def is_traced(self) -> bool:
@@ -187,10 +202,36 @@ class Parameters:
         if len(sizes) > 1:
             raise ValueError(f"rib_shape and rib_shape_tip must have the same number of coefficients, "
                              f"got {sorted(sizes)}")
+        self._check_cut_pattern()
         return self
 
+    def _check_cut_pattern(self) -> None:
+        """The cut pattern's shape, and its local prestrain within (-0.5, 1) (convex hull of its coefficients)."""
+        value = self.cut_pattern
+        if value is None:
+            return
+        shape = np.shape(value)
+        if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
+            raise ValueError(f"cut_pattern must be a 1-D array of 2 K coefficients (K >= 1 for the span "
+                             f"fibres, then K for the contour fibres), got shape {shape}")
+        if isinstance(value, jax.core.Tracer):
+            return
+        value = np.asarray(value, np.float64)
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"cut_pattern must be finite, got {value!r}")
+        half = shape[0] // 2
+        for name, part in (("prestrain_span", value[:half]), ("prestrain_chord", value[half:])):
+            base = _concrete(getattr(self, name))
+            if base is None:
+                continue
+            local = base + part
+            if not np.all((-0.5 < local) & (local < 1.0)):
+                raise ValueError(f"the cut pattern's local {name} (uniform {base:.6g} plus its coefficients) "
+                                 f"reaches {float(local.min()):.6g}..{float(local.max()):.6g}; it must lie in "
+                                 "(-0.5, 1.0)")
 
-jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES + SHAPE_NAMES),
+
+jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES + _ARRAY_NAMES),
                                  meta_fields=[])
 
 
@@ -228,6 +269,11 @@ class ParameterViews:
     def rib_shape(self):
         """Rib-shape coefficients (None: the ribs keep their sections)."""
         return self.parameters.rib_shape
+
+    @property
+    def cut_pattern(self):
+        """Cut-pattern coefficients (None: a uniform cut; `forward_solver.cut_field`)."""
+        return self.parameters.cut_pattern
 
 
 def _concrete(value) -> float | None:

@@ -94,6 +94,7 @@ class Scene:
             rib_chord_scale=p.rib_chord_scale,
             rib_shape_root=_no_shape if p.rib_shapes[0] is None else p.rib_shapes[0],
             rib_shape_tip=_no_shape if p.rib_shapes[1] is None else p.rib_shapes[1],
+            cut_pattern=_no_shape if p.cut_pattern is None else p.cut_pattern,
         )
         return Params(*(jnp.asarray(v, dtype=dtype) for v in values))
 

@@ -585,7 +585,8 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
             raise ValueError("refine_design of a wing needs the finer grid as n_span and n_contour (and a "
                              "one-bay design its finer scene and target)")
         initial = result.parameters if result.rib_shapes is None else {
-            **{n: getattr(result.parameters, n) for n in VARIABLES if n != "rib_shape"},
+            **{n: getattr(result.parameters, n) for n in VARIABLES
+               if n != "rib_shape" and getattr(result.parameters, n) is not None},
             "rib_shape": result.rib_shapes}
         fine = optimise_wing(result.wing, result.scenes[0].fabric, list(result.targets), result.variables,
                              initial=initial, objective=result.objective, method=result.method, n_span=n_span,

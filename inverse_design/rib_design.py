@@ -39,6 +39,7 @@ import numpy as np
 
 from forward_solver import Parameters
 from forward_solver import forces as fk
+from forward_solver.cut_field import local_prestrain
 from forward_solver.rib_shape import rib_offsets
 
 from .constraints import Violation
@@ -199,7 +200,7 @@ def cut_lengths(scene, parameters: Parameters) -> dict:
 
     Args:
         scene: the `forward_solver.Scene` (bay and fabric).
-        parameters: the design's `Parameters` (prestrain, rib scales and shape).
+        parameters: the design's `Parameters` (prestrain and cut pattern, rib scales and shape).
 
     Returns:
         ``{"contour_cut_m": (n_span,) cut perimeter of each span row's strip
@@ -217,7 +218,9 @@ def cut_lengths(scene, parameters: Parameters) -> dict:
         ref = fk.prepare(geometry, params, physics)
         contour = np.asarray(ref.contour_length)
         span = np.asarray(ref.span_length)
-    prestrain_span, prestrain_chord = (float(v) for v in parameters.prestrain)
-    return {"contour_cut_m": contour.sum(axis=1), "contour_mounted_m": contour.sum(axis=1) * (1 + prestrain_chord),
-            "span_cut_m": span.sum(axis=0), "span_mounted_m": span.sum(axis=0) * (1 + prestrain_span),
-            "contour_edge_cut_m": contour, "span_edge_cut_m": span}
+        local_span, local_chord = (np.broadcast_to(np.asarray(v, np.float64), shape) for v, shape in zip(
+            local_prestrain(geometry, params, physics.periodic), (span.shape[1:], contour.shape[1:])))
+    return {"contour_cut_m": contour.sum(axis=1), "contour_mounted_m": (contour * (1 + local_chord)).sum(axis=1),
+            "span_cut_m": span.sum(axis=0), "span_mounted_m": span.sum(axis=0) * (1 + local_span),
+            "contour_edge_cut_m": contour, "span_edge_cut_m": span,
+            "span_prestrain": np.array(local_span), "contour_prestrain": np.array(local_chord)}

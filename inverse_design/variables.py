@@ -14,6 +14,16 @@ none), laid out one of two ways (`RIB_SHAPE_LAYOUTS`): ``"shared"``, one
 shape for every rib (2 K places in ``u``; a single bay's default), or
 ``"per_rib"``, one shape per rib (``n_ribs`` x 2 K places, root to tip; bay
 ``k`` lies between rib ``k``'s shape and rib ``k + 1``'s).
+
+``cut_pattern`` is the cut as a field (`forward_solver.cut_field`): 2 K
+B-spline coefficients added to the (fixed) uniform prestrains, K for the
+span fibres then K for the contour fibres (K = `DEFAULT_CUT_PATTERN_TERMS`
+from a zero field when the start has none), shared by every bay. Its bounds
+are those of the local prestrain: the basis is a non-negative partition of
+unity, so the field lies within its coefficients' range and bounding each
+``uniform prestrain + coefficient`` in ``(lower, upper)`` bounds the local
+prestrain everywhere, exactly. The uniform prestrains are its constant
+part, so a design optimises either them or ``cut_pattern``, not both.
 """
 
 from __future__ import annotations
@@ -27,15 +37,15 @@ import numpy as np
 from forward_solver import Parameters
 
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
-           "DEFAULT_RIB_SHAPE_TERMS", "SCALES", "DesignVariables"]
+           "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
 VARIABLES = ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale", "rib_chord_scale",
-             "rib_shape")
+             "rib_shape", "cut_pattern")
 
 #: Variables with several components (`Parameters` array fields).
-VECTOR_VARIABLES = ("rib_shape",)
+VECTOR_VARIABLES = ("rib_shape", "cut_pattern")
 
 #: How the ``rib_shape`` variable is laid out over the ribs (module docstring).
 RIB_SHAPE_LAYOUTS = ("shared", "per_rib")
@@ -43,13 +53,17 @@ RIB_SHAPE_LAYOUTS = ("shared", "per_rib")
 #: Bernstein terms per surface of a rib shape started from no offset (8 coefficients in all).
 DEFAULT_RIB_SHAPE_TERMS = 4
 
+#: B-spline terms per fibre direction of a cut pattern started from a zero field (12 coefficients in all).
+DEFAULT_CUT_PATTERN_TERMS = 6
+
 #: Start of every parameter that is neither optimised nor given in ``initial``
 #: (stiffnesses unset: the scene's fabric).
 DEFAULT_START = Parameters(pressure=1e4, prestrain_span=0.005, prestrain_chord=0.005)
 
 #: Bounds used when the caller gives none: pressure in Pa; prestrain from a
 #: fabric cut to its mounted size (0) to 5% short; rib scales within +-50%;
-#: rib-shape coefficients within +-0.05 (offsets up to about 1% of chord).
+#: rib-shape coefficients within +-0.05 (offsets up to about 1% of chord);
+#: the cut pattern's local prestrain from 2% long to 5% short.
 DEFAULT_BOUNDS = {
     "pressure": (1e2, 1e6),
     "prestrain_span": (0.0, 0.05),
@@ -57,11 +71,12 @@ DEFAULT_BOUNDS = {
     "rib_thickness_scale": (0.5, 1.5),
     "rib_chord_scale": (0.5, 1.5),
     "rib_shape": (-0.05, 0.05),
+    "cut_pattern": (-0.02, 0.05),
 }
 
 #: Unit of each scaled variable but the pressure (whose unit is its start).
 SCALES = {"prestrain_span": 0.01, "prestrain_chord": 0.01, "rib_thickness_scale": 1.0,
-          "rib_chord_scale": 1.0, "rib_shape": 0.01}
+          "rib_chord_scale": 1.0, "rib_shape": 0.01, "cut_pattern": 0.01}
 
 
 @dataclass(frozen=True)
@@ -116,6 +131,10 @@ class DesignVariables:
                 raise ValueError(f"unknown design variable {name!r}; choose from {VARIABLES}")
         if len(set(names)) != len(names):
             raise ValueError(f"variables must not repeat a name, got {names}")
+        both = [n for n in ("prestrain_span", "prestrain_chord") if n in names]
+        if "cut_pattern" in names and both:
+            raise ValueError(f"cut_pattern already holds the uniform prestrain (its constant part): optimise "
+                             f"cut_pattern or {' and '.join(both)}, not both")
         if rib_shape not in RIB_SHAPE_LAYOUTS:
             raise ValueError(f"rib_shape must be one of {RIB_SHAPE_LAYOUTS}, got {rib_shape!r}")
         per_rib = "rib_shape" in names and rib_shape == "per_rib"
@@ -135,6 +154,8 @@ class DesignVariables:
                                                  else float(v)) for k, v in initial.items()})
         if "rib_shape" in names and not per_rib and start.rib_shape is None:
             start = start.replace(rib_shape=np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS))
+        if "cut_pattern" in names and start.cut_pattern is None:
+            start = start.replace(cut_pattern=np.zeros(2 * DEFAULT_CUT_PATTERN_TERMS))
         start = start.as_floats().check()
         shapes = None
         if per_rib:
@@ -161,7 +182,7 @@ class DesignVariables:
                                  f"got {(lo, hi)}")
             if name == "pressure" and lo <= 0:
                 raise ValueError(f"the lower pressure bound must be positive (Pa), got {lo}")
-            if name.startswith("prestrain") and not (-0.5 < lo and hi < 1.0):
+            if (name.startswith("prestrain") or name == "cut_pattern") and not (-0.5 < lo and hi < 1.0):
                 raise ValueError(f"bounds of {name} must lie in (-0.5, 1.0), got {(lo, hi)}")
             if name in ("rib_thickness_scale", "rib_chord_scale") and lo <= 0:
                 raise ValueError(f"the lower bound of {name} must be positive, got {lo}")
@@ -169,6 +190,14 @@ class DesignVariables:
                 raise ValueError("a shared rib_shape design gives every rib one shape; the start "
                                  "must not set rib_shape_tip")
             value = np.asarray(values[name], np.float64)
+            if name == "cut_pattern":
+                local = value + _uniform(start, value.size)
+                if not np.all(np.isfinite(local) & (lo <= local) & (local <= hi)):
+                    raise ValueError(f"the starting cut pattern's local prestrain reaches {local.min():.6g}.."
+                                     f"{local.max():.6g} (uniform prestrain plus each coefficient), outside its "
+                                     f"bounds {(lo, hi)}: change the bounds or the starting prestrains")
+                chosen[name] = (lo, hi)
+                continue
             if not np.all(np.isfinite(value) & (lo <= value) & (value <= hi)):
                 shown = value.tolist() if name in VECTOR_VARIABLES else repr(values[name])
                 hint = ("; a rib shape starts from the unchanged rib (every coefficient 0) unless given, "
@@ -238,8 +267,8 @@ class DesignVariables:
         for n, part in self.slices().items():
             if n in VECTOR_VARIABLES:
                 values = u[part] * self.scale(n)
-                out[n] = (values.reshape(self.rib_shapes.shape).tolist() if self.rib_shapes is not None
-                          else [float(v) for v in values])
+                out[n] = (values.reshape(self.rib_shapes.shape).tolist()
+                          if n == "rib_shape" and self.rib_shapes is not None else [float(v) for v in values])
             else:
                 out[n] = float(u[part.start]) * self.scale(n)
         return out
@@ -251,7 +280,8 @@ class DesignVariables:
 
     def components(self, parameters: Parameters, rib_shapes=None):
         """``(label, value, lower, upper)`` of every scalar component (``rib_shape[3]`` for a shared
-        vector, ``rib_shape[k][3]`` for rib ``k``'s of ``rib_shapes``, the per-rib shapes)."""
+        vector, ``rib_shape[k][3]`` for rib ``k``'s of ``rib_shapes``, the per-rib shapes;
+        ``cut_pattern[3]`` with its local prestrain, the uniform prestrain plus the coefficient)."""
         for n in self.names:
             lo, hi = self.bounds[n]
             if n == "rib_shape" and self.rib_shapes is not None:
@@ -259,15 +289,22 @@ class DesignVariables:
                     yield from ((f"{n}[{k}][{j}]", float(v), lo, hi) for j, v in enumerate(row))
                 continue
             value = np.reshape(np.asarray(getattr(parameters, n), np.float64), -1)
+            if n == "cut_pattern":
+                value = value + _uniform(parameters, value.size)
             if n in VECTOR_VARIABLES:
                 yield from ((f"{n}[{k}]", float(v), lo, hi) for k, v in enumerate(value))
             else:
                 yield n, float(value[0]), lo, hi
 
     def bound(self, side: int) -> np.ndarray:
-        """Scaled lower (``side`` 0) or upper (1) bound of every component."""
-        return np.concatenate([np.full(part.stop - part.start, self.bounds[n][side] / self.scale(n))
-                               for n, part in self.slices().items()])
+        """Scaled lower (``side`` 0) or upper (1) bound of every component (a cut pattern's
+        coefficients: the local prestrain's bound less the uniform prestrain)."""
+        def one(n, part):
+            size = part.stop - part.start
+            shift = _uniform(self.start, size) if n == "cut_pattern" else 0.0
+            return (np.full(size, self.bounds[n][side]) - shift) / self.scale(n)
+
+        return np.concatenate([one(n, part) for n, part in self.slices().items()])
 
     @property
     def lower(self) -> np.ndarray:
@@ -276,3 +313,10 @@ class DesignVariables:
     @property
     def upper(self) -> np.ndarray:
         return self.bound(1)
+
+
+def _uniform(parameters: Parameters, size: int) -> np.ndarray:
+    """The uniform prestrain under each of a cut pattern's ``size`` coefficients (span half, then chord)."""
+    half = size // 2
+    return np.concatenate([np.full(half, float(parameters.prestrain_span)),
+                           np.full(size - half, float(parameters.prestrain_chord))])

@@ -235,7 +235,9 @@ def design_inputs(args: argparse.Namespace) -> tuple:
     Returns:
         ``(initial, variables, rib_limits, bounds, constraints)``: the
         starting `forward_solver.Parameters` (a zero rib shape of 2
-        ``--rib-shape-terms`` coefficients when ``rib_shape`` is optimised),
+        ``--rib-shape-terms`` coefficients when ``rib_shape`` is optimised,
+        a zero cut pattern of 2 ``--cut-pattern-terms`` when ``cut_pattern``
+        is),
         the variable names, the `rib_design.RibLimits` (None without a rib
         shape or with ``--no-rib-limits``), ``{name: (low, high)}`` of the
         variables and the tension `constraints.Constraints` (None with
@@ -263,9 +265,14 @@ def design_inputs(args: argparse.Namespace) -> tuple:
                 raise InputError(f"--min-rib-thickness is a fraction of the starting rib's thickness in "
                                  f"(0, 1], got {args.min_rib_thickness}")
             rib_limits = RibLimits(min_thickness=args.min_rib_thickness, min_radius=args.min_rib_radius)
+    if "cut_pattern" in variables and not getattr(args, "evaluate", False):
+        if args.cut_pattern_terms < 1:
+            raise InputError(f"--cut-pattern-terms must be at least 1, got {args.cut_pattern_terms}")
+        initial = initial.replace(cut_pattern=[0.0] * (2 * args.cut_pattern_terms))
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
-                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds}
+                  "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds,
+                  "cut_pattern": args.cut_pattern_bounds}
     bounds = {n: tuple(all_bounds[n]) for n in variables if n in all_bounds}
     constraints = (None if args.no_tension_constraints else
                    Constraints(min_tension=args.min_tension, max_tension=args.max_tension))

@@ -102,7 +102,7 @@ def describe_wing(summary: dict) -> list[str]:
     lines = [f"wing of {len(ribs) - 1} bays ({ribs[0]['chord_m']:g} to {ribs[-1]['chord_m']:g} m chord, "
              f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
              f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
-    chosen = ", ".join(f"{n} {v['pressure_pa' if n == 'pressure' else n]:.6g}" + (" Pa" if n == "pressure" else "")
+    chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n])
                        for n in res["variables"] if n != "rib_shape")
     if "rib_shape" in res["variables"]:
         chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"

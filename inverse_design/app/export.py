@@ -197,9 +197,12 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     ``x_over_chord`` (at the root rib), ``arc_cut_root_m`` and
     ``arc_cut_mid_m`` (cut length along the contour from the trailing edge
     to the node, at the root rib's row and at mid-bay), ``span_cut_m`` (cut
-    length of the span fibre through the node, rib to rib) and
-    ``span_mounted_m`` (its mounted length). The ``# `` header lines give
-    the prestrains and each row's cut perimeter.
+    length of the span fibre through the node, rib to rib),
+    ``span_mounted_m`` (its mounted length), ``span_prestrain`` (the local
+    prestrain of that span fibre) and ``contour_prestrain`` (that of the
+    contour edge from the node to the next; both the uniform prestrains
+    unless a cut pattern, `forward_solver.cut_field`, varies them). The
+    ``# `` header lines give the prestrains and each row's cut perimeter.
     """
     from ..rib_design import cut_lengths
 
@@ -211,16 +214,24 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     arc_mid = np.concatenate([[0.0], np.cumsum(contour[mid])])[: bay.n_contour]
     x = np.asarray(bay.contour_root[:, 0])
     j_le = int(np.argmin(x))
+    field = ("" if parameters.cut_pattern is None else
+             f" plus a cut pattern of {np.size(parameters.cut_pattern) // 2} terms per direction (local "
+             "prestrain in the last two columns)")
     lines = [f"# cut lengths of the fabric: reference length = mounted length / (1 + prestrain), "
-             f"prestrain span {float(parameters.prestrain_span):.6g}, chord {float(parameters.prestrain_chord):.6g}",
+             f"prestrain span {float(parameters.prestrain_span):.6g}, chord {float(parameters.prestrain_chord):.6g}"
+             + field,
              f"# cut perimeter (trailing edge around to trailing edge): root rib "
              f"{cuts['contour_cut_m'][0]:.6f} m, mid-bay {cuts['contour_cut_m'][mid]:.6f} m, tip rib "
              f"{cuts['contour_cut_m'][-1]:.6f} m",
-             "j,surface,x_over_chord,arc_cut_root_m,arc_cut_mid_m,span_cut_m,span_mounted_m"]
+             "j,surface,x_over_chord,arc_cut_root_m,arc_cut_mid_m,span_cut_m,span_mounted_m,span_prestrain,"
+             "contour_prestrain"]
+    contour_prestrain = cuts["contour_prestrain"]  # a flat panel's last node takes its last edge's
+    contour_prestrain = np.concatenate([contour_prestrain, contour_prestrain[-1:]])[: bay.n_contour]
     for j in range(bay.n_contour):
         surface = "upper" if j <= j_le else "lower"
         lines.append(f"{j},{surface},{x[j]:.6f},{arc_root[j]:.6f},{arc_mid[j]:.6f},"
-                     f"{cuts['span_cut_m'][j]:.6f},{cuts['span_mounted_m'][j]:.6f}")
+                     f"{cuts['span_cut_m'][j]:.6f},{cuts['span_mounted_m'][j]:.6f},"
+                     f"{cuts['span_prestrain'][j]:.6g},{contour_prestrain[j]:.6g}")
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")
     return path

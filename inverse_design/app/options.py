@@ -75,6 +75,7 @@ _GROUPS = {
     "design": "design variables and bounds",
     "constraints": "tension constraints",
     "rib": "rib shape (--variables ...,rib_shape)",
+    "cut": "cut pattern (--variables ...,cut_pattern)",
     "optimiser": "optimiser",
     "aero": "aerodynamics",
     "output": "input and output",
@@ -127,7 +128,8 @@ OPTIONS = (
                                   "value evaluated with --evaluate (default 1e4)")),
     ("design", "--variables", dict(default=DEFAULT_VARIABLES, metavar="NAMES",
                                    help="comma-separated design variables among pressure, prestrain_span, "
-                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale, rib_shape "
+                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale, rib_shape, "
+                                   "cut_pattern "
                                    f"(default {DEFAULT_VARIABLES})")),
     ("design", "--pressure-bounds", dict(type=_number("Pa", positive=True), nargs=2, default=(1e3, 1e5),
                                          metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")),
@@ -163,6 +165,14 @@ OPTIONS = (
                                      "(default: half the starting rib's nose radius)")),
     ("rib", "--no-rib-limits", dict(action="store_true",
                                     help="drop both rib limits (keep the coefficient bounds)")),
+    ("cut", "--cut-pattern-terms", dict(type=_whole, default=6, metavar="K",
+                                        help="B-spline terms per fibre direction of the prestrain field along "
+                                        "the contour (2 K coefficients added to the uniform prestrains, "
+                                        "started at zero; default 6)")),
+    ("cut", "--cut-pattern-bounds", dict(type=_number("fraction"), nargs=2, default=(-0.02, 0.05),
+                                         metavar=("LOW", "HIGH"),
+                                         help="bounds of the local prestrain of the cut pattern, both "
+                                         "directions, fraction (default -0.02 0.05)")),
     ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
                                       help="sections that must match the target: the mid-bay one, every "
                                       "row from rib to rib, or the worst row (default average)")),
@@ -256,6 +266,7 @@ left by a killed run are removed by the next run to DIR:
   cut_pattern.csv       the fabric's cut lengths along the contour and the span
   rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
                         (with --variables ...,rib_shape)
+  (with --variables ...,cut_pattern the cut lengths of cut_pattern.csv follow the designed field)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
 it are relative to the case file's folder; options on the command line override it):

@@ -311,7 +311,8 @@ def plot_tensions(solution: Solution, scene):
 _UNITS = {"pressure": ("pressure, kPa", 1e-3), "prestrain_span": ("span prestrain, %", 100.0),
           "prestrain_chord": ("chord prestrain, %", 100.0),
           "rib_thickness_scale": ("rib thickness scale", 1.0), "rib_chord_scale": ("rib chord scale", 1.0),
-          "rib_shape": ("rib shape coefficients", 1.0)}
+          "rib_shape": ("rib shape coefficients", 1.0),
+          "cut_pattern": ("cut pattern coefficients, %", 100.0)}
 
 
 def plot_rib_design(parameters, start_rib, chord: float, limits=None):

@@ -183,7 +183,7 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
                        "rib_chord_scale": params["rib_chord_scale"],
                        "stiffness_span_n_per_m": params["stiffness_span"],
                        "stiffness_chord_n_per_m": params["stiffness_chord"],
-                       "rib_shape": params["rib_shape"]},
+                       "rib_shape": params["rib_shape"], "cut_pattern": params["cut_pattern"]},
             "variables": list(design.variables) if design is not None else [],
             "method": design.method if design is not None else None,
             "iterations": len(design.history) if design is not None else 0,
@@ -447,7 +447,8 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
                        "rib_thickness_scale": params["rib_thickness_scale"],
                        "rib_chord_scale": params["rib_chord_scale"],
                        "stiffness_span_n_per_m": params["stiffness_span"],
-                       "stiffness_chord_n_per_m": params["stiffness_chord"]},
+                       "stiffness_chord_n_per_m": params["stiffness_chord"],
+                       "cut_pattern": params["cut_pattern"]},
             "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
             "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
             "rib_limits": list(result.rib_limits),
@@ -532,8 +533,8 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
                 target_names=np.array([t.name for t in result.targets], dtype=str),
                 variables=np.array(list(shared), dtype=str),
                 history_objective=np.array([h["objective"] for h in result.history], np.float64),
-                history_values=np.array([[h["values"][n] for n in shared] for h in result.history],
-                                        np.float64).reshape(-1, len(shared)),
+                history_values=np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
+                                         for h in result.history], np.float64).reshape(len(result.history), -1),
                 rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes))
         joined = wing_nodes(result)
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
