@@ -26,7 +26,8 @@ from inverse_design.app import case as case_reader, cli, command, export, interr
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
 FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv", "mid_bay_section.png",
-          "deviation.png", "tensions.png", "history.png"}
+          "deviation.png", "tensions.png", "history.png", "rib_0.dxf", "rib_1.dxf",
+          *(f"pattern_bay_0_{panel}.{kind}" for panel in ("upper", "lower") for kind in ("dxf", "svg"))}
 
 
 @pytest.fixture(scope="module")
