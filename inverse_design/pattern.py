@@ -100,7 +100,6 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
         ValueError: if the edge lengths cannot be met in the plane (largest
             error above `LAYOUT_TOLERANCE` of its edge).
     """
-    from scipy.optimize import least_squares
     from scipy.sparse import coo_matrix
 
     contour_cut = np.asarray(contour_cut, np.float64)
@@ -165,9 +164,7 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
 
     z = start
     for weight in (shear_weight, 0.0):
-        fun, jac = make(weight)
-        z = least_squares(fun, z, jac=jac, method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15,
-                          gtol=1e-15, max_nfev=200).x
+        z = _levenberg_marquardt(*make(weight), z, exact=weight == 0.0)
     flat = z.reshape(n, m, 2)
     contour, span = _edges(flat)
     error = max(np.max(np.abs(contour - contour_cut) / contour_cut), np.max(np.abs(span - span_cut) / span_cut))
@@ -182,6 +179,44 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     if np.mean(flat[-1, :, 1]) < 0:  # the span the other way: mirror
         flat[..., 1] *= -1
     return flat
+
+
+def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) -> np.ndarray:
+    """Minimise ``|fun(z)|^2`` by damped Gauss-Newton steps on the sparse normal equations.
+
+    The damping also fixes the directions the residuals leave free (the
+    panel's position and, without the angle terms, its shear): each step is
+    the smallest that reduces the residual, so the layout stays near where it
+    started. ``exact``: stop when every residual is below 1e-14 (the edges
+    laid at their lengths); otherwise when the cost stops falling.
+    """
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import spsolve
+
+    r = fun(z)
+    cost = float(r @ r)
+    damping = 1e-6
+    eye = identity(z.size, format="csc")
+    for iteration in range(max_iterations):
+        if exact and np.max(np.abs(r)) < 1e-14:
+            break
+        J = jac(z)
+        normal = (J.T @ J).tocsc()
+        step = spsolve(normal + damping * eye, -(J.T @ r))
+        trial = z + step
+        r_trial = fun(trial)
+        cost_trial = float(r_trial @ r_trial)
+        if cost_trial < cost:
+            converged = not exact and cost - cost_trial <= 1e-14 * max(cost, 1e-30)
+            z, r, cost = trial, r_trial, cost_trial
+            damping = max(damping / 4.0, 1e-15)
+            if converged:
+                break
+        else:
+            damping *= 8.0
+            if damping > 1e12:
+                break
+    return z
 
 
 def panel_outline(flat) -> tuple[np.ndarray, np.ndarray]:
