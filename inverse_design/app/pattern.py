@@ -96,9 +96,10 @@ def _panel_drawing(panel, seam_allowance_mm: float) -> dict:
                 marks.append([sew[q] - _NOTCH_IN * normal[q] + side, sew[q] + reach * normal[q] + side])
         middle = 0.5 * (flat[0, k] + flat[-1, k])
         text.append((middle[0] + (-3.0 if k == m - 1 else 3.0) * _TEXT, middle[1], _TEXT, "LE"))
-    # the warp: an arrow along the middle column's span fibre, from a quarter to three quarters
-    k = m // 2
-    tail, head = flat[n // 4, k], flat[(3 * (n - 1)) // 4 + (n == 2), k]
+    # the warp: an arrow midway between the two middle span fibres, from a quarter to three quarters
+    k = max(m // 2 - 1, 0)
+    between = 0.5 * (flat[:, k] + flat[:, min(k + 1, m - 1)])
+    tail, head = between[n // 4], between[(3 * (n - 1)) // 4 + (n == 2)]
     d = head - tail
     d /= np.linalg.norm(d)
     side = np.array([-d[1], d[0]])
