@@ -27,7 +27,8 @@ from inverse_design.app import case as case_reader, cli, command, export, interr
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
 FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv", "mid_bay_section.png",
-          "deviation.png", "tensions.png", "history.png"}
+          "deviation.png", "tensions.png", "history.png", "rib_0.dxf", "rib_1.dxf",
+          *(f"pattern_bay_0_{panel}.{kind}" for panel in ("upper", "lower") for kind in ("dxf", "svg"))}
 
 
 @pytest.fixture(scope="module")
@@ -358,8 +359,11 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
     done = run_cli(*SMALL, "--max-iterations", "2", "--quiet", "--out", "out", cwd=tmp_path)
     assert done.returncode == 1 and done.stdout == ""
     assert "did not converge" in done.stderr and "Traceback" not in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "no cut pattern was written" in done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["results"]["success"] is False and summary["results"]["message"]
+    assert not list((tmp_path / "out").glob("*.dxf")) and not list((tmp_path / "out").glob("pattern_*"))
+    assert "failed design" in summary["skipped"]["patterns"]
 
 
 # ------------------------------------------------------------------ the atomic folder

@@ -76,10 +76,21 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert [b["result"] for b in bays] == ["converged"] * 3
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
     assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
+    patterns = {f"pattern_bay_{k}_{panel}.{kind}" for k in range(3) for panel in ("upper", "lower")
+                for kind in ("dxf", "svg")}
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
                                      "wing_overview.png", "bay_0_mid_bay_section.png", "bay_1_mid_bay_section.png",
-                                     "bay_2_mid_bay_section.png"}
+                                     "bay_2_mid_bay_section.png", "bay_0_cut_pattern.csv", "bay_1_cut_pattern.csv",
+                                     "bay_2_cut_pattern.csv", "rib_0.dxf", "rib_1.dxf", "rib_2.dxf",
+                                     "rib_3.dxf"} | patterns
     assert {p.name for p in out.iterdir()} == set(summary["files"]) | {"rib_0.dat.orig", "wing.toml"}
+    # The patterns of every bay and rib read back clean (tests/test_patterns.py checks one bay's in depth).
+    import ezdxf
+
+    for name in sorted(n for n in summary["files"] if n.endswith(".dxf")):
+        doc = ezdxf.readfile(out / name)
+        assert not doc.audit().has_errors and doc.header["$INSUNITS"] == 4, name
+    assert summary["patterns"]["largest_length_error_m"] < 1e-9 and len(summary["patterns"]["panels"]) == 6
     with np.load(out / "wing.npz") as npz:
         assert npz["nodes"].shape == (3, 9, 32, 3) and npz["deviation"].shape == (3, 9, 32)
         assert float(npz["pressure"]) == pytest.approx(summary["results"]["values"]["pressure_pa"])

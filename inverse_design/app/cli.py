@@ -160,8 +160,9 @@ def _main(argv: list[str] | None, started: float) -> int:
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
+        patterns = "" if args.no_patterns else "; no cut pattern was written"
         print(f"{PROG}: failed: {why}: {summary['results']['message']} "
-              f"(the results are in {summary['out']})", file=sys.stderr)
+              f"(the results are in {summary['out']}{patterns})", file=sys.stderr)
         return 1
     return 0
 

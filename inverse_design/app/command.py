@@ -70,6 +70,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
+    if not args.seam_allowance >= 0:
+        raise InputError(f"--seam-allowance must be 0 mm or more (the cut line lies outside the sewing line), "
+                         f"got {args.seam_allowance:g}: give 0 or a positive number of mm")
     alphas = _aero_angles(args) if args.aero else None  # (before any solve: a missing package fails fast)
     # The sections, before importing JAX: bad input fails fast.
     if wing_ribs is None:
@@ -115,7 +118,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         timings["optimisation"] = time.perf_counter() - t
         interrupts.check()
         return write_report(out, result, bounds=bounds, inputs={**vars(args), "sources": sources},
-                            timings=timings, magnification=args.magnification, warnings=notes)
+                            timings=timings, magnification=args.magnification, warnings=notes,
+                            patterns=not args.no_patterns, seam_allowance_mm=args.seam_allowance)
 
     def scene_on(n_span: int) -> Scene:
         bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
@@ -126,7 +130,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
-                  rib=rib, rib_limits=rib_limits, warnings=notes)
+                  rib=rib, rib_limits=rib_limits, warnings=notes, patterns=not args.no_patterns,
+                  seam_allowance_mm=args.seam_allowance)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()

@@ -240,7 +240,8 @@ def write_cut_pattern(path, scene, parameters) -> Path:
 #: Names of the files a report writes (`report.write_report`). An
 #: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
 #: that no earlier report there wrote (`written_files`), before the long work.
-REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|cut_pattern\.csv|"
+REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|(bay_[0-9]+_)?cut_pattern\.csv|"
+                          r"pattern_bay_[0-9]+_(upper|lower|panel)\.(dxf|svg)|rib_[0-9]+\.dxf|"
                           r"rib(_[0-9]+)?\.dat|(bay_[0-9]+_)?mid_bay_section\.png|"
                           r"(deviation|tensions|history|aero|rib_design)\.png")
 #: The summary of a report, whose ``files`` list the files that report wrote.

@@ -226,6 +226,12 @@ OPTIONS = (
     ("output", "--magnification", dict(type=_number(positive=True), default=None, metavar="X",
                                        help="deviation factor of the section plot (default: automatic, "
                                        "1, 2, 5, 10, ...)")),
+    ("output", "--seam-allowance", dict(type=_number("mm"), default=10.0, metavar="MM",
+                                        help="seam allowance of the cut-ready patterns: the cut line lies this "
+                                        "far outside the sewing line, mm, 0 or more (default 10)")),
+    ("output", "--no-patterns", dict(action="store_true",
+                                     help="do not write the flat panels and rib templates (pattern_bay_*.dxf, "
+                                     ".svg, rib_*.dxf)")),
     ("output", "--json", dict(action="store_true", help="print the summary as JSON on stdout, nothing else")),
     ("output", "--quiet", dict(action="store_true", help="print nothing but errors")),
     ("output", "--no-compilation-cache", dict(action="store_true",
@@ -267,6 +273,12 @@ left by a killed run are removed by the next run to DIR:
   rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
                         (with --variables ...,rib_shape)
   (with --variables ...,cut_pattern the cut lengths of cut_pattern.csv follow the designed field)
+  pattern_bay_0_upper.dxf, pattern_bay_0_lower.dxf   the flat panels, cut-ready, 1:1 in mm:
+                        layers SEW (sewing line at the cut lengths), CUT (at the seam
+                        allowance), MARK (alignment marks, LE, warp, label), GRID (the
+                        developed span fibres); .svg of each for a quick look; rib_0.dxf,
+                        rib_1.dxf the rib templates (a successful design only; not with
+                        --no-patterns)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
 it are relative to the case file's folder; options on the command line override it):

@@ -26,6 +26,12 @@ A single bay's folder::
                           with an `inverse_design.aero.AeroComparison`)
     cut_pattern.csv       the fabric's cut lengths along the contour and the span
                           (`export.write_cut_pattern`)
+    pattern_bay_0_upper.dxf, pattern_bay_0_lower.dxf
+                          the flat panels, cut-ready: sewing line, cut line at the seam
+                          allowance, alignment marks, warp, label (1:1, mm; `app.pattern`);
+                          only for a successful design
+    pattern_bay_0_upper.svg, pattern_bay_0_lower.svg   the same for a quick look
+    rib_0.dxf, rib_1.dxf  the two ribs' templates at their chords with the attachment marks
     rib.dat               the designed rib as a Selig file (`export.write_selig`; only
                           for a shaped rib)
     rib_design.png        the rib's template offset and the thickness kept
@@ -45,10 +51,21 @@ A wing's folder::
                                  for a wing of at most `PER_BAY_PLOTS` bays)
     rib_K.dat                    rib K's designed section (Selig), when the rib shapes were
                                  optimised
+    bay_K_cut_pattern.csv        bay K's cut lengths (`export.write_cut_pattern`)
+    pattern_bay_K_upper.dxf/.svg, pattern_bay_K_lower.dxf/.svg
+                                 bay K's flat panels (as a single bay's; a successful design only)
+    rib_K.dxf                    rib K's template at its chord (a successful design only)
     history.png                  the optimiser's iterates
 
 The folder is written by `export.staged_folder`: only the tool's own files
-are replaced, nothing else in the folder is touched.
+are replaced, nothing else in the folder is touched. The pattern files are
+plain names in the folder (not a ``patterns/`` subfolder): the staging and
+ownership rules (`export.written_files`) own plain files only.
+
+A design that failed (``success`` false) gets no pattern files (the panels of
+a design that breaks its limits or did not converge are not to be cut);
+``skipped`` says so and the command exits 1. ``patterns=False``
+(``--no-patterns``) leaves them out of any report.
 """
 
 from __future__ import annotations
@@ -65,6 +82,7 @@ from forward_solver import Solution
 
 from .export import (check_output_folder, staged_folder, write_cut_pattern, write_npz, write_obj, write_selig,
                      write_stl)
+from .pattern import write_bay_patterns
 from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
@@ -292,7 +310,8 @@ def _equilibrium_entry(solution: Solution, scene, target, rms: float, largest: f
 def write_report(out_dir, result, target=None, *, scene=None, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
-                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
+                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None,
+                 patterns: bool = True, seam_allowance_mm: float = 10.0) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -315,6 +334,9 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         rib, rib_limits: the rib's starting section (default the target)
             and its `rib_design.RibLimits`: a shaped rib is written as
             ``rib.dat`` and drawn against it in ``rib_design.png``.
+        patterns: write the flat panels and the rib templates (DXF, SVG) of a
+            successful design (module docstring).
+        seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -322,14 +344,17 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         folder's absolute path).
 
     Raises:
-        ValueError: if ``out_dir`` cannot be written (`check_output_folder`).
+        ValueError: if ``out_dir`` cannot be written (`check_output_folder`), or
+            ``seam_allowance_mm`` is negative.
         TypeError: if ``result`` is neither a `DesignResult` nor a `Solution`.
     """
+    check_seam_allowance(seam_allowance_mm)
     if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):  # a wing's folder
         if aero is not None:
             raise ValueError("the aerodynamic comparison is of one bay's sections; a wing's report has none")
         return _write_wing_folder(out_dir, result, bounds=bounds, inputs=inputs, timings=timings,
-                                  magnification=magnification, warnings=warnings)
+                                  magnification=magnification, warnings=warnings, patterns=patterns,
+                                  seam_allowance_mm=seam_allowance_mm)
     if target is None or scene is None:
         raise TypeError("a single bay's report needs its target and scene")
     start = time.perf_counter()
@@ -346,6 +371,11 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
         write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
         files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
+        if _patterns_wanted(patterns, summary, skipped):
+            names, panels = write_bay_patterns(staging, scene, solution.parameters,
+                                               seam_allowance_m=seam_allowance_mm / 1000.0)
+            files += names
+            summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
         if shaped:
             from forward_solver import rib_section
 
@@ -380,6 +410,35 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def check_seam_allowance(seam_allowance_mm) -> float:
+    """The seam allowance (mm) as a float; a ValueError saying what to change if it is negative or not finite."""
+    value = float(seam_allowance_mm)
+    if not (math.isfinite(value) and value >= 0):
+        raise ValueError(f"the seam allowance must be 0 mm or more (the cut line lies outside the sewing "
+                         f"line), got {seam_allowance_mm!r} mm: give --seam-allowance 0 or a positive number")
+    return value
+
+
+def _patterns_wanted(patterns: bool, summary: dict, skipped: dict) -> bool:
+    """Whether to write the pattern files; if not, why, in ``skipped`` (module docstring)."""
+    if not patterns:
+        skipped["patterns"] = "not asked for (--no-patterns)"
+        return False
+    if not summary["results"]["success"]:
+        skipped["patterns"] = "a failed design is not to be cut: no pattern or rib template was written"
+        return False
+    return True
+
+
+def _pattern_entry(names: list, panels: list, seam_allowance_mm: float) -> dict:
+    """``summary["patterns"]``: the files, the layers, the allowance and the layout's largest edge error."""
+    return {"files": list(names), "unit": "mm", "scale": "1:1", "layers": ["CUT", "SEW", "MARK", "GRID"],
+            "seam_allowance_mm": float(seam_allowance_mm),
+            "panels": [{"bay": p.bay, "panel": p.name, "contour_nodes": [int(p.columns[0]), int(p.columns[-1])],
+                        "length_error_m": p.length_error} for p in panels],
+            "largest_length_error_m": max((p.length_error for p in panels), default=0.0)}
 
 
 # ------------------------------------------------------------------ a wing of several bays
@@ -489,7 +548,8 @@ class _SharedHistory:
 
 def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = None,
                       inputs: dict | None = None, timings: dict | None = None,
-                      magnification: float | None = None, warnings: list | None = None) -> dict:
+                      magnification: float | None = None, warnings: list | None = None,
+                      patterns: bool = True, seam_allowance_mm: float = 10.0) -> dict:
     """Write the output folder of a wing design and return its summary (module docstring).
 
     Args:
@@ -500,6 +560,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         inputs: the caller's options (stored as given).
         timings: seconds spent before the report; ``report`` and ``total`` are added.
         magnification: deviation factor of the section plots (default automatic).
+        patterns, seam_allowance_mm: as `write_report`.
 
     Returns:
         The summary, with ``files``, ``skipped`` and ``out``.
@@ -561,6 +622,20 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
                                       name=f"{airfoil.name} rib {k}")
                 write_selig(staging / f"rib_{k}.dat", section, comment=f"chord {result.wing.chords[k]:g} m")
                 files.append(f"rib_{k}.dat")
+        for k in range(len(sol.bays)):
+            name = f"bay_{k}_cut_pattern.csv"
+            write_cut_pattern(staging / name, sol.scene(k), solutions[k].parameters)
+            files.append(name)
+        if _patterns_wanted(patterns, summary, skipped):
+            names, panels = [], []
+            for k in range(len(sol.bays)):
+                more, bay_panels = write_bay_patterns(staging, sol.scene(k), solutions[k].parameters, bay=k,
+                                                      ribs=(k if k == 0 else None, k + 1),
+                                                      seam_allowance_m=seam_allowance_mm / 1000.0)
+                names += more
+                panels += bay_panels
+            files += names
+            summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
         if result.history:
             plot_history(_SharedHistory(result), bounds).savefig(staging / "history.png", dpi=_DPI)
             files.append("history.png")

@@ -1,0 +1,230 @@
+"""Cut-ready patterns (issue 21, items 3-5): the flat panels and rib templates, read back with ezdxf.
+
+One small design point (NACA 2412, 5x32 grid: the equilibrium at a pressure
+and two prestrains, as ``--evaluate`` writes it; the report's pattern path is
+the same for an optimised design, whose ``success`` it reads) and its report
+folder are shared by the tests. The files are read back with ezdxf
+and checked against the design, not against themselves: the sewing
+outlines' edges against `rib_design.cut_lengths` (0.1 mm, the issue's
+tolerance), the cut line against the seam allowance, and the reference
+lengths rebuilt from the drawn grid against the design's equilibrium (the
+force residual of eq. 10-15 at the design's nodes, and a new solve from the
+prestrain recovered from the drawing, within the solver's tolerance).
+"""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+ezdxf = pytest.importorskip("ezdxf")
+
+from matplotlib.path import Path as Polygon  # noqa: E402
+
+from forward_solver import Bay, Fabric, Parameters, Result, Scene, solve_equilibrium  # noqa: E402
+from forward_solver import forces as fk  # noqa: E402
+from inverse_design.app import cli  # noqa: E402
+from inverse_design.app.report import write_report  # noqa: E402
+from inverse_design.pattern import develop, offset_outline  # noqa: E402
+from inverse_design.rib_design import cut_lengths  # noqa: E402
+from targets import naca  # noqa: E402
+
+TARGET = naca("2412")
+RTOL = 1e-8  # solve_equilibrium's default relative residual
+ALLOWANCE = 12.0  # mm, not the default, so that the files are seen to follow the option
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return Scene(Bay.from_airfoil(TARGET, chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
+
+
+@pytest.fixture(scope="module")
+def design(scene):
+    solution = solve_equilibrium(scene, Parameters(pressure=2e4, prestrain_span=0.02, prestrain_chord=0.01))
+    assert solution.converged, solution.message
+    return solution
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, scene, design):
+    out = tmp_path_factory.mktemp("patterns") / "out"
+    summary = write_report(out, design, TARGET, scene=scene, seam_allowance_mm=ALLOWANCE)
+    return out, summary
+
+
+def _layer(doc, layer):
+    return [np.asarray(e.get_points("xy"), np.float64) for e in doc.modelspace().query(f'LWPOLYLINE[layer=="{layer}"]')]
+
+
+def _closed_lengths(points):
+    return np.linalg.norm(np.roll(points, -1, axis=0) - points, axis=1)
+
+
+def test_the_folder_lists_the_panels_and_rib_templates(folder):
+    out, summary = folder
+    names = {f"pattern_bay_0_{p}.{k}" for p in ("upper", "lower") for k in ("dxf", "svg")} | {"rib_0.dxf", "rib_1.dxf"}
+    assert names <= set(summary["files"]) and set(summary["patterns"]["files"]) == names
+    assert all((out / name).is_file() for name in names)
+    record = json.loads((out / "summary.json").read_text())
+    assert record["patterns"]["seam_allowance_mm"] == ALLOWANCE
+    assert record["patterns"]["largest_length_error_m"] < 1e-9
+    assert (out / "pattern_bay_0_upper.svg").read_text().startswith("<svg")
+
+
+def test_every_dxf_passes_the_audit_in_millimetres_on_its_layers(folder):
+    out, summary = folder
+    for name in summary["patterns"]["files"]:
+        if not name.endswith(".dxf"):
+            continue
+        doc = ezdxf.readfile(out / name)
+        auditor = doc.audit()
+        assert not auditor.has_errors and not auditor.fixes, (name, auditor.errors, auditor.fixes)
+        assert doc.header["$INSUNITS"] == 4, name  # millimetres
+        assert {"CUT", "SEW", "MARK"} <= {layer.dxf.name for layer in doc.layers}, name
+        assert len(_layer(doc, "SEW")) == 1 and len(_layer(doc, "CUT")) == 1, name
+        assert len(doc.modelspace().query('LWPOLYLINE[layer=="MARK"]')) >= 5, name
+        texts = [t.dxf.text for t in doc.modelspace().query("TEXT")]
+        assert any("1:1" in t for t in texts), name
+    upper = ezdxf.readfile(out / "pattern_bay_0_upper.dxf").modelspace()
+    texts = [t.dxf.text for t in upper.query("TEXT")]
+    assert "LE" in texts and "WARP" in texts and any("bay 0 upper" in t for t in texts)
+
+
+def test_the_sewing_outlines_are_the_design_cut_lengths(folder, scene, design):
+    out, _ = folder
+    cuts = cut_lengths(scene, design.parameters)
+    contour, span = cuts["contour_edge_cut_m"] * 1000, cuts["span_edge_cut_m"] * 1000  # mm
+    n_span, n_contour = scene.bay.n_span, scene.bay.n_contour
+    j_le = int(np.argmin(np.asarray(scene.bay.contour_root)[:, 0]))
+    panels = {"upper": np.arange(0, j_le + 1), "lower": np.r_[np.arange(j_le, n_contour), 0]}
+    covered = np.zeros(n_contour, bool)
+    for name, columns in panels.items():
+        sew = _layer(ezdxf.readfile(out / f"pattern_bay_0_{name}.dxf"), "SEW")[0]
+        m = len(columns)
+        assert len(sew) == 2 * (m + n_span) - 4
+        edges = columns[:-1]
+        # the outline: root rib row, last fibre upward, tip rib row back, first fibre down
+        expected = np.concatenate([contour[0, edges], span[:, columns[-1]], contour[-1, edges][::-1],
+                                   span[:, columns[0]][::-1]])
+        np.testing.assert_allclose(_closed_lengths(sew), expected, rtol=0, atol=0.1)
+        assert np.max(np.abs(_closed_lengths(sew) - expected)) < 1e-6  # (it is exact to rounding)
+        covered[edges] = True
+    assert covered.all()  # every contour edge of the ribs is in one panel
+
+
+def test_the_cut_line_lies_outside_the_sewing_line_at_the_allowance(folder):
+    out, summary = folder
+    for name in summary["patterns"]["files"]:
+        if not name.endswith(".dxf"):
+            continue
+        doc = ezdxf.readfile(out / name)
+        sew, cut = _layer(doc, "SEW")[0], _layer(doc, "CUT")[0]
+        assert not Polygon(sew).contains_points(cut).any(), name
+
+        def distances(points, outline):  # from each point to the closed outline's nearest edge
+            a, b = outline, np.roll(outline, -1, axis=0)
+            ab = b - a
+            t = np.clip(np.einsum("pkd,kd->pk", points[:, None] - a, ab) / np.sum(ab * ab, axis=1), 0, 1)
+            return np.min(np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1), axis=1)
+
+        assert np.min(distances(cut, sew)) >= ALLOWANCE * (1 - 1e-9), name
+        midpoints = 0.5 * (sew + np.roll(sew, -1, axis=0))
+        np.testing.assert_allclose(distances(midpoints, cut), ALLOWANCE, rtol=1e-9, err_msg=name)
+
+
+def _rebuilt_reference(out, scene):
+    """``(span (n_span - 1, n_contour), contour (n_span, n_contour))`` cut lengths, m, from the
+    drawn grids (GRID: one polyline per contour node, in panel order) of the two panels."""
+    n_span, n_contour = scene.bay.n_span, scene.bay.n_contour
+    j_le = int(np.argmin(np.asarray(scene.bay.contour_root)[:, 0]))
+    span = np.full((n_span - 1, n_contour), np.nan)
+    contour = np.full((n_span, n_contour), np.nan)
+    for name, columns in (("upper", np.arange(0, j_le + 1)), ("lower", np.r_[np.arange(j_le, n_contour), 0])):
+        fibres = np.stack(_layer(ezdxf.readfile(out / f"pattern_bay_0_{name}.dxf"), "GRID"), axis=1) / 1000
+        assert fibres.shape == (n_span, len(columns), 2)
+        span[:, columns] = np.linalg.norm(fibres[1:] - fibres[:-1], axis=-1)
+        contour[:, columns[:-1]] = np.linalg.norm(fibres[:, 1:] - fibres[:, :-1], axis=-1)
+    assert np.isfinite(span).all() and np.isfinite(contour).all()
+    return span, contour
+
+
+def test_the_pattern_rebuilt_reproduces_the_design_equilibrium(folder, scene, design):
+    out, _ = folder
+    span, contour = _rebuilt_reference(out, scene)
+    cuts = cut_lengths(scene, design.parameters)
+    assert np.max(np.abs(span - cuts["span_edge_cut_m"])) < 1e-9
+    assert np.max(np.abs(contour - cuts["contour_edge_cut_m"])) < 1e-9
+    solution = design
+    # 1. The design's nodes are an equilibrium of the fabric cut to the pattern: the relative force
+    # residual (eq. 10-15) with the rebuilt reference lengths is within the solver's tolerance.
+    physics = fk.static_physics(scene.physics(dynamic=False))
+    with jax.enable_x64(True):
+        params = scene.params(solution.parameters.as_floats())
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        ref = fk.prepare(geometry, params, physics)
+        rebuilt = ref._replace(span_length=jnp.asarray(span), contour_length=jnp.asarray(contour))
+        residual = float(fk.relative_residual(jnp.asarray(solution.nodes), rebuilt, params, physics))
+        mounted = np.asarray(ref.nodes)
+    assert residual <= RTOL and residual <= 2 * solution.residual
+    # 2. Solved again: the prestrain recovered from the pattern (mounted length / pattern length - 1,
+    # edge by edge) is uniform here, and the equilibrium solved from it is the design's.
+    e_span = np.linalg.norm(mounted[1:] - mounted[:-1], axis=-1) / span - 1
+    e_chord = np.linalg.norm(np.roll(mounted, -1, axis=1) - mounted, axis=-1) / contour - 1
+    assert np.ptp(e_span) < 1e-9 and np.ptp(e_chord) < 1e-9
+    again = solve_equilibrium(scene, solution.parameters.replace(prestrain_span=float(np.mean(e_span)),
+                                                                prestrain_chord=float(np.mean(e_chord))))
+    assert again.converged and again.residual <= RTOL
+    # Two equilibria within RTOL of the same fabric: their nodes agree to well within 1e-6 chord.
+    assert np.max(np.abs(again.nodes - solution.nodes)) < 1e-6 * scene.bay.chord
+
+
+def test_develop_is_exact_where_a_strip_cannot_stay_a_rectangle():
+    # A fan: span fibres of different cut lengths (as a prestrain varying along the contour gives)
+    # and rows of different lengths; every edge is laid at its length, and a closed form checks the
+    # angle choice: equal rows, equal fibres and right angles asked for give a rectangle.
+    rng = np.random.default_rng(3)
+    contour = 0.05 * (1 + 0.1 * rng.random((6, 9)))
+    span = 0.04 * (1 + 0.1 * rng.random((5, 10)))
+    flat = develop(contour, span)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(flat, axis=1), axis=-1), contour, rtol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(np.diff(flat, axis=0), axis=-1), span, rtol=1e-9)
+    rectangle = develop(np.full((4, 5), 0.1), np.full((3, 6), 0.2))
+    xs, ys = np.meshgrid(np.arange(6) * 0.1, np.arange(4) * 0.2)
+    np.testing.assert_allclose(rectangle, np.stack([xs, ys], axis=-1), atol=1e-12)
+
+
+def test_offset_outline_of_a_square_is_the_square_grown():
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    for points in (square, square[::-1]):  # either orientation
+        grown = offset_outline(points, 0.1)
+        assert sorted(map(tuple, np.round(grown, 12))) == sorted(
+            map(tuple, np.round(np.array([[-0.1, -0.1], [1.1, -0.1], [1.1, 1.1], [-0.1, 1.1]]), 12)))
+
+
+def test_a_failed_design_gets_no_pattern(folder, scene, design, tmp_path):
+    from dataclasses import replace
+
+    failed = replace(design, result=Result.max_steps_reached)  # (the flag the report reads)
+    summary = write_report(tmp_path / "out", failed, TARGET, scene=scene)
+    assert summary["results"]["success"] is False
+    assert not [n for n in summary["files"] if n.startswith("pattern_") or n.endswith(".dxf")]
+    assert "failed design" in summary["skipped"]["patterns"] and "patterns" not in summary
+    assert not list((tmp_path / "out").glob("*.dxf"))
+    assert "cut_pattern.csv" in summary["files"]  # the table of lengths stays
+    summary = write_report(tmp_path / "off", design, TARGET, scene=scene, patterns=False)
+    assert not list((tmp_path / "off").glob("*.dxf")) and "patterns" in summary["skipped"]
+
+
+def test_a_negative_seam_allowance_is_refused_with_one_line(tmp_path, capsys, scene, design):
+    code = cli.main(["--seam-allowance", "-5", "--n-span", "5", "--n-contour", "32", "--out", str(tmp_path / "o"),
+                     "--no-compilation-cache"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "--seam-allowance must be 0 mm or more" in err[0] and "got -5" in err[0]
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ValueError, match="seam allowance must be 0 mm or more"):
+        write_report(tmp_path / "o", design, TARGET, scene=scene, seam_allowance_mm=-1.0)
+    assert not (tmp_path / "o").exists()
