@@ -61,6 +61,17 @@ class WingConvergenceError(ConvergenceError):
                      f"{self.args[0]}",)
 
 
+def _value_and_jacobian(wrapped, v):
+    """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode) and its auxiliary output."""
+
+    def twice(w):  # the value comes back as the auxiliary output
+        r, aux = wrapped(w)
+        return r, (r, aux)
+
+    jac, (r, aux) = jax.jacfwd(twice, has_aux=True)(v)
+    return r, jac, aux
+
+
 class DesignProblem:
     """The objective, the constraints, their derivatives and the iterate history of one design.
 
@@ -297,15 +308,7 @@ class DesignProblem:
                 return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
                                                                 self.tension_scale)])
 
-            def jacobian(wrapped, v):
-                def twice(w):  # the value comes back as the auxiliary output
-                    y, aux = wrapped(w)
-                    return y, (y, aux)
-
-                jac, (y, aux) = jax.jacfwd(twice, has_aux=True)(v)
-                return y, jac, aux
-
-            (y, jac), sol = self._transformed(jacobian, outputs, u)
+            (y, jac), sol = self._transformed(_value_and_jacobian, outputs, u)
             y, jac = np.asarray(y), np.asarray(jac)
             n = self.shape_size
             r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
@@ -339,15 +342,7 @@ class DesignProblem:
         key = key_of(u)
         if key not in self._cache:
 
-            def jacobian(wrapped, v):
-                def twice(w):  # the value comes back as the auxiliary output
-                    r, aux = wrapped(w)
-                    return r, (r, aux)
-
-                jac, (r, aux) = jax.jacfwd(twice, has_aux=True)(v)
-                return r, jac, aux
-
-            (r, jac), sol = self._transformed(jacobian, self.residuals, u)
+            (r, jac), sol = self._transformed(_value_and_jacobian, self.residuals, u)
             r, jac = np.asarray(r), np.asarray(jac)
             self._cache = {key: (r, jac, sol)}
             self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
