@@ -4,10 +4,23 @@ JAX compilation dominates small tests, so tests reuse a few grid shapes and
 module- or session-scoped solutions. Tests that call kernels directly run
 inside ``jax.enable_x64(True)`` through the ``x64`` fixture; the public API
 enters it by itself.
+
+One JAX persistent compilation cache serves the whole run: the test
+processes (one per core, pytest-xdist) and every subprocess they start (the
+command, README blocks, notebook kernels) share the programs any of them has
+compiled. It is a fresh folder each run, removed at the end, so a run starts
+cold as on CI, and no test writes to the user's own cache
+(``~/.cache/inflatable-wing``).
 """
+
+import os
+import shutil
+import tempfile
 
 import jax
 import pytest
+
+CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
 
 
 @pytest.fixture
@@ -17,6 +30,22 @@ def x64():
 
 
 def pytest_configure(config):
+    if not os.environ.get(CACHE_VARIABLE):  # the first process of the run (xdist's workers inherit it)
+        os.environ[CACHE_VARIABLE] = tempfile.mkdtemp(prefix="inflatable-wing-tests-jax-")
+        config.owned_cache = os.environ[CACHE_VARIABLE]
+    cache = os.environ[CACHE_VARIABLE]
+    # Subprocesses read the environment; this process's JAX was imported already, so configure it.
+    os.environ.update(INFLATABLE_WING_CACHE=cache, JAX_COMPILATION_CACHE_DIR=cache,
+                      JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    jax.config.update("jax_compilation_cache_dir", cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     config.addinivalue_line(
         "markers", "notebooks: executes the study notebooks in notebooks/ in their small mode "
         "(a few minutes); deselect with -m 'not notebooks'")
+
+
+def pytest_unconfigure(config):
+    owned = getattr(config, "owned_cache", None)
+    if owned:
+        shutil.rmtree(owned, ignore_errors=True)
