@@ -7,7 +7,7 @@
 * A strong enough fabric: the largest fibre tension stays at or below
   ``max_tension`` (N/m, default the fabric's ``allowable_tension``).
 
-The optimiser ``method="slsqp"`` (default) handles them as inequality
+The optimiser ``method="slsqp"`` (the default for one bay) handles them as inequality
 constraints ``g(u) >= 0`` (`constraint_functions`): the cell tensions are
 aggregated smoothly by a Kreisselmeier-Steinhauser (KS) function, a smooth
 minimum (maximum) that never lies above (below) the true one, so a design

@@ -9,7 +9,9 @@ cell of every bay (`constraints`); the ribs' manufacturability limits per rib
 (`rib_design`). Methods (the loops are in `methods`, the objective,
 constraints and their derivatives in `problem.DesignProblem`):
 
-* ``"slsqp"`` (default): `scipy.optimize.minimize` with SLSQP on the mean
+* ``"auto"`` (default): ``"gauss_newton"`` for a wing of two or more bays
+  (unless the objective is "worst"), ``"slsqp"`` for one bay.
+* ``"slsqp"``: `scipy.optimize.minimize` with SLSQP on the mean
   square distance (`objectives.mean_square`: for "worst" a smooth maximum
   over the rows), with the bounds, the tension limits
   (`constraints.constraint_functions`) and the rib limits as inequality
@@ -85,7 +87,7 @@ from .variables import VARIABLES, DesignVariables
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult", "optimise_wing", "optimise_pressure",
            "refine_design"]
 
-METHODS = ("slsqp", "gauss_newton", "least_squares", "optax", "root")
+METHODS = ("auto", "slsqp", "gauss_newton", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
 #: Default tolerance of ``method="gauss_newton"``: the model's predicted fall of the merit, relative to
 #: it (1e-4 of the mean square is 5e-5 of the rms error, far below what the grid resolves). On the 40-cell
@@ -230,7 +232,7 @@ def optimise_wing(
     bounds: Mapping | None = None,
     objective: str = "average",
     constraints: Constraints | None = Constraints(),
-    method: str = "slsqp",
+    method: str = "auto",
     max_iterations: int = 50,
     tolerance: float | None = None,
     optimiser=None,
@@ -262,8 +264,12 @@ def optimise_wing(
             (`objectives`); combined over bays weighted by planform area.
         constraints: tension limits over every cell of every bay (`Constraints`;
             default a wrinkle-free skin below the fabric's allowable), or None.
-        method: "slsqp" (default), "gauss_newton", "least_squares" or "optax"
-            ("root" is for one bay: `optimise_pressure`).
+        method: "auto" (default: "gauss_newton" for a wing of two or more
+            bays, whose forward solves hardly grow with the number of
+            variables, unless the objective is "worst"; "slsqp" for one bay),
+            "slsqp", "gauss_newton", "least_squares" or "optax" ("root" is for
+            one bay: `optimise_pressure`). ``DesignResult.method`` names the one
+            that ran.
         max_iterations: cap on iterations (SLSQP iterations, and twice that in
             forward solves; Gauss-Newton forward solves; least-squares Jacobian evaluations; optax steps;
             brentq iterations).
@@ -348,7 +354,7 @@ def optimise_pressure(
     bounds: Mapping | None = None,
     objective: str = "mid_bay",
     constraints: Constraints | None = Constraints(),
-    method: str = "slsqp",
+    method: str = "auto",
     root_condition: str = "thickness",
     max_iterations: int = 50,
     tolerance: float | None = None,
@@ -370,7 +376,8 @@ def optimise_pressure(
         scene: bay, fabric and physics switches (`forward_solver.Scene`).
         target: the target section, a chord-normalised `targets.Airfoil`.
         objective: "mid_bay" (default), "average" or "worst".
-        method: "slsqp" (default), "least_squares", "optax" or "root".
+        method: "auto" (default: "slsqp" for one bay), "slsqp", "gauss_newton",
+            "least_squares", "optax" or "root".
         root_condition: "thickness" or "mean_offset" (``method="root"``).
         rib: the rib's starting section (`targets.Airfoil`; default the
             target): what ``rib_limits`` are measured against. Give it when
@@ -409,6 +416,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
     ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`)."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method == "auto":  # a wing: few solves for many variables; one bay: SLSQP (7 solves on the default case)
+        method = "gauss_newton" if len(scenes) > 1 and objective != "worst" else "slsqp"
     check_objective(objective)
     solver_options = check_solver_options(None if solver_options is None else dict(solver_options))
     if not (isinstance(max_iterations, int) and max_iterations >= 1):

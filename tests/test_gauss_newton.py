@@ -88,3 +88,7 @@ def test_the_worst_objective_is_refused(wing):
     with pytest.raises(ValueError, match="gauss_newton.*'worst'"):
         optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, objective="worst",
                       method="gauss_newton", **GRID)
+    # The default ("auto") picks slsqp for it instead of refusing (one SLSQP iteration suffices to see).
+    res = optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, bounds=BOUNDS, objective="worst",
+                        max_iterations=1, **GRID)
+    assert res.method == "slsqp" and res.solves >= 1

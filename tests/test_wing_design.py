@@ -120,6 +120,7 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
     # From 30 kPa the skin bulges too much; lowering the pressure reduces the error until the
     # wrinkle floor (min fibre tension >= 0) stops it.
     assert design.success, design.message
+    assert design.method == "gauss_newton"  # "auto" on a wing of 3 bays
     assert design.rms_error < design.initial_rms_error
     assert design.pressure < START["pressure"]
     assert design.bay_results == ("converged",) * 3
@@ -156,6 +157,7 @@ def test_a_one_bay_wing_agrees_with_optimise_pressure():
     single = optimise_pressure(scene, af, ("pressure",), initial=START, bounds=BOUNDS, objective="average",
                                max_iterations=30)
     assert res.success and single.success, (res.message, single.message)
+    assert res.method == single.method == "slsqp"  # "auto" on one bay
     # Both stop on the same active wrinkle constraint (the same KS function of the same tensions),
     # whose root SLSQP resolves to its feasibility tolerance; the solves differ at rtol 1e-11.
     assert res.pressure == pytest.approx(single.pressure, rel=1e-6)

@@ -176,13 +176,15 @@ OPTIONS = (
     ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
                                       help="sections that must match the target: the mid-bay one, every "
                                       "row from rib to rib, or the worst row (default average)")),
-    ("optimiser", "--method", dict(default="slsqp", choices=("slsqp", "gauss_newton", "least_squares", "root",
-                                                             "optax"),
-                                   help="optimiser: slsqp (the tension limits as constraints), gauss_newton "
+    ("optimiser", "--method", dict(default="auto", choices=("auto", "slsqp", "gauss_newton", "least_squares",
+                                                            "root", "optax"),
+                                   help="optimiser: auto (gauss_newton for a wing of two or more bays unless "
+                                   "--objective worst, slsqp for one bay), "
+                                   "slsqp (the tension limits as constraints), gauss_newton "
                                    "(trust-region SQP on the row distances with their Jacobian, the limits "
                                    "as constraints: few solves for many variables), "
                                    "least_squares or optax (as penalties), root (brentq; takes "
-                                   "--variables pressure) (default slsqp)")),
+                                   "--variables pressure) (default auto)")),
     ("optimiser", "--root-condition", dict(default="thickness", choices=("thickness", "mean_offset"),
                                            help="scalar condition of --method root at mid-bay "
                                            "(default thickness)")),
