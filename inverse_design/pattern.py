@@ -41,6 +41,7 @@ corners rounded).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,7 +192,7 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
     laid at their lengths); otherwise when the cost stops falling.
     """
     from scipy.sparse import identity
-    from scipy.sparse.linalg import spsolve
+    from scipy.sparse.linalg import MatrixRankWarning, spsolve
 
     r = fun(z)
     cost = float(r @ r)
@@ -202,7 +203,19 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
             break
         J = jac(z)
         normal = (J.T @ J).tocsc()
-        step = spsolve(normal + damping * eye, -(J.T @ r))
+        # The residuals leave the panel's position (and, without the angle terms, its shear) free,
+        # so a damping lost in rounding leaves the normal matrix singular: a rejected step.
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", MatrixRankWarning)
+            try:
+                step = spsolve(normal + damping * eye, -(J.T @ r))
+            except MatrixRankWarning:
+                step = None
+        if step is None or not np.all(np.isfinite(step)):
+            damping *= 8.0
+            if damping > 1e12:
+                break
+            continue
         trial = z + step
         r_trial = fun(trial)
         cost_trial = float(r_trial @ r_trial)

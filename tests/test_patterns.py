@@ -13,6 +13,7 @@ prestrain recovered from the drawing, within the solver's tolerance).
 """
 
 import json
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -194,6 +195,23 @@ def test_develop_is_exact_where_a_strip_cannot_stay_a_rectangle():
     rectangle = develop(np.full((4, 5), 0.1), np.full((3, 6), 0.2))
     xs, ys = np.meshgrid(np.arange(6) * 0.1, np.arange(4) * 0.2)
     np.testing.assert_allclose(rectangle, np.stack([xs, ys], axis=-1), atol=1e-12)
+
+
+def test_a_bay_whose_layout_runs_the_damping_down_develops_without_a_singular_solve():
+    # Bay 10 of inverse_design/cases/wing_40_cells.toml at its design (1 kPa, 2.54% span prestrain):
+    # the exact phase's damping fell until it was lost in rounding, and scipy's "Matrix is exactly
+    # singular" warning reached the user's console (the step was then rejected, the layout exact).
+    from forward_solver.wing import Wing
+    from inverse_design.pattern import bay_panels
+
+    af = naca("4415")
+    bay = Wing(airfoils=(af, af), chords=(2.3372, 2.3238), stations=(1.5, 1.65)).scenes(Fabric())[0]
+    values = Parameters(pressure=1e3, prestrain_span=0.025357197747568918, prestrain_chord=0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        panels = bay_panels(bay, values.resolved(Fabric()), 10)
+    assert [p.name for p in panels] == ["upper", "lower"]
+    assert max(p.length_error for p in panels) < 1e-12  # m
 
 
 def test_offset_outline_of_a_square_is_the_square_grown():
