@@ -190,11 +190,7 @@ class Parameters:
             value = getattr(self, name)
             if value is None:
                 continue
-            shape = np.shape(value)
-            if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
-                raise ValueError(f"{name} must be a 1-D array of 2 K coefficients (K >= 1 for the upper "
-                                 f"surface, then K for the lower), got shape {shape}")
-            sizes.add(shape[0])
+            sizes.add(_coefficient_count(name, value, "the upper surface", "the lower"))
             if not isinstance(value, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(value))):
                 raise ValueError(f"{name} must be finite, got {np.asarray(value)!r}")
         if self.rib_shape_tip is not None and self.rib_shape is None:
@@ -210,16 +206,12 @@ class Parameters:
         value = self.cut_pattern
         if value is None:
             return
-        shape = np.shape(value)
-        if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
-            raise ValueError(f"cut_pattern must be a 1-D array of 2 K coefficients (K >= 1 for the span "
-                             f"fibres, then K for the contour fibres), got shape {shape}")
+        half = _coefficient_count("cut_pattern", value, "the span fibres", "the contour fibres") // 2
         if isinstance(value, jax.core.Tracer):
             return
         value = np.asarray(value, np.float64)
         if not np.all(np.isfinite(value)):
             raise ValueError(f"cut_pattern must be finite, got {value!r}")
-        half = shape[0] // 2
         for name, part in (("prestrain_span", value[:half]), ("prestrain_chord", value[half:])):
             base = _concrete(getattr(self, name))
             if base is None:
@@ -233,6 +225,15 @@ class Parameters:
 
 jax.tree_util.register_dataclass(Parameters, data_fields=list(PARAMETER_NAMES + _ARRAY_NAMES),
                                  meta_fields=[])
+
+
+def _coefficient_count(name: str, value, first: str, second: str) -> int:
+    """The 2 K of a coefficient array (K for ``first``, then K for ``second``), or a ValueError naming ``name``."""
+    shape = np.shape(value)
+    if len(shape) != 1 or shape[0] < 2 or shape[0] % 2:
+        raise ValueError(f"{name} must be a 1-D array of 2 K coefficients (K >= 1 for {first}, then K for "
+                         f"{second}), got shape {shape}")
+    return shape[0]
 
 
 def _same(a, b) -> bool:
