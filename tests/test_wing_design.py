@@ -230,3 +230,11 @@ def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
     assert fine.success and fine.n_bays == 3 and np.shape(fine.wing_solution.nodes)[1:3] == (17, 32)
     assert fine.solves > design.solves and fine.initial_rms_error == design.initial_rms_error
     assert BOUNDS["pressure"][0] <= fine.pressure <= BOUNDS["pressure"][1]
+    # The command's wing summary and console keep the record (they dropped it before).
+    from inverse_design.app.console import refined_line
+    from inverse_design.app.report import summarise
+
+    results = summarise(fine)["results"]
+    assert results["grid_change"]["grids"] == [[9, 32], [17, 32]]
+    assert results["grid_change"]["rms_error"] == [design.rms_error, fine.rms_error]
+    assert refined_line(results).startswith("  refined 9x32 -> 17x32: pressure ")

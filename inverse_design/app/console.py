@@ -50,6 +50,17 @@ def _value_text(name: str, value) -> str:
     return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
 
 
+def refined_line(results: dict) -> str | None:
+    """After ``--refine``: the two grids and how far each variable moved (``results["grid_change"]``)."""
+    grid = results.get("grid_change")
+    if not grid:
+        return None
+    moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
+                      for n, c in grid["change"].items())  # a vector: its largest move
+    return (f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> {grid['grids'][1][0]}x"
+            f"{grid['grids'][1][1]}: {moves}; rms {grid['rms_error'][0]:.3e} -> {grid['rms_error'][1]:.3e}")
+
+
 def describe(summary: dict) -> list[str]:
     """The console lines of a finished run."""
     if "ribs" in summary["case"]:  # a wing case (any number of bays)
@@ -74,12 +85,9 @@ def describe(summary: dict) -> list[str]:
         start_line = start_violation_line(summary)
         if start_line:
             lines.append(start_line)
-        grid = res.get("grid_change")
-        if grid:
-            moves = ", ".join(f"{n} {c:+.2%}" if n == "pressure" else f"{n} {c:+.4f}"
-                              for n, c in grid["change"].items())  # a vector: its largest move
-            lines.append(f"  refined {grid['grids'][0][0]}x{grid['grids'][0][1]} -> "
-                         f"{grid['grids'][1][0]}x{grid['grids'][1][1]}: {moves}")
+        refined = refined_line(res)
+        if refined:
+            lines.append(refined)
     aero = summary.get("aero")
     if aero:
         worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
@@ -125,6 +133,9 @@ def describe_wing(summary: dict) -> list[str]:
     start_line = start_violation_line(summary)
     if start_line:
         lines.append(start_line)
+    refined = refined_line(res)
+    if refined:
+        lines.append(refined)
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines

@@ -514,6 +514,7 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
             "variables": list(result.variables), "method": result.method,
             "iterations": len(result.history), "forward_solves": result.solves,
             "wall_time_s": result.wall_time,
+            "grid_change": result.grid_change,  # after --refine: both grids and how far the design moved
         },
         "errors": {
             "unit": "fraction of the local chord", "objective": result.objective,
