@@ -122,7 +122,7 @@ def jit_loop(wing, fabric, grid):
             geometry = stack_trees([bay.geometry()])
             bound = jnp.asarray([bay.chord + bay.rib_spacing], jnp.float64)
             zeros = jnp.zeros((1, *bay.shape, 3), jnp.float64)
-            nodes, result, _, s, _ = batched_equilibrium(geometry, bound, zeros, None, None, params,
+            nodes, result, _, s, _ = batched_equilibrium(geometry, bound, zeros, None, None, None, params,
                                                        jnp.asarray(RTOL, jnp.float64), physics,
                                                        -(-MAX_STEPS // BATCH_CHUNK))
             jax.block_until_ready(nodes)

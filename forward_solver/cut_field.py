@@ -31,7 +31,8 @@ the design: the derivatives of the equilibrium in the coefficients enter
 only through the cut lengths (the implicit adjoint's right-hand side,
 `forward_solver.implicit`). The field varies along the contour, not the
 span, so a symmetric bay stays symmetric about mid-span; a wing's bays share
-one field.
+one field, or each has its own (`solve_bays`'s ``cut_patterns``, one row per
+bay).
 """
 
 from __future__ import annotations

@@ -10,7 +10,10 @@ and the result is differentiable in the shared `Parameters` by the implicit
 function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 (``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
 the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
-and rib ``k + 1``'s, and they are differentiated like the parameters.
+and rib ``k + 1``'s, and they are differentiated like the parameters. Per-bay
+cut fields (``cut_patterns``: one row of cut-pattern coefficients per bay,
+`forward_solver.cut_field`) are mapped the same way: bay ``k``'s skin is cut
+by row ``k`` (each cell's panel is cut on its own).
 
 A warm start (``initial``: an earlier `WingSolution`) starts every bay from
 its earlier displacement added to this solve's mounted shape (as
@@ -171,6 +174,8 @@ class WingSolution:
             (nominal) shape in this solve (ribs with their scales and shapes).
         rib_shapes: ``(n_ribs, 2 K)`` per-rib shape coefficients it was
             solved with, or None (the ribs take ``parameters.rib_shape``).
+        cut_patterns: ``(n_bays, 2 K)`` per-bay cut fields it was solved
+            with, or None (every bay takes ``parameters.cut_pattern``).
         solutions: the per-bay `Solution`s of the "loop" strategy (concrete:
             under ``jax.grad`` their primal values, with the factor a warm
             start reuses), or None (the "batch" strategy).
@@ -189,6 +194,7 @@ class WingSolution:
     rib_shapes: jnp.ndarray | None = None
     solutions: list | None = None
     scenes: list | None = None
+    cut_patterns: jnp.ndarray | None = None
 
     @property
     def converged(self) -> bool:
@@ -232,12 +238,11 @@ class WingSolution:
 
     def bay_parameters(self, bay: int) -> Parameters:
         """The concrete `Parameters` of bay ``bay``: the shared ones with, for per-rib shapes, its
-        root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``."""
-        parameters = self.parameters.as_floats()
-        if self.rib_shapes is None:
-            return parameters
-        shapes = np.asarray(self.rib_shapes, np.float64)
-        return parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+        root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``, and for per-bay cut fields
+        its row as ``cut_pattern``."""
+        as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
+        return _bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
+                               as_array(self.cut_patterns))
 
     def displacements(self) -> np.ndarray:
         """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""
@@ -248,10 +253,12 @@ def stack_trees(trees):
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *trees)
 
 
-def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, params, rtol, physics,
+def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, field, params, rtol, physics,
                      max_chunks):
     if shape_root is not None:  # per-rib shapes: this bay's two ribs
         params = params._replace(rib_shape_root=shape_root, rib_shape_tip=shape_tip)
+    if field is not None:  # per-bay cut fields: this bay's
+        params = params._replace(cut_pattern=field)
     mounted = fk.mounted_nodes(geometry, params)
     # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
     x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
@@ -261,11 +268,11 @@ def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, param
 
 
 @partial(jax.jit, static_argnames=("physics", "max_chunks"))
-def batched_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip, params, rtol, physics,
+def batched_equilibrium(geometries, bounds, displacements, shapes_root, shapes_tip, fields, params, rtol, physics,
                       max_chunks):
     solve = partial(_bay_equilibrium, physics=physics, max_chunks=max_chunks)
-    return jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, None, None))(geometries, bounds, displacements, shapes_root,
-                                                                 shapes_tip, params, rtol)
+    return jax.vmap(solve, in_axes=(0, 0, 0, 0, 0, 0, None, None))(geometries, bounds, displacements, shapes_root,
+                                                                    shapes_tip, fields, params, rtol)
 
 
 def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, n_contour: int = 64,
@@ -306,7 +313,7 @@ def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> Non
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
                tension_only: bool = True, initial: WingSolution | None = None, rib_shapes=None,
-               strategy: str = "auto", **loose) -> WingSolution:
+               cut_patterns=None, strategy: str = "auto", **loose) -> WingSolution:
     """Every bay of ``wing`` at one pressure: `solve_bays` of ``wing.scenes(...)``.
 
     Args:
@@ -328,6 +335,10 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
             ``k``'s shape and rib ``k + 1``'s (its ``rib_shape`` and
             ``rib_shape_tip``). JAX values allowed (differentiated like the
             parameters). Without it every rib takes ``parameters.rib_shape``.
+        cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
+            row per bay root to tip (`forward_solver.cut_field`): bay ``k``'s
+            skin is cut by row ``k`` (its ``cut_pattern``). JAX values
+            allowed. Without it every bay takes ``parameters.cut_pattern``.
         strategy: "auto", "loop" or "batch" (`solve_bays`).
 
     Returns:
@@ -336,7 +347,7 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
 
     Raises:
         ValueError: for a bad ``rtol`` or ``max_steps``, an ``initial`` of
-            another wing or grid, ``rib_shapes`` of the wrong shape, or ribs
+            another wing or grid, ``rib_shapes`` or ``cut_patterns`` of the wrong shape, or ribs
             too close for the grid to reach ``rtol`` (`ROUNDING_MARGIN`; the
             message names the ribs, their gap and the least gap that works).
     """
@@ -346,7 +357,7 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         # loop, whose solves are traced, checks its start itself)
     return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given,
                       rtol=rtol, max_steps=max_steps, initial=initial, rib_shapes=rib_shapes,
-                      strategy=strategy)
+                      cut_patterns=cut_patterns, strategy=strategy)
 
 
 def default_strategy() -> str:
@@ -356,7 +367,7 @@ def default_strategy() -> str:
 
 def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, max_steps: int = 200_000,
                method: str = "relax", initial: WingSolution | None = None, rib_shapes=None,
-               strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
+               cut_patterns=None, strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
                sequencing: bool = True, **loose) -> WingSolution:
     """The equilibrium of N >= 1 bays sharing one `Parameters`; differentiable like `solve_equilibrium`.
 
@@ -378,6 +389,9 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         rib_shapes: None, or ``(n_bays + 1, 2 K)`` rib-shape coefficients, one
             row per rib: bay ``k`` lies between rows ``k`` and ``k + 1`` (its
             ``rib_shape`` and ``rib_shape_tip``). JAX values allowed.
+        cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
+            row per bay (its ``cut_pattern``, `forward_solver.cut_field`).
+            JAX values allowed.
         strategy: "loop" (per-bay `solve_equilibrium`: grid sequencing,
             half-bay symmetry, Newton and factor reuse, host sparse LU
             adjoint), "batch" (one ``jax.jit(jax.vmap(...))`` relaxation,
@@ -395,8 +409,8 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
 
     Raises:
         ValueError: for scenes that differ in fabric, switches or grid, bad
-            ``rtol``, ``max_steps``, ``method``, ``strategy``, ``initial`` or
-            ``rib_shapes``.
+            ``rtol``, ``max_steps``, ``method``, ``strategy``, ``initial``,
+            ``rib_shapes`` or ``cut_patterns``.
         ConvergenceError: if ``throw`` and a bay failed.
     """
     scenes = list(scenes) if not isinstance(scenes, Scene) else [scenes]
@@ -431,6 +445,16 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
             raise ValueError("rib_shapes must be finite")
         if not first.bay.periodic:
             raise ValueError("rib_shapes offset airfoil ribs; these bays are flat panels: leave rib_shapes None")
+    if cut_patterns is not None:
+        if parameters.cut_pattern is not None:
+            raise ValueError("give the cut fields once: per bay as cut_patterns, or one parameters.cut_pattern "
+                             "for every bay, not both")
+        size = np.shape(cut_patterns)
+        if len(size) != 2 or size[0] != n_bays or size[1] < 2 or size[1] % 2:
+            raise ValueError(f"cut_patterns must be an ({n_bays}, 2K) array, one row of 2K >= 2 coefficients "
+                             f"per bay, got shape {size}")
+        if not isinstance(cut_patterns, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(cut_patterns))):
+            raise ValueError("cut_patterns must be finite")
     shape = (n_bays,) + first.bay.shape + (3,)
     if initial is not None:
         if not isinstance(initial, WingSolution) or tuple(np.shape(initial.nodes)) != shape:
@@ -441,9 +465,10 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
             raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
                              "solve from the mounted shape (initial=None)")
     solve = _loop if strategy == "loop" else _batch
-    with float64_scope(parameters, rib_shapes):
+    with float64_scope(parameters, rib_shapes, cut_patterns):
         shapes = None if rib_shapes is None else jnp.asarray(rib_shapes, jnp.float64)
-        sol = solve(scenes, parameters, shapes, rtol=rtol, max_steps=max_steps, method=method,
+        fields = None if cut_patterns is None else jnp.asarray(cut_patterns, jnp.float64)
+        sol = solve(scenes, parameters, shapes, fields, rtol=rtol, max_steps=max_steps, method=method,
                     initial=initial, linear_solver=linear_solver, sequencing=sequencing)
     if throw and not isinstance(sol.result, jax.core.Tracer):
         failed = sol.failed_bays()
@@ -475,11 +500,14 @@ def _check_scenes(scenes) -> None:
                              f"differs from scene 0 in: {', '.join(differs)}")
 
 
-def _bay_parameters(parameters: Parameters, shapes, k: int) -> Parameters:
-    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes``."""
-    if shapes is None:
-        return parameters
-    return parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
+def _bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:
+    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes`` and its row of
+    ``fields`` (per-bay cut fields)."""
+    if shapes is not None:
+        parameters = parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
+    if fields is not None:
+        parameters = parameters.replace(cut_pattern=fields[k])
+    return parameters
 
 
 def _mounted(scene: Scene, parameters: Parameters):
@@ -504,13 +532,13 @@ def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
                     detail=solution.detail, factor=solution.factor)
 
 
-def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver,
+def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
           sequencing=True) -> WingSolution:
     """The "loop" strategy: `solve_equilibrium` on each bay (float64 scope on)."""
     solutions, nodes, mounted = [], [], []
     moved = None if initial is None or initial.solutions is not None else initial.displacements()
     for k, scene in enumerate(scenes):
-        p = _bay_parameters(parameters, shapes, k)
+        p = _bay_parameters(parameters, shapes, k, fields)
         rest = _mounted(scene, p)
         if initial is None:
             start = None
@@ -548,10 +576,10 @@ def _loop(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linea
     return WingSolution(nodes=stacked, result=result, residual=residual, steps=steps,
                         bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
                         tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
-                        solutions=solutions, scenes=list(scenes))
+                        solutions=solutions, scenes=list(scenes), cut_patterns=fields)
 
 
-def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, linear_solver,
+def _batch(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
            sequencing=True) -> WingSolution:
     """The "batch" strategy: one ``jit(vmap)`` relaxation of every bay (float64 scope on)."""
     del method, linear_solver, sequencing  # relax, and the matrix-free adjoint of `krylov`
@@ -567,8 +595,9 @@ def _batch(scenes, parameters, shapes, *, rtol, max_steps, method, initial, line
         displacements = jnp.asarray(initial.displacements(), jnp.float64)
     nodes, result, residual, steps, mounted = batched_equilibrium(
         geometries, bounds, displacements, None if shapes is None else shapes[:-1],
-        None if shapes is None else shapes[1:], params, jnp.asarray(rtol, jnp.float64), physics,
+        None if shapes is None else shapes[1:], fields, params, jnp.asarray(rtol, jnp.float64), physics,
         -(-max_steps // BATCH_CHUNK))
     return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
                         parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
-                        mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes))
+                        mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes),
+                        cut_patterns=fields)

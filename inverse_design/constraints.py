@@ -224,7 +224,8 @@ UNMET_ADVICE = (" (no design within the bounds meets the limits, or the optimise
 
 
 def constraint_report(constraints: Constraints | None, variables, parameters: Parameters, tensions: list,
-                      fabric, scale: float, rib_shapes=None) -> tuple[list[str], dict, dict, list[str]]:
+                      fabric, scale: float, rib_shapes=None, cut_patterns=None
+                      ) -> tuple[list[str], dict, dict, list[str]]:
     """Active and violated constraints at a design, and the measured extremes.
 
     Args:
@@ -235,6 +236,7 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
         fabric: the `Fabric` (default ceiling).
         scale: the tension scale, N/m.
         rib_shapes: the design's per-rib shapes, if any (their bounds).
+        cut_patterns: the design's per-bay cut fields, if any (their bounds).
 
     Returns:
         ``(active, violated, values, messages)``: names such as
@@ -245,7 +247,7 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
         with each limit; and one sentence per broken limit and bay.
     """
     active = []
-    for name, value, lo, hi in variables.components(parameters, rib_shapes):
+    for name, value, lo, hi in variables.components(parameters, rib_shapes, cut_patterns):
         width = hi - lo
         if value - lo <= ACTIVE_TOLERANCE * width:
             active.append(f"{name}>=lower")

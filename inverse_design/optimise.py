@@ -162,6 +162,8 @@ class DesignResult(ParameterViews):
         wing: the `forward_solver.Wing` designed (None for a flat panel).
         rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
             rib (root to tip), else None.
+        cut_patterns: ``(n_bays, 2 K)`` cut-field coefficients of a field per
+            bay (root to tip), else None.
         rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
             manufacturability limits (`rib_design.RibGeometry.measure`).
     """
@@ -197,6 +199,7 @@ class DesignResult(ParameterViews):
     wing: Wing | None = None
     rib_shapes: np.ndarray | None = None
     rib_limits: list = field(default_factory=list)
+    cut_patterns: np.ndarray | None = None
 
     @property
     def values(self) -> dict:
@@ -241,6 +244,7 @@ def optimise_wing(
     solver_options: Mapping | None = None,
     rib_limits: RibLimits | None = RibLimits(),
     rib_shape: str = "per_rib",
+    cut_pattern: str = "shared",
     n_span: int = 17,
     n_contour: int = 64,
     progress: bool = False,
@@ -299,6 +303,10 @@ def optimise_wing(
             is a variable; None leaves the shapes free within their bounds.
         rib_shape: "per_rib" (default: one shape per rib) or "shared" (one
             shape for every rib), when ``rib_shape`` is a variable.
+        cut_pattern: "shared" (default: one cut field for every bay) or
+            "per_bay" (one field per bay, each cell's panel cut on its own;
+            ``n_bays`` x 2 K variables), when ``cut_pattern`` is a variable. A
+            per-bay start is one ``(2 K,)`` row for every bay or ``(n_bays, 2 K)``.
         n_span, n_contour: the grid of every bay.
         progress: show a tqdm progress bar on stderr, one tick per wing solve
             (off by default: library code prints nothing unless asked).
@@ -341,7 +349,8 @@ def optimise_wing(
                      initial=initial, bounds=bounds, objective=objective, constraints=constraints, method=method,
                      root_condition="thickness", max_iterations=max_iterations, tolerance=tolerance,
                      optimiser=optimiser, rtol=rtol, solver_options=solver_options, progress=progress,
-                     callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, name="optimise_wing",
+                     callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, cut_pattern=cut_pattern,
+                     name="optimise_wing",
                      check_gaps=True)
 
 
@@ -406,12 +415,13 @@ def optimise_pressure(
                      objective=objective, constraints=constraints, method=method, root_condition=root_condition,
                      max_iterations=max_iterations, tolerance=tolerance, optimiser=optimiser, rtol=rtol,
                      solver_options=solver_options, progress=progress, callback=callback,
-                     rib_limits=rib_limits, rib_shape="shared", name="optimise_pressure", check_gaps=False)
+                     rib_limits=rib_limits, rib_shape="shared", cut_pattern="shared", name="optimise_pressure",
+                     check_gaps=False)
 
 
 def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, objective, constraints, method,
               root_condition, max_iterations, tolerance, optimiser, rtol, solver_options, progress, callback,
-              rib_limits, rib_shape, name, check_gaps) -> DesignResult:
+              rib_limits, rib_shape, cut_pattern, name, check_gaps) -> DesignResult:
     """The design of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
     ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`)."""
     if method not in METHODS:
@@ -430,7 +440,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             raise ValueError(f"constraints must be an inverse_design.Constraints or None, got {constraints!r}")
         constraints.check(fabric)
     n_bays = len(scenes)
-    design = DesignVariables.build(variables, initial, bounds, n_ribs=n_bays + 1, rib_shape=rib_shape)
+    design = DesignVariables.build(variables, initial, bounds, n_ribs=n_bays + 1, rib_shape=rib_shape,
+                                   cut_pattern=cut_pattern)
     if check_gaps:
         check_rib_gaps(wing, fabric, design.start, n_span=scenes[0].bay.n_span, n_contour=scenes[0].bay.n_contour,
                        rtol=rtol)
@@ -480,11 +491,10 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             sol0 = problem.solve(u0)
         before = problem.measure(sol0, u0)
         start_parameters = sol0.parameters if design.rib_shapes is not None else design.parameters(u0).as_floats()
-        start_shapes = design.rib_shapes_at(u0)
-        start_shapes = None if start_shapes is None else np.asarray(start_shapes)
+        start_shapes, start_fields = _concrete(design.rib_shapes_at(u0)), _concrete(design.cut_patterns_at(u0))
         violated_at_start = {
             **constraint_report(constraints, design, start_parameters, before["tensions"], fabric,
-                                problem.tension_scale, start_shapes)[1],
+                                problem.tension_scale, start_shapes, start_fields)[1],
             **rib_report(geometries, start_parameters, start_shapes)[1]}
         try:
             if method == "root":
@@ -511,10 +521,9 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
                 and np.all(np.isfinite(sol.nodes))):
             success = False
             message = f"{message}; the shape errors at the result are not finite"
-        shapes = design.rib_shapes_at(u)
-        shapes = None if shapes is None else np.asarray(shapes)
+        shapes, fields = _concrete(design.rib_shapes_at(u)), _concrete(design.cut_patterns_at(u))
         active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"],
-                                                             fabric, problem.tension_scale, shapes)
+                                                             fabric, problem.tension_scale, shapes, fields)
         rib_active, rib_violated, rib_values, per_rib, rib_broken = rib_report(geometries, parameters, shapes)
         if violated or rib_violated:
             success = False
@@ -551,6 +560,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         wing=wing,
         rib_shapes=shapes,
         rib_limits=per_rib,
+        cut_patterns=fields,
     )
 
 
@@ -593,10 +603,13 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
         if n_span is None or n_contour is None or result.wing is None:
             raise ValueError("refine_design of a wing needs the finer grid as n_span and n_contour (and a "
                              "one-bay design its finer scene and target)")
-        initial = result.parameters if result.rib_shapes is None else {
+        rows = {n: v for n, v in (("rib_shape", result.rib_shapes), ("cut_pattern", result.cut_patterns))
+                if v is not None}
+        initial = result.parameters if not rows else {
             **{n: getattr(result.parameters, n) for n in VARIABLES
-               if n != "rib_shape" and getattr(result.parameters, n) is not None},
-            "rib_shape": result.rib_shapes}
+               if n not in rows and getattr(result.parameters, n) is not None}, **rows}
+        if result.cut_patterns is not None:
+            options.setdefault("cut_pattern", "per_bay")
         fine = optimise_wing(result.wing, result.scenes[0].fabric, list(result.targets), result.variables,
                              initial=initial, objective=result.objective, method=result.method, n_span=n_span,
                              n_contour=n_contour, **options)
@@ -617,9 +630,14 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
 
 def _value(result: DesignResult, name: str):
     """A design value as a float, or a list of floats (of lists, per rib) for a vector variable."""
-    value = result.rib_shapes if name == "rib_shape" and result.rib_shapes is not None else \
-        getattr(result.parameters, name)
+    value = {"rib_shape": result.rib_shapes, "cut_pattern": result.cut_patterns}.get(name)
+    value = getattr(result.parameters, name) if value is None else value
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
+
+
+def _concrete(rows):
+    """Per-rib or per-bay rows as a numpy array (None stays None)."""
+    return None if rows is None else np.asarray(rows, np.float64)
 
 
 def _failed_solve_message(failure: WingConvergenceError) -> str:

@@ -156,7 +156,8 @@ class DesignProblem:
     def _solve(self, u, initial) -> WingSolution:
         sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol,
                          max_steps=self.solver_options["max_steps"], method=self.method, initial=initial,
-                         rib_shapes=self.variables.rib_shapes_at(u), sequencing=self.sequencing)
+                         rib_shapes=self.variables.rib_shapes_at(u), cut_patterns=self.variables.cut_patterns_at(u),
+                         sequencing=self.sequencing)
         # The chain's tries count as solves (of its slowest bay); a named method's solve is one.
         self.solves += max([len(s.extra.get("attempts", [None])) for s in sol.solutions or []], default=1)
         return sol
@@ -164,11 +165,12 @@ class DesignProblem:
     def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
         """``sol`` with the concrete arrays of ``aux`` (a JAX transformation's auxiliary output)."""
         u = np.asarray(u, np.float64)
-        shapes = self.variables.rib_shapes_at(u)
+        shapes, fields = self.variables.rib_shapes_at(u), self.variables.cut_patterns_at(u)
         return dataclasses.replace(
             sol, nodes=np.asarray(aux["nodes"]), result=np.asarray(aux["result"]),
             residual=np.asarray(aux["residual"]), steps=np.asarray(aux["steps"]),
             mounted=np.asarray(aux["mounted"]), rib_shapes=None if shapes is None else np.asarray(shapes),
+            cut_patterns=None if fields is None else np.asarray(fields),
             parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
     def _transformed(self, transform, function, u):

@@ -18,7 +18,10 @@ shape for every rib (2 K places in ``u``; a single bay's default), or
 ``cut_pattern`` is the cut as a field (`forward_solver.cut_field`): 2 K
 B-spline coefficients added to the (fixed) uniform prestrains, K for the
 span fibres then K for the contour fibres (K = `DEFAULT_CUT_PATTERN_TERMS`
-from a zero field when the start has none), shared by every bay. Its bounds
+from a zero field when the start has none), laid out one of two ways
+(`CUT_PATTERN_LAYOUTS`): ``"shared"``, one field for every bay (2 K places),
+or ``"per_bay"``, one field per bay (``n_bays`` x 2 K places, root to tip:
+each cell's panel is cut on its own). Its bounds
 are those of the local prestrain: the basis is a non-negative partition of
 unity, so the field lies within its coefficients' range and bounding each
 ``uniform prestrain + coefficient`` in ``(lower, upper)`` bounds the local
@@ -36,7 +39,7 @@ import numpy as np
 
 from forward_solver import Parameters
 
-__all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
+__all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
            "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
@@ -49,6 +52,9 @@ VECTOR_VARIABLES = ("rib_shape", "cut_pattern")
 
 #: How the ``rib_shape`` variable is laid out over the ribs (module docstring).
 RIB_SHAPE_LAYOUTS = ("shared", "per_rib")
+
+#: How the ``cut_pattern`` variable is laid out over the bays (module docstring).
+CUT_PATTERN_LAYOUTS = ("shared", "per_bay")
 
 #: Bernstein terms per surface of a rib shape started from no offset (8 coefficients in all).
 DEFAULT_RIB_SHAPE_TERMS = 4
@@ -93,6 +99,8 @@ class DesignVariables:
             ``rib_shape``, ``n_ribs`` x 2 K for one per rib).
         rib_shapes: ``(n_ribs, 2 K)`` starting shapes of a ``"per_rib"``
             ``rib_shape`` variable, else None.
+        cut_patterns: ``(n_bays, 2 K)`` starting fields of a ``"per_bay"``
+            ``cut_pattern`` variable, else None.
     """
 
     names: tuple
@@ -100,22 +108,27 @@ class DesignVariables:
     bounds: dict
     sizes: dict = None
     rib_shapes: np.ndarray | None = None
+    cut_patterns: np.ndarray | None = None
 
     @classmethod
     def build(cls, variables, initial: Parameters | Mapping | None, bounds: Mapping | None, *,
-              n_ribs: int = 2, rib_shape: str = "shared") -> "DesignVariables":
+              n_ribs: int = 2, rib_shape: str = "shared", cut_pattern: str = "shared") -> "DesignVariables":
         """Validate the caller's choices.
 
         Args:
             variables: names from `VARIABLES` (or one name).
             initial: a `Parameters`, or ``{name: value}`` over
                 `DEFAULT_START`, or None. A ``"per_rib"`` rib-shape start is one
-                ``(2 K,)`` row for every rib or an ``(n_ribs, 2 K)`` array.
+                ``(2 K,)`` row for every rib or an ``(n_ribs, 2 K)`` array; a
+                ``"per_bay"`` cut-pattern start one row for every bay or an
+                ``(n_ribs - 1, 2 K)`` array.
             bounds: ``{name: (lower, upper)}`` for optimised names; others
                 take `DEFAULT_BOUNDS`.
             n_ribs: ribs of the wing (2 for one bay).
             rib_shape: the layout of an optimised ``rib_shape``, one of
                 `RIB_SHAPE_LAYOUTS`.
+            cut_pattern: the layout of an optimised ``cut_pattern``, one of
+                `CUT_PATTERN_LAYOUTS`.
 
         Raises:
             ValueError: for an unknown or repeated name, a bound that is not an
@@ -137,12 +150,17 @@ class DesignVariables:
                              f"cut_pattern or {' and '.join(both)}, not both")
         if rib_shape not in RIB_SHAPE_LAYOUTS:
             raise ValueError(f"rib_shape must be one of {RIB_SHAPE_LAYOUTS}, got {rib_shape!r}")
+        if cut_pattern not in CUT_PATTERN_LAYOUTS:
+            raise ValueError(f"cut_pattern must be one of {CUT_PATTERN_LAYOUTS}, got {cut_pattern!r}")
         per_rib = "rib_shape" in names and rib_shape == "per_rib"
-        shape_start = None
+        per_bay = "cut_pattern" in names and cut_pattern == "per_bay"
+        shape_start = field_start = None
         if isinstance(initial, Parameters):
             start = initial
             if per_rib:
                 shape_start, start = start.rib_shape, start.replace(rib_shape=None, rib_shape_tip=None)
+            if per_bay:
+                field_start, start = start.cut_pattern, start.replace(cut_pattern=None)
         else:
             initial = dict(initial or {})
             for name in initial:
@@ -150,21 +168,17 @@ class DesignVariables:
                     raise ValueError(f"unknown parameter {name!r} in initial; choose from {VARIABLES}")
             if per_rib:
                 shape_start = initial.pop("rib_shape", None)
+            if per_bay:
+                field_start = initial.pop("cut_pattern", None)
             start = DEFAULT_START.replace(**{k: (np.asarray(v, np.float64) if k in VECTOR_VARIABLES
                                                  else float(v)) for k, v in initial.items()})
         if "rib_shape" in names and not per_rib and start.rib_shape is None:
             start = start.replace(rib_shape=np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS))
-        if "cut_pattern" in names and start.cut_pattern is None:
+        if "cut_pattern" in names and not per_bay and start.cut_pattern is None:
             start = start.replace(cut_pattern=np.zeros(2 * DEFAULT_CUT_PATTERN_TERMS))
         start = start.as_floats().check()
-        shapes = None
-        if per_rib:
-            shapes = np.zeros(2 * DEFAULT_RIB_SHAPE_TERMS) if shape_start is None else np.asarray(shape_start, float)
-            if shapes.ndim == 1:
-                shapes = np.tile(shapes, (n_ribs, 1))
-            if shapes.ndim != 2 or shapes.shape[0] != n_ribs or shapes.shape[1] < 2 or shapes.shape[1] % 2:
-                raise ValueError(f"the rib_shape start must be one row of 2K coefficients for every rib or an "
-                                 f"({n_ribs}, 2K) array, got shape {np.shape(shape_start)}")
+        shapes = _rows("rib_shape", shape_start, DEFAULT_RIB_SHAPE_TERMS, n_ribs, "rib") if per_rib else None
+        fields = _rows("cut_pattern", field_start, DEFAULT_CUT_PATTERN_TERMS, n_ribs - 1, "bay") if per_bay else None
         bounds = dict(bounds or {})
         for name in bounds:
             if name not in VARIABLES:
@@ -174,6 +188,8 @@ class DesignVariables:
         values = start.as_dict()
         if per_rib:
             values["rib_shape"] = shapes
+        if per_bay:
+            values["cut_pattern"] = fields
         chosen = {}
         for name in names:
             lo, hi = (float(b) for b in bounds.get(name, DEFAULT_BOUNDS[name]))
@@ -191,7 +207,7 @@ class DesignVariables:
                                  "must not set rib_shape_tip")
             value = np.asarray(values[name], np.float64)
             if name == "cut_pattern":
-                local = value + _uniform(start, value.size)
+                local = value + _uniform(start, value.shape[-1])
                 if not np.all(np.isfinite(local) & (lo <= local) & (local <= hi)):
                     raise ValueError(f"the starting cut pattern's local prestrain reaches {local.min():.6g}.."
                                      f"{local.max():.6g} (uniform prestrain plus each coefficient), outside its "
@@ -205,7 +221,7 @@ class DesignVariables:
                 raise ValueError(f"the start of {name}, {shown}, lies outside its bounds {(lo, hi)}{hint}")
             chosen[name] = (lo, hi)
         sizes = {n: int(np.size(values[n])) for n in names}
-        return cls(names, start, chosen, sizes, shapes)
+        return cls(names, start, chosen, sizes, shapes, fields)
 
     def scale(self, name: str) -> float:
         """Unit of the scaled variable."""
@@ -224,11 +240,14 @@ class DesignVariables:
         """Length of the scaled vector."""
         return sum((self.sizes or {n: 1 for n in self.names}).values())
 
-    def to_vector(self, parameters: Parameters, rib_shapes=None) -> np.ndarray:
-        """Scaled vector of the optimised names (``rib_shapes``: the per-rib shapes, default the start's)."""
+    def to_vector(self, parameters: Parameters, rib_shapes=None, cut_patterns=None) -> np.ndarray:
+        """Scaled vector of the optimised names (``rib_shapes``, ``cut_patterns``: the per-rib shapes and
+        per-bay fields, default the start's)."""
         def value(n):
             if n == "rib_shape" and self.rib_shapes is not None:
                 return self.rib_shapes if rib_shapes is None else rib_shapes
+            if n == "cut_pattern" and self.cut_patterns is not None:
+                return self.cut_patterns if cut_patterns is None else cut_patterns
             return getattr(parameters, n)
 
         return np.concatenate([np.reshape(np.asarray(value(n), np.float64), -1) / self.scale(n)
@@ -242,8 +261,9 @@ class DesignVariables:
         """The shared `Parameters` of the scaled vector ``u`` (a JAX value keeps them traced)."""
         changes = {}
         for n, part in self.slices().items():
-            if n == "rib_shape" and self.rib_shapes is not None:
-                continue  # per rib: `rib_shapes_at`
+            if (n == "rib_shape" and self.rib_shapes is not None) or (n == "cut_pattern"
+                                                                      and self.cut_patterns is not None):
+                continue  # per rib or bay: `rib_shapes_at`, `cut_patterns_at`
             changes[n] = (u[part] if n in VECTOR_VARIABLES else u[part.start]) * self.scale(n)
         return self.start.replace(**changes)
 
@@ -253,12 +273,21 @@ class DesignVariables:
             return None
         return u[self.slices()["rib_shape"]].reshape(self.rib_shapes.shape) * self.scale("rib_shape")
 
+    def cut_patterns_at(self, u):
+        """``(n_bays, 2 K)`` per-bay cut fields at ``u`` (JAX values stay traced), or None (not per bay)."""
+        if self.cut_patterns is None:
+            return None
+        return u[self.slices()["cut_pattern"]].reshape(self.cut_patterns.shape) * self.scale("cut_pattern")
+
     def bay_parameters(self, u, bay: int) -> Parameters:
-        """The `Parameters` of bay ``bay`` at ``u``: the shared ones, with its ribs' shapes when per rib."""
-        parameters, shapes = self.parameters(u), self.rib_shapes_at(u)
-        if shapes is None:
-            return parameters
-        return parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+        """The `Parameters` of bay ``bay`` at ``u``: the shared ones, with its ribs' shapes when per rib
+        and its cut field when per bay."""
+        parameters, shapes, fields = self.parameters(u), self.rib_shapes_at(u), self.cut_patterns_at(u)
+        if shapes is not None:
+            parameters = parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
+        if fields is not None:
+            parameters = parameters.replace(cut_pattern=fields[bay])
+        return parameters
 
     def values(self, u) -> dict:
         """``{name: value}`` of the optimised names at ``u`` (a list for a vector; per rib, a list per rib)."""
@@ -267,8 +296,8 @@ class DesignVariables:
         for n, part in self.slices().items():
             if n in VECTOR_VARIABLES:
                 values = u[part] * self.scale(n)
-                out[n] = (values.reshape(self.rib_shapes.shape).tolist()
-                          if n == "rib_shape" and self.rib_shapes is not None else [float(v) for v in values])
+                rows = self.rows(n)
+                out[n] = values.reshape(rows.shape).tolist() if rows is not None else [float(v) for v in values]
             else:
                 out[n] = float(u[part.start]) * self.scale(n)
         return out
@@ -278,14 +307,23 @@ class DesignVariables:
         return np.concatenate([np.reshape(np.asarray(values[n], np.float64), -1) / self.scale(n)
                                for n in self.names])
 
-    def components(self, parameters: Parameters, rib_shapes=None):
+    def rows(self, name: str):
+        """The starting ``(n_ribs, 2 K)`` shapes or ``(n_bays, 2 K)`` fields of a per-rib or per-bay
+        vector variable ``name``, else None."""
+        return {"rib_shape": self.rib_shapes, "cut_pattern": self.cut_patterns}.get(name)
+
+    def components(self, parameters: Parameters, rib_shapes=None, cut_patterns=None):
         """``(label, value, lower, upper)`` of every scalar component (``rib_shape[3]`` for a shared
         vector, ``rib_shape[k][3]`` for rib ``k``'s of ``rib_shapes``, the per-rib shapes;
-        ``cut_pattern[3]`` with its local prestrain, the uniform prestrain plus the coefficient)."""
+        ``cut_pattern[3]`` with its local prestrain, the uniform prestrain plus the coefficient, and
+        ``cut_pattern[k][3]`` for bay ``k``'s of ``cut_patterns``, the per-bay fields)."""
         for n in self.names:
             lo, hi = self.bounds[n]
-            if n == "rib_shape" and self.rib_shapes is not None:
-                for k, row in enumerate(np.asarray(rib_shapes, np.float64)):
+            given = {"rib_shape": rib_shapes, "cut_pattern": cut_patterns}.get(n)
+            if self.rows(n) is not None:
+                for k, row in enumerate(np.asarray(given, np.float64)):
+                    if n == "cut_pattern":
+                        row = row + _uniform(parameters, row.size)
                     yield from ((f"{n}[{k}][{j}]", float(v), lo, hi) for j, v in enumerate(row))
                 continue
             value = np.reshape(np.asarray(getattr(parameters, n), np.float64), -1)
@@ -301,7 +339,11 @@ class DesignVariables:
         coefficients: the local prestrain's bound less the uniform prestrain)."""
         def one(n, part):
             size = part.stop - part.start
-            shift = _uniform(self.start, size) if n == "cut_pattern" else 0.0
+            shift = 0.0
+            if n == "cut_pattern":  # per coefficient of each field (one, or one per bay)
+                rows = self.rows(n)
+                width = size if rows is None else rows.shape[1]
+                shift = np.tile(_uniform(self.start, width), size // width)
             return (np.full(size, self.bounds[n][side]) - shift) / self.scale(n)
 
         return np.concatenate([one(n, part) for n, part in self.slices().items()])
@@ -313,6 +355,18 @@ class DesignVariables:
     @property
     def upper(self) -> np.ndarray:
         return self.bound(1)
+
+
+def _rows(name: str, given, terms: int, count: int, what: str) -> np.ndarray:
+    """The ``(count, 2 K)`` starting rows of a per-rib or per-bay vector variable: ``given`` as one row
+    for all, or one row each; zeros of ``2 * terms`` when None."""
+    rows = np.zeros(2 * terms) if given is None else np.asarray(given, np.float64)
+    if rows.ndim == 1:
+        rows = np.tile(rows, (count, 1))
+    if rows.ndim != 2 or rows.shape[0] != count or rows.shape[1] < 2 or rows.shape[1] % 2:
+        raise ValueError(f"the {name} start must be one row of 2K coefficients for every {what} or an "
+                         f"({count}, 2K) array, got shape {np.shape(given)}")
+    return rows
 
 
 def _uniform(parameters: Parameters, size: int) -> np.ndarray:

@@ -8,6 +8,9 @@ derivative of the equilibrium in the field's coefficients against central
 differences in float64 (1e-6 relative: solves to rtol 1e-11 and a step of
 1e-6 leave a truncation and round-off error of about 1e-9 of the
 derivative), and a small design with ``cut_pattern`` against the uniform cut.
+A wing's per-bay fields (one row per bay) are checked against each bay
+solved alone with its row, their derivatives against central differences,
+and a per-bay design against the shared field it starts from.
 """
 
 import jax
@@ -17,7 +20,8 @@ import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_bays, solve_equilibrium
 from forward_solver.cut_field import contour_parameter, field_values, spline_basis
-from inverse_design import optimise_pressure
+from forward_solver.wing import Wing
+from inverse_design import optimise_pressure, optimise_wing
 from inverse_design.app.export import write_cut_pattern
 from inverse_design.rib_design import cut_lengths
 from inverse_design.variables import DesignVariables
@@ -25,6 +29,7 @@ from targets import naca
 
 BASE = Parameters(pressure=2e4, prestrain_span=0.01, prestrain_chord=0.005)
 FIELD = np.array([0.0, 0.004, -0.002, 0.006, 0.0, 0.003, -0.001, 0.002])  # K = 4 span, then 4 chord
+OTHER = np.array([0.003, -0.001, 0.0, 0.002, -0.002, 0.0, 0.004, 0.001])  # a second bay's field
 OPTIONS = dict(rtol=1e-11, method="relax+newton")
 
 
@@ -36,6 +41,12 @@ def scene():
 @pytest.fixture(scope="module")
 def patterned(scene):
     return solve_equilibrium(scene, BASE.replace(cut_pattern=FIELD), **OPTIONS)
+
+
+@pytest.fixture(scope="module")
+def other():
+    """A second, narrower bay on the same grid (a 2-bay wing with ``scene``)."""
+    return Scene(Bay.from_airfoil(naca("2412"), chord=0.9, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
 
 
 def test_basis_is_a_partition_of_unity():
@@ -104,14 +115,94 @@ def test_field_gradient_matches_central_differences(scene, patterned):
     assert np.abs(grad).max() > 0
 
 
-def test_a_wing_shares_the_field(scene, patterned):
+def test_a_wing_shares_the_field(scene, other, patterned):
     """solve_bays gives every bay the one field: a bay of the wing is the bay solved alone."""
-    other = Scene(Bay.from_airfoil(naca("2412"), chord=0.9, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
     wing = solve_bays([scene, other], BASE.replace(cut_pattern=FIELD), rtol=1e-11, method="relax+newton")
     scale = np.abs(patterned.nodes - scene.bay.nominal_nodes()).max()
     np.testing.assert_allclose(np.asarray(wing.nodes[0]), patterned.nodes, atol=1e-8 * scale)
     alone = solve_equilibrium(other, BASE.replace(cut_pattern=FIELD), **OPTIONS)
     np.testing.assert_allclose(np.asarray(wing.nodes[1]), alone.nodes, atol=1e-8 * scale)
+
+
+def test_per_bay_fields_cut_each_bay_by_its_own_row(scene, other, patterned):
+    """``cut_patterns`` gives bay k row k: each bay equals the bay solved alone with its row (loop and
+    batch strategies), and the derivative of bay 1's bulge in its row matches central differences
+    while bay 0's row does not move it (rel 1e-6, as the shared field's test)."""
+    rows = np.stack([FIELD, OTHER])
+    wing = solve_bays([scene, other], BASE, cut_patterns=rows, **OPTIONS)
+    scale = np.abs(patterned.nodes - scene.bay.nominal_nodes()).max()
+    np.testing.assert_allclose(np.asarray(wing.nodes[0]), patterned.nodes, atol=1e-8 * scale)
+    alone = solve_equilibrium(other, BASE.replace(cut_pattern=OTHER), **OPTIONS)
+    np.testing.assert_allclose(np.asarray(wing.nodes[1]), alone.nodes, atol=1e-8 * scale)
+    np.testing.assert_array_equal(wing.bay_parameters(1).cut_pattern, OTHER)
+    assert wing.bay_parameters(0).cut_pattern.tolist() == FIELD.tolist()
+    batch = solve_bays([scene, other], BASE, cut_patterns=rows, rtol=1e-11, strategy="batch")
+    np.testing.assert_allclose(np.asarray(batch.nodes), np.asarray(wing.nodes), atol=1e-7 * scale)
+
+    def bulge(r):
+        return solve_bays([scene, other], BASE, cut_patterns=r, initial=wing, **OPTIONS).nodes[1, 2, 8, 2]
+
+    with jax.enable_x64(True):
+        grad = np.asarray(jax.grad(bulge)(jnp.asarray(rows)))
+        assert np.all(grad[0] == 0.0) and np.abs(grad[1]).max() > 0
+        for k in (2, 5):
+            step = np.zeros_like(rows)
+            step[1, k] = 1e-6
+            fd = (bulge(rows + step) - bulge(rows - step)) / 2e-6
+            assert grad[1, k] == pytest.approx(float(fd), rel=1e-6, abs=1e-9 * np.abs(grad).max())
+    with pytest.raises(ValueError, match=r"cut_patterns must be an \(2, 2K\) array"):
+        solve_bays([scene, other], BASE, cut_patterns=FIELD)
+    with pytest.raises(ValueError, match="give the cut fields once"):
+        solve_bays([scene, other], BASE.replace(cut_pattern=FIELD), cut_patterns=rows)
+
+
+def test_per_bay_design_variables():
+    """Layout "per_bay": one row per bay after the pressure, bounds on the local prestrain of each."""
+    design = DesignVariables.build(("pressure", "cut_pattern"), BASE.replace(cut_pattern=OTHER),
+                                   {"cut_pattern": (-0.02, 0.05)}, n_ribs=4, cut_pattern="per_bay")
+    assert design.size == 1 + 3 * 8 and design.cut_patterns.shape == (3, 8)
+    assert design.start.cut_pattern is None  # the shared parameters carry no field
+    u = design.start_vector()
+    u[1 + 8 + 3] = 0.5  # bay 1, span coefficient 3: 0.5 x 0.01
+    moved = OTHER.copy()
+    moved[3] = 0.005
+    np.testing.assert_allclose(design.bay_parameters(u, 1).cut_pattern, moved)
+    np.testing.assert_allclose(design.bay_parameters(u, 2).cut_pattern, OTHER)
+    assert np.asarray(design.values(u)["cut_pattern"]).shape == (3, 8)
+    np.testing.assert_allclose(design.from_values(design.values(u)), u)
+    span, chord = 0.01, 0.005  # BASE's uniform prestrains, under each bay's span and chord halves
+    np.testing.assert_allclose(design.lower[1:] * 0.01, np.tile(np.r_[np.full(4, -0.02 - span),
+                                                                        np.full(4, -0.02 - chord)], 3))
+    labels = [c[0] for c in design.components(design.start, cut_patterns=design.cut_patterns_at(u))]
+    assert labels[1] == "cut_pattern[0][0]" and labels[-1] == "cut_pattern[2][7]"
+    with pytest.raises(ValueError, match=r"cut_pattern start must be one row of 2K coefficients for every "
+                                         r"bay or an \(3, 2K\) array"):
+        DesignVariables.build(("pressure", "cut_pattern"), {"cut_pattern": np.zeros((4, 8))}, None, n_ribs=4,
+                              cut_pattern="per_bay")
+    with pytest.raises(ValueError, match="cut_pattern must be one of"):
+        DesignVariables.build(("pressure", "cut_pattern"), None, None, cut_pattern="per_rib")
+
+
+def test_a_per_bay_design_from_the_shared_field(scene):
+    """A tapered 2-bay wing: per-bay fields started from the shared field's design keep or lower
+    its error, inside the local bounds and the wrinkle floor."""
+    target = naca("2412")
+    wing = Wing(airfoils=(target,) * 3, chords=(1.0, 0.9, 0.6), stations=(0.0, 0.25, 0.5))
+    start = {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.0, "cut_pattern": np.zeros(8)}
+    bounds = {"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)}
+    options = dict(variables=("pressure", "cut_pattern"), bounds=bounds, max_iterations=20, n_span=5,
+                   n_contour=32)
+    shared = optimise_wing(wing, Fabric(), initial=start, **options)
+    best = {**start, "pressure": shared.parameters.pressure, "cut_pattern": shared.parameters.cut_pattern}
+    per_bay = optimise_wing(wing, Fabric(), initial=best, cut_pattern="per_bay", **options)
+    assert shared.success and per_bay.success, (shared.message, per_bay.message)
+    assert shared.cut_patterns is None and per_bay.cut_patterns.shape == (2, 8)
+    assert per_bay.rms_error <= shared.rms_error * (1 + 1e-9)
+    assert np.abs(per_bay.cut_patterns[0] - per_bay.cut_patterns[1]).max() > 1e-4  # the bays differ
+    for k, row in enumerate(per_bay.cut_patterns):
+        local = field_values(np.linspace(0, 1, 201), 0.02, 0.0, row)
+        assert min(v.min() for v in local) >= -0.02 - 1e-9 and max(v.max() for v in local) <= 0.05 + 1e-9
+        assert per_bay.wing_solution.bay_parameters(k).cut_pattern.tolist() == row.tolist()
 
 
 def test_a_cut_pattern_design_from_the_best_uniform_cut(scene):
@@ -173,3 +264,54 @@ def test_the_command_refuses_a_field_outside_its_bounds(tmp_path, capsys, args, 
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].endswith(message), err
     assert not out.exists()
+
+
+def test_the_command_designs_a_field_per_bay(tmp_path, capsys):
+    """A case file with ``cut-pattern-layout = "per_bay"``: summary.json has a row per bay, the console
+    says so, and each bay's cut_pattern.csv follows its own row. (The wing, grid and terms of
+    `test_a_per_bay_design_from_the_shared_field`, so the two share their compilations; one wing
+    solve: this checks the plumbing, the design is checked there.)"""
+    import json
+
+    from inverse_design.app import cli
+
+    case = tmp_path / "wing.toml"
+    case.write_text("""
+variables = ["pressure", "cut_pattern"]
+cut-pattern-terms = 4
+cut-pattern-layout = "per_bay"
+prestrain-chord = 0.0
+n-span = 5
+n-contour = 32
+max-iterations = 1
+[[rib]]
+section = "naca2412"
+chord = 1.0
+station = 0.0
+[[rib]]
+section = "naca2412"
+chord = 0.9
+station = 0.25
+[[rib]]
+section = "naca2412"
+chord = 0.6
+station = 0.5
+""")
+    out = tmp_path / "out"
+    code = cli.main(["--config", str(case), "--out", str(out), "--no-compilation-cache", "--no-patterns"])
+    captured = capsys.readouterr()
+    assert code in (0, 1), captured.err
+    summary = json.loads((out / "summary.json").read_text())
+    rows = np.asarray(summary["results"]["cut_patterns"])
+    assert rows.shape == (2, 8) and summary["results"]["values"]["cut_pattern"] is None
+    local = summary["results"]["cut_pattern_local"]
+    assert local["span"][0] <= local["span"][1] and local["chord"][0] <= local["chord"][1]
+    assert "a cut field per bay (bay_K_cut_pattern.csv; local prestrain span" in captured.out
+    p = summary["results"]["values"]
+    for k in range(2):
+        table = np.genfromtxt(out / f"bay_{k}_cut_pattern.csv", delimiter=",", skip_header=2, names=True,
+                              dtype=None, encoding="utf-8")
+        assert table["span_prestrain"].min() >= min(rows[k, :4]) + p["prestrain_span"] - 1e-6
+        assert table["span_prestrain"].max() <= max(rows[k, :4]) + p["prestrain_span"] + 1e-6
+    with np.load(out / "wing.npz") as npz:
+        np.testing.assert_allclose(npz["cut_patterns"], rows, rtol=1e-12)

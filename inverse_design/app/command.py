@@ -112,7 +112,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         timings = {"setup": time.perf_counter() - start}
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
-                               method=args.method, n_span=args.n_span, n_contour=args.n_contour, **options)
+                               method=args.method, n_span=args.n_span, n_contour=args.n_contour,
+                               cut_pattern=args.cut_pattern_layout, **options)
         if args.refine:
             result = refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
         timings["optimisation"] = time.perf_counter() - t

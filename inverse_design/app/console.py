@@ -110,10 +110,15 @@ def describe_wing(summary: dict) -> list[str]:
     lines = [f"wing of {len(ribs) - 1} bays ({ribs[0]['chord_m']:g} to {ribs[-1]['chord_m']:g} m chord, "
              f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
              f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
+    per_bay = res.get("cut_patterns") is not None
     chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n])
-                       for n in res["variables"] if n != "rib_shape")
+                       for n in res["variables"] if n != "rib_shape" and not (n == "cut_pattern" and per_bay))
     if "rib_shape" in res["variables"]:
         chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
+    if per_bay:
+        local = res["cut_pattern_local"]
+        chosen += (f", a cut field per bay (bay_K_cut_pattern.csv; local prestrain span {local['span'][0]:.4f}.."
+                   f"{local['span'][1]:.4f}, contour {local['chord'][0]:.4f}..{local['chord'][1]:.4f})")
     trailing = summary["case"].get("trailing_edge") or {}
     for change in trailing.get("changed", []):
         source = change.get("file") or change["section"]

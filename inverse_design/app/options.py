@@ -173,6 +173,10 @@ OPTIONS = (
                                          metavar=("LOW", "HIGH"),
                                          help="bounds of the local prestrain of the cut pattern, both "
                                          "directions, fraction (default -0.02 0.05)")),
+    ("cut", "--cut-pattern-layout", dict(default="shared", choices=("shared", "per_bay"),
+                                         help="a wing's cut pattern: one field for every bay (shared, the "
+                                         "default) or one per bay, each cell's panel cut on its own (per_bay: "
+                                         "n_bays x 2 K coefficients)")),
     ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
                                       help="sections that must match the target: the mid-bay one, every "
                                       "row from rib to rib, or the worst row (default average)")),

@@ -511,6 +511,8 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
             "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
             "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
             "rib_limits": list(result.rib_limits),
+            "cut_patterns": None if result.cut_patterns is None else np.asarray(result.cut_patterns).tolist(),
+            "cut_pattern_local": _local_prestrain_range(result),
             "variables": list(result.variables), "method": result.method,
             "iterations": len(result.history), "forward_solves": result.solves,
             "wall_time_s": result.wall_time,
@@ -536,12 +538,34 @@ def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings
     return _jsonable(summary)
 
 
+def _shared_names(result: DesignResult) -> tuple:
+    """The design's variables shared by every bay of a wing (not per-rib shapes, not per-bay fields)."""
+    return tuple(n for n in result.variables if n != "rib_shape"
+                 and not (n == "cut_pattern" and result.cut_patterns is not None))
+
+
+def _local_prestrain_range(result: DesignResult) -> dict | None:
+    """``{"span": [low, high], "chord": [low, high]}``: the local prestrain of the design's cut field(s)
+    over the contour (every bay's for per-bay fields), or None for a uniform cut."""
+    from forward_solver.cut_field import field_values
+
+    p = result.parameters
+    rows = [p.cut_pattern] if result.cut_patterns is None else list(np.asarray(result.cut_patterns))
+    if rows[0] is None:
+        return None
+    s = np.linspace(0.0, 1.0, 401)
+    span, chord = zip(*(field_values(s, p.prestrain_span, p.prestrain_chord, row) for row in rows))
+    return {"span": [float(np.min(span)), float(np.max(span))],
+            "chord": [float(np.min(chord)), float(np.max(chord))]}
+
+
 class _SharedHistory:
-    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes
-    are many coefficients; they are in summary.json's history and the rib_K.dat files)."""
+    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes and
+    per-bay cut fields are many coefficients; they are in summary.json's history, the rib_K.dat and
+    bay_K_cut_pattern.csv files)."""
 
     def __init__(self, result: DesignResult):
-        names = tuple(n for n in result.variables if n != "rib_shape")
+        names = _shared_names(result)
         self.variables, self.method, self.objective = names, result.method, result.objective
         self.rms_error, self.success, self.values = result.rms_error, result.success, result.values
         self.history = [{**h, "values": {n: h["values"][n] for n in names}} for h in result.history]
@@ -577,7 +601,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
     with staged_folder(out) as staging:
         solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
         params = result.parameters
-        shared = [n for n in result.variables if n != "rib_shape"]
+        shared = _shared_names(result)
         deviation = wing_deviation(result)
         with open(staging / "wing.npz", "wb") as f:
             np.savez_compressed(
@@ -597,7 +621,8 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
                 history_objective=np.array([h["objective"] for h in result.history], np.float64),
                 history_values=np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
                                          for h in result.history], np.float64).reshape(len(result.history), -1),
-                rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes))
+                rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
+                cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns))
         joined = wing_nodes(result)
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
         write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
