@@ -8,8 +8,6 @@ reports convergence, and its message (the common checks of the result are
 
 from __future__ import annotations
 
-import warnings
-
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
@@ -122,7 +120,7 @@ GN_DAMPING = 1e-8
 #: SLSQP solves the step's QP in a few iterations but now and then stops where it started (status 0 at
 #: d = 0, or status 8: measured on a 2-bay wing with a cut field per bay, where a step lowered the
 #: objective 9%); a step predicted to gain less than this fraction of the merit is checked by an
-#: interior-point solve of the same QP (`_interior_step`) before the method reads it as converged.
+#: exact solve of the same QP with hard limits (`_distance_step`) before the method reads it as converged.
 GN_QP_CHECK = 1e-3
 
 
@@ -235,10 +233,10 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
         options={"maxiter": 500, "ftol": 1e-14})
     d = np.clip(inverse @ result.x[:n], lo, hi)
     predicted = model(np.zeros(n)) - model(d)
-    if result.status != 0 or not predicted > GN_QP_CHECK * model(np.zeros(n)):
-        # SLSQP failed, or says no step helps: before that is read as converged, solve the QP again
-        # by an interior-point method in d itself (bounds as bounds), and keep the better step.
-        other = _interior_step(c, rr, g, jg, lo, hi, qp_penalty, s0)
+    if not predicted > GN_QP_CHECK * model(np.zeros(n)):
+        # SLSQP says no step helps (having solved the QP or not): before that is read as converged,
+        # solve the QP again with its limits hard by least-distance programming; keep the better step.
+        other = _distance_step(c, inverse, g, jg, lo, hi, s0)
         if other is not None and model(other) < model(d):
             d, predicted = other, model(np.zeros(n)) - model(other)
     if not predicted > 0.0:
@@ -246,27 +244,32 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
     return d, predicted
 
 
-def _interior_step(c, rr, g, jg, lo, hi, qp_penalty, s0):
-    """The QP of `_step` in ``x = (d, s)`` by scipy's trust-constr (exact Hessian ``R^T R``), or None
-    if it fails: the check on SLSQP's answer."""
-    n = rr.shape[1]
-    hessian = np.zeros((n + 1, n + 1))
-    hessian[:n, :n] = rr.T @ rr
-    constraints = []
-    if g.size:
-        constraints.append(scipy.optimize.LinearConstraint(np.hstack([jg, np.ones((g.size, 1))]), -g, np.inf))
-    x0 = np.concatenate([np.clip(np.zeros(n), lo, hi), [s0 + 1e-12]])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # trust-constr's notes on its own barrier
-        result = scipy.optimize.minimize(
-            lambda x: 0.5 * float((c + rr @ x[:n]) @ (c + rr @ x[:n])) + 0.5 * qp_penalty * x[n], x0,
-            jac=lambda x: np.concatenate([rr.T @ (c + rr @ x[:n]), [0.5 * qp_penalty]]),
-            hess=lambda x: hessian, method="trust-constr", constraints=constraints,
-            bounds=scipy.optimize.Bounds(np.append(lo, 0.0), np.append(hi, np.inf)),
-            options={"maxiter": 2000, "gtol": 1e-12, "xtol": 1e-14})
-    if not np.all(np.isfinite(result.x)):
+def _distance_step(c, inverse, g, jg, lo, hi, s0):
+    """The QP of `_step` with its limits hard (each no worse than the current worst violation ``s0``),
+    by least-distance programming: in ``w = c + z`` the fit is ``|w|^2``, so the step is the point
+    of least norm of a polyhedron, which Lawson and Hanson's NNLS finds exactly (``scipy.optimize.nnls``,
+    an active-set method on the few binding rows of thousands). The check on SLSQP's answer; None if
+    the polyhedron is empty or NNLS fails.
+    """
+    n = inverse.shape[0]
+    # Rows G w >= h: the box lo <= inverse z <= hi and the limits g + jg inverse z >= -s0, with z = w - c.
+    gi = jg @ inverse
+    G = np.vstack([inverse, -inverse, gi])
+    h = np.concatenate([lo + inverse @ c, -hi - inverse @ c, -g - s0 + gi @ c])
+    scale = np.maximum(np.linalg.norm(G, axis=1), np.finfo(float).tiny)  # rows of unit norm
+    G, h = G / scale[:, None], h / scale
+    E = np.vstack([G.T, h[None, :]])
+    f = np.zeros(n + 1)
+    f[n] = 1.0
+    try:
+        u, _ = scipy.optimize.nnls(E, f, maxiter=50 * E.shape[1])
+    except RuntimeError:  # NNLS's iteration cap
         return None
-    return np.clip(result.x[:n], lo, hi)
+    r = E @ u - f
+    if not abs(r[n]) > 1e-12:  # no point of the polyhedron
+        return None
+    w = -r[:n] / r[n]
+    return np.clip(inverse @ (w - c), lo, hi)
 
 
 def least_squares(problem: DesignProblem, u0, max_iterations, tolerance):
