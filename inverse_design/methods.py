@@ -155,8 +155,11 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     r, jr, g, jg, _ = problem.linearised(u)
     f0 = max(float(r @ r), np.finfo(float).tiny)
 
+    def violation(g):
+        return max(0.0, -float(np.min(g, initial=0.0)))
+
     def merit(r, g):
-        return float(r @ r) / f0 + GN_PENALTY * max(0.0, -float(np.min(g, initial=0.0)) - GN_SLACK)
+        return float(r @ r) / f0 + GN_PENALTY * max(0.0, violation(g) - GN_SLACK)
 
     phi = merit(r, g)
     radius = GN_RADIUS
@@ -164,7 +167,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     while True:
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
-        d, predicted = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
+        d, predicted, checked = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
         if predicted <= tolerance * max(phi, np.finfo(float).tiny):
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
@@ -177,6 +180,8 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         try:
             r1, jr1, g1, jg1, _ = problem.linearised(trial)
             ratio = (phi - merit(r1, g1)) / predicted
+            if checked and violation(g1) > max(violation(g), GN_SLACK):
+                ratio = -np.inf  # the exact QP's step traded a limit for fit: shorter, or converged
         except WingConvergenceError:
             ratio = -np.inf
         step = float(np.max(np.abs(d)))
@@ -194,8 +199,9 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
 
 def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
     """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
-    (the linearised limits all but hard), and the fall of the model with ``penalty`` (the merit's)
-    from ``d = 0``.
+    (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
+    from ``d = 0``, and whether the step is `_distance_step`'s (SLSQP saw no fall and the exact
+    check found one: `gauss_newton` takes it only if no limit ends broken by more than before).
 
     The fit is rewritten by a QR factorisation of ``[jr; sqrt(damping) I]``
     as ``|c + R d|^2``; in ``z = R d`` its Hessian is the identity, which is
@@ -233,15 +239,16 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
         options={"maxiter": 500, "ftol": 1e-14})
     d = np.clip(inverse @ result.x[:n], lo, hi)
     predicted = model(np.zeros(n)) - model(d)
+    checked = False
     if not predicted > GN_QP_CHECK * model(np.zeros(n)):
         # SLSQP says no step helps (having solved the QP or not): before that is read as converged,
         # solve the QP again with its limits hard by least-distance programming; keep the better step.
         other = _distance_step(c, inverse, g, jg, lo, hi, s0)
         if other is not None and model(other) < model(d):
-            d, predicted = other, model(np.zeros(n)) - model(other)
+            checked, d, predicted = True, other, model(np.zeros(n)) - model(other)
     if not predicted > 0.0:
-        return np.zeros(n), 0.0
-    return d, predicted
+        return np.zeros(n), 0.0, False
+    return d, predicted, checked
 
 
 def _distance_step(c, inverse, g, jg, lo, hi, s0):

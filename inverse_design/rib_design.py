@@ -115,6 +115,10 @@ class RibGeometry:
             t0 = self.z0[self.upper] - self.z0[self.lower]
             radius0 = 1.0 / np.max(np.abs(np.asarray(curvature(jnp.asarray(self.x), jnp.asarray(self.z0)))))
         self.thickness0 = t0
+        # Thickness rows in the units `measure` and `rib_report` judge them in: the shortfall of the
+        # thickness ratio where the rib has thickness, else of the thickness relative to its largest.
+        self.inside = t0 > 1e-3 * np.max(t0)
+        self.thickness_unit = np.where(self.inside, t0, np.max(t0))
         self.start_radius = float(radius0)
         self.min_radius = 0.5 * radius0 if limits.min_radius is None else float(limits.min_radius)
 
@@ -125,11 +129,12 @@ class RibGeometry:
         return _section_z(self.x, self.z0, self.camber, parameters.rib_thickness_scale, parameters.rib_shape)
 
     def functions(self, parameters: Parameters):
-        """``g >= 0``: thickness rows (per station, relative to the starting thickness's largest)
-        and curvature rows (two per point: ``1 -+ kappa r_min``)."""
+        """``g >= 0``: thickness rows (per station, the thickness ratio's margin, as `measure` and
+        `rib_report` judge it; relative to the largest starting thickness where the rib has none) and
+        curvature rows (two per point: ``1 -+ kappa r_min``)."""
         z = self.section_z(parameters)
         thickness = z[self.upper] - z[self.lower]
-        g_thickness = (thickness - self.limits.min_thickness * self.thickness0) / np.max(self.thickness0)
+        g_thickness = (thickness - self.limits.min_thickness * self.thickness0) / self.thickness_unit
         kappa = curvature(jnp.asarray(self.x), z) * self.min_radius
         return jnp.concatenate([g_thickness, 1.0 - kappa, 1.0 + kappa])
 
@@ -139,7 +144,7 @@ class RibGeometry:
             z = np.asarray(self.section_z(parameters))
             kappa = np.asarray(curvature(jnp.asarray(self.x), jnp.asarray(z)))
         thickness = z[self.upper] - z[self.lower]
-        inside = self.thickness0 > 1e-3 * np.max(self.thickness0)  # ratios where the rib has thickness
+        inside = self.inside  # ratios where the rib has thickness
         return {"rib_min_thickness": float(np.min(thickness[inside] / self.thickness0[inside])),
                 "rib_min_thickness_limit": self.limits.min_thickness,
                 "rib_min_radius": float(1.0 / np.max(np.abs(kappa))),
