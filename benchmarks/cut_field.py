@@ -28,7 +28,22 @@ is the chordwise shift of the mid-bay section's nose: the least x of the
 mid-bay section minus the target's (0), mm, positive when the nose lies
 behind the target's.
 
+With ``--wing``, the built-in wing instead (`inverse_design/cases/wing_taper.toml`:
+three bays of NACA 2412, chords 1.0/0.85/0.7/0.6 m, ribs 0.25 m apart; the
+method "auto", i.e. Gauss-Newton), cases:
+
+U. pressure, both uniform prestrains (0-5%) and rib thickness scale (0.7-1);
+V. as U with both prestrains within -2% .. 5%;
+S. pressure, thickness scale and one cut pattern for every bay (K = 6,
+   -2% .. 5%);
+P. as S with a cut pattern per bay (3 x 12 coefficients);
+R. pressure and a rib shape per rib (K = 4; prestrains fixed at 2%).
+
+Each wing design is re-solved at the same parameters on 33x64 and 17x128
+and measured there by the design's own objective (`DesignProblem.measure`).
+
 Run:  PYTHONPATH=. python benchmarks/cut_field.py [--n-span 17 --n-contour 64 --cases a,b,c,d,e]
+      PYTHONPATH=. python benchmarks/cut_field.py --wing [--cases U,V,S,P,R]
 
 Writes benchmarks/results/cut_field_<cases>.json and prints a Markdown table.
 """
@@ -54,9 +69,10 @@ def main() -> None:
     parser.add_argument("--max-iterations", type=int, default=60)
     parser.add_argument("--cases", default="a,b,c,d,e")
     parser.add_argument("--no-finer", action="store_true", help="skip the re-solves on finer grids")
+    parser.add_argument("--wing", action="store_true", help="the built-in 3-bay wing (cases U, V, S, P, R)")
     args = parser.parse_args()
-
-    import jax
+    if args.wing:
+        return wing_main(args)
 
     from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
     from forward_solver.cut_field import field_values
@@ -148,13 +164,7 @@ def main() -> None:
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
 
-    record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.platform(),
-              "processor": platform.processor(), "cpus": os.cpu_count(), "load": os.getloadavg(),
-              "jax": jax.__version__, "rows": rows}
-    out = ROOT / "benchmarks" / "results"
-    out.mkdir(parents=True, exist_ok=True)
-    name = f"cut_field_{args.cases.replace(',', '')}_{args.n_span}x{args.n_contour}.json"
-    (out / name).write_text(json.dumps(record, indent=2, default=float) + "\n")
+    _save(rows, f"cut_field_{args.cases.replace(',', '')}_{args.n_span}x{args.n_contour}.json")
     print("\n| design | success | bay-average rms | bay-average max | mid-bay rms | mid-bay max | LE recession mm | "
           "bay-average rms on finer grids | min/max tension N/m | solves | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -163,6 +173,125 @@ def main() -> None:
         print(f"| {r['case']} | {r['success']} | {r['average_rms']:.2e} | {r['average_max']:.2e} | "
               f"{r['mid_bay_rms']:.2e} | {r['mid_bay_max']:.2e} | {r['le_recession_mm']:.1f} | {fine} | "
               f"{r['min_tension']:.0f} / {r['max_tension']:.0f} | {r['solves']} | {r['wall_s']:.0f} |")
+
+
+def _save(rows: list, name: str) -> None:
+    """Write ``rows`` with the machine to benchmarks/results/``name``."""
+    import jax
+
+    record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.platform(),
+              "processor": platform.processor(), "cpus": os.cpu_count(), "load": os.getloadavg(),
+              "jax": jax.__version__, "rows": rows}
+    out = ROOT / "benchmarks" / "results"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / name).write_text(json.dumps(record, indent=2, default=float) + "\n")
+
+
+def wing_main(args) -> None:
+    """The built-in wing's designs (module docstring, ``--wing``)."""
+    import jax
+
+    from forward_solver import Fabric
+    from forward_solver.wing import Wing
+    from inverse_design import Constraints, optimise_wing
+    from inverse_design.objectives import section_errors
+    from inverse_design.problem import DesignProblem
+    from inverse_design.variables import DesignVariables
+    from targets import naca
+
+    target = naca("2412")
+    fabric = Fabric()
+    wing = Wing(airfoils=(target,) * 4, chords=(1.0, 0.85, 0.7, 0.6), stations=(0.0, 0.25, 0.5, 0.75))
+    start = {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.02}
+    thickness = {"rib_thickness_scale": (0.7, 1.0)}
+    wide = {"prestrain_span": (-0.02, 0.05), "prestrain_chord": (-0.02, 0.05)}
+    uniform = ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale")
+    field = ("pressure", "rib_thickness_scale", "cut_pattern")
+    cases = {
+        "U": ("pressure + both prestrains (0-5%) + thickness scale (uniform cut)", uniform, thickness, {}),
+        "V": ("pressure + both prestrains (-2% .. 5%) + thickness scale (uniform cut)", uniform,
+              {**thickness, **wide}, {}),
+        "S": ("pressure + thickness scale + one cut pattern for every bay, K = 6", field,
+              {**thickness, "cut_pattern": (-0.02, 0.05)}, {"cut_pattern": "shared"}),
+        "P": ("pressure + thickness scale + a cut pattern per bay, K = 6", field,
+              {**thickness, "cut_pattern": (-0.02, 0.05)}, {"cut_pattern": "per_bay"}),
+        "R": ("pressure + a rib shape per rib, K = 4", ("pressure", "rib_shape"), {}, {}),
+    }
+    keys = "U,V,S,P,R" if args.cases == "a,b,c,d,e" else args.cases
+    finer = [] if args.no_finer else [(2 * args.n_span - 1, args.n_contour), (args.n_span, 2 * args.n_contour)]
+
+    def mid_bay(result, solutions, chords):
+        """Per bay: mid-bay rms and max (fraction of the local chord) and LE recession (mm) against the
+        mounted mid-bay section's nose."""
+        out = []
+        for k, sol in enumerate(solutions):
+            chord = 0.5 * (chords[k] + chords[k + 1])
+            errors = section_errors(sol, target, chord)
+            row = sol.nodes.shape[0] // 2
+            mounted = np.asarray(result.wing_solution.mounted[k])[row] if result is not None else None
+            nose = float(np.min(np.asarray(sol.nodes)[row, :, 0]))
+            out.append((errors.rms, errors.max, None if mounted is None else 1e3 * (nose - float(np.min(mounted[:, 0])))))
+        return out
+
+    rows = []
+    for key in keys.split(","):
+        label, variables, bounds, layout = cases[key]
+        initial = {**start, **({"cut_pattern": np.zeros(12)} if "cut_pattern" in variables else {})}
+        t = time.perf_counter()
+        result = optimise_wing(wing, fabric, None, variables, initial=initial,
+                               bounds={"pressure": (1e3, 1e5), **bounds}, objective="average",
+                               max_iterations=args.max_iterations, n_span=args.n_span, n_contour=args.n_contour,
+                               **layout)
+        wall = time.perf_counter() - t
+        sol = result.wing_solution
+        solutions = [sol.bay_solution(k) for k in range(3)]
+        mids = mid_bay(result, solutions, wing.chords)
+        p = result.parameters
+        row = {"case": label, "key": key, "variables": list(variables), "method": result.method,
+               "success": result.success, "message": result.message, "pressure_pa": float(p.pressure),
+               "prestrain": [float(v) for v in p.prestrain], "rib_thickness_scale": float(p.rib_thickness_scale),
+               "cut_pattern": None if p.cut_pattern is None else np.asarray(p.cut_pattern).tolist(),
+               "cut_patterns": None if result.cut_patterns is None else result.cut_patterns.tolist(),
+               "rib_shapes": None if result.rib_shapes is None else result.rib_shapes.tolist(),
+               "grid": [args.n_span, args.n_contour], "start_wing_rms": result.initial_rms_error,
+               "wing_rms": result.rms_error, "bay_rms": result.bay_rms_error.tolist(),
+               "bay_max": result.bay_max_error.tolist(), "mid_bay_rms": [m[0] for m in mids],
+               "mid_bay_max": [m[1] for m in mids], "le_recession_mm": [m[2] for m in mids],
+               "min_tension": result.constraint_values.get("min_tension"),
+               "max_tension": result.constraint_values.get("max_tension"),
+               "active": result.active_constraints, "solves": result.solves, "wall_s": wall, "finer": []}
+        given = {n: (result.rib_shapes if n == "rib_shape" and result.rib_shapes is not None else
+                     result.cut_patterns if n == "cut_pattern" and result.cut_patterns is not None else
+                     getattr(p, n)) for n in variables}
+        for n_span, n_contour in finer:
+            with jax.enable_x64(True):
+                design = DesignVariables.build(variables, {**start, **given}, {"pressure": (1e3, 1e5), **bounds},
+                                               n_ribs=4, rib_shape="per_rib", **layout)
+                problem = DesignProblem(wing.scenes(fabric, n_span, n_contour), [target] * 4, design, "average",
+                                        Constraints(), rtol=1e-10)
+                u = design.start_vector()
+                fine = problem.solve(u)
+                measured = problem.measure(fine, u)
+            fine_mids = mid_bay(None, [fine.bay_solution(k) for k in range(3)], wing.chords)
+            row["finer"].append({"grid": [n_span, n_contour], "wing_rms": measured["wing_rms"],
+                                 "bay_rms": measured["rms"].tolist(), "bay_max": measured["max"].tolist(),
+                                 "mid_bay_rms": [m[0] for m in fine_mids],
+                                 "min_tension": float(np.min(measured["min_tension"])),
+                                 "max_tension": float(np.max(measured["max_tension"]))})
+        rows.append(row)
+        print(json.dumps(row, default=float), flush=True)
+    _save(rows, f"cut_field_wing_{keys.replace(',', '')}_{args.n_span}x{args.n_contour}.json")
+    print("\n| design | result | wing rms | bay-average rms, root to tip | mid-bay rms | bay max | LE recession "
+          "mm | wing rms on 33x64 / 17x128 | least / largest tension N/m | wing solves | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        def listed(values, form):
+            return ", ".join(form.format(v) for v in values)
+        fine = " / ".join(f"{f['wing_rms']:.3e}" for f in r["finer"])
+        print(f"| {r['case']} | {'success' if r['success'] else 'failure'} | {r['wing_rms']:.3e} | "
+              f"{listed(r['bay_rms'], '{:.2e}')} | {listed(r['mid_bay_rms'], '{:.2e}')} | "
+              f"{listed(r['bay_max'], '{:.2e}')} | {listed(r['le_recession_mm'], '{:.1f}')} | {fine} | "
+              f"{r['min_tension']:.1f} / {r['max_tension']:.0f} | {r['solves']} | {r['wall_s']:.0f} |")
 
 
 if __name__ == "__main__":
