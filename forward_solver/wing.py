@@ -55,7 +55,7 @@ from .solution import ConvergenceError, Result, Solution, static_forces
 from .solve import METHODS, solve_equilibrium
 from .traced import relaxed_nodes
 
-__all__ = ["Wing", "WingSolution", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
+__all__ = ["Wing", "WingSolution", "bay_parameters", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
 
 #: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
 #: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
@@ -241,7 +241,7 @@ class WingSolution:
         root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``, and for per-bay cut fields
         its row as ``cut_pattern``."""
         as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
-        return _bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
+        return bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
                                as_array(self.cut_patterns))
 
     def displacements(self) -> np.ndarray:
@@ -500,9 +500,10 @@ def _check_scenes(scenes) -> None:
                              f"differs from scene 0 in: {', '.join(differs)}")
 
 
-def _bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:
-    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes`` and its row of
-    ``fields`` (per-bay cut fields)."""
+def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:
+    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes`` (per-rib
+    shapes, ``(n_ribs, 2 K)``) and its row of ``fields`` (per-bay cut fields, ``(n_bays, 2 K)``);
+    either may be None. JAX values stay traced (the design loop's `DesignVariables.bay_parameters`)."""
     if shapes is not None:
         parameters = parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
     if fields is not None:
@@ -538,7 +539,7 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
     solutions, nodes, mounted = [], [], []
     moved = None if initial is None or initial.solutions is not None else initial.displacements()
     for k, scene in enumerate(scenes):
-        p = _bay_parameters(parameters, shapes, k, fields)
+        p = bay_parameters(parameters, shapes, k, fields)
         rest = _mounted(scene, p)
         if initial is None:
             start = None

@@ -238,14 +238,15 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
         bounds=[(None, None)] * n + [(0.0, None)], constraints=cons,
         options={"maxiter": 500, "ftol": 1e-14})
     d = np.clip(inverse @ result.x[:n], lo, hi)
-    predicted = model(np.zeros(n)) - model(d)
+    here = model(np.zeros(n))
+    predicted = here - model(d)
     checked = False
-    if not predicted > GN_QP_CHECK * model(np.zeros(n)):
+    if not predicted > GN_QP_CHECK * here:
         # SLSQP says no step helps (having solved the QP or not): before that is read as converged,
         # solve the QP again with its limits hard by least-distance programming; keep the better step.
         other = _distance_step(c, inverse, g, jg, lo, hi, s0)
-        if other is not None and model(other) < model(d):
-            checked, d, predicted = True, other, model(np.zeros(n)) - model(other)
+        if other is not None and here - model(other) > predicted:
+            checked, d, predicted = True, other, here - model(other)
     if not predicted > 0.0:
         return np.zeros(n), 0.0, False
     return d, predicted, checked

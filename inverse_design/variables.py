@@ -38,6 +38,7 @@ from typing import Mapping
 import numpy as np
 
 from forward_solver import Parameters
+from forward_solver.wing import bay_parameters
 
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
            "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables"]
@@ -282,12 +283,7 @@ class DesignVariables:
     def bay_parameters(self, u, bay: int) -> Parameters:
         """The `Parameters` of bay ``bay`` at ``u``: the shared ones, with its ribs' shapes when per rib
         and its cut field when per bay."""
-        parameters, shapes, fields = self.parameters(u), self.rib_shapes_at(u), self.cut_patterns_at(u)
-        if shapes is not None:
-            parameters = parameters.replace(rib_shape=shapes[bay], rib_shape_tip=shapes[bay + 1])
-        if fields is not None:
-            parameters = parameters.replace(cut_pattern=fields[bay])
-        return parameters
+        return bay_parameters(self.parameters(u), self.rib_shapes_at(u), bay, self.cut_patterns_at(u))
 
     def values(self, u) -> dict:
         """``{name: value}`` of the optimised names at ``u`` (a list for a vector; per rib, a list per rib)."""
