@@ -158,9 +158,12 @@ def target_distance(target, points):
     return distance(points)
 
 
-@partial(jax.jit, static_argnames=("etas", "chords"))
+@partial(jax.jit, static_argnames=("etas",))
 def _stations(nodes, etas, chords):
-    return jnp.stack([section_points(nodes, eta, chord) for eta, chord in zip(etas, chords)])
+    # The chords are an operand, not static: a wing's bays differ in chord, and one program serves
+    # them all (static chords compiled it once per bay, and again for its tangents: 80 compilations
+    # and 28 s of the 40-cell design).
+    return jnp.stack([section_points(nodes, eta, chords[i]) for i, eta in enumerate(etas)])
 
 
 def same_section(a, b) -> bool:
@@ -225,7 +228,7 @@ def bay_weights(bays) -> np.ndarray:
 def bay_distances(nodes, rows: list, etas, chords) -> jnp.ndarray:
     """``(n_rows, n_contour)`` signed distances of a bay's rows from their targets, fractions of the
     local chords (``rows``: `row_targets`; ``chords``: `local_chords`); JAX nodes allowed."""
-    points = _stations(nodes, tuple(float(e) for e in etas), tuple(float(c) for c in chords))
+    points = _stations(nodes, tuple(float(e) for e in etas), np.asarray(chords, np.float64))
     if all(r is rows[0] for r in rows):
         return target_distance(rows[0], points)
     return jnp.stack([target_distance(r, points[i]) for i, r in enumerate(rows)])
