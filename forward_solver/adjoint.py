@@ -152,9 +152,14 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
     found = {}
 
     def primal_solution(p: Parameters) -> Solution:
-        if adjoint == "unrolled":
-            return _unrolled_solution(scene, p, rtol, max_steps)
-        return solve(p)
+        # The host solve runs at top level, as a plain call does: under the caller's transformation
+        # (jax.jacfwd's batching, jax.grad's linearisation) each compiled program it calls was bound
+        # to that trace and compiled again in a transformed (equivalent) form: relaxation, Newton
+        # and its forces twice per grid in every design.
+        with jax.core.eval_context():
+            if adjoint == "unrolled":
+                return _unrolled_solution(scene, p, rtol, max_steps)
+            return solve(p)
 
     @jax.custom_jvp
     def nodes_of(p):
@@ -173,11 +178,12 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
             # gets the failed solution, whose tangent is undefined.
             nan = jnp.full(sol.nodes.shape, jnp.nan)
             return jnp.asarray(sol.nodes), nan
-        params = scene.params(concrete)
-        x = jnp.asarray(sol.nodes)
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        implicit = ImplicitAdjoint(x, geometry, params, scene.physics(dynamic=False), linear_solver,
-                                   factor=sol.factor)
+        with jax.core.eval_context():  # concrete: the LU (a fresh one after chord Newton) as a plain call
+            params = scene.params(concrete)
+            x = jnp.asarray(sol.nodes)
+            geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+            implicit = ImplicitAdjoint(x, geometry, params, scene.physics(dynamic=False), linear_solver,
+                                       factor=sol.factor)
         return x, implicit.tangent(_kernel_tangent(dp, params))
 
     with float64_scope(parameters):

@@ -65,3 +65,25 @@ def test_a_bay_of_another_chord_measures_without_compiling(first):
     d1, d2, j1, j2 = (np.asarray(a) for a in (d1, d2, j1, j2))  # compared in float64, outside the scope
     assert np.max(np.abs(d2 - d1)) < 1e-12
     assert np.max(np.abs(j2 * 0.8 - j1)) < 1e-12  # d/ds at 0.8 of (nodes s / 0.8) = nodes / 0.8
+
+
+def test_a_derivative_reuses_the_plain_solves_programs(first):
+    """Under ``jax.grad`` the host solve runs at top level (`adjoint.differentiable_solution`): its
+    relaxation, Newton and Jacobian programs are the plain solve's, not a second, transformed copy
+    (before: relax_jit, prepare and static_state compiled again in every design)."""
+    import jax
+    import jax.numpy as jnp
+
+    scene, base, _ = first
+    with jax.enable_x64(True):
+        resolved = base.resolved(scene.fabric)
+
+        def peak(pressure):
+            return jnp.max(solve_equilibrium(scene, resolved.replace(pressure=pressure), method="auto").nodes[..., 2])
+
+        before = list(_COMPILES)
+        slope = jax.grad(peak)(jnp.float64(1.5e4))
+    new = _COMPILES[len(before):]
+    assert np.isfinite(float(slope)) and float(slope) > 0.0  # more pressure, more bulge
+    again = [name for name in new if name in ("jit(relax_jit)", "jit(prepare)", "jit(_jacobian_values)")]
+    assert not again, f"the derivative compiled the solve again: {again}"
