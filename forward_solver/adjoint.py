@@ -60,6 +60,7 @@ small grids.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from functools import partial
@@ -71,6 +72,11 @@ import jax.numpy as jnp
 from . import forces as fk
 from ._precision import float64_scope
 from .implicit import LINEAR_SOLVERS, ImplicitAdjoint, default_linear_solver
+
+#: Runs concrete host work at top level, outside a caller's transformation (see
+#: `differentiable_solution`); a JAX without ``jax.core.eval_context`` runs it under the caller's
+#: trace: the same result, with the programs compiled twice.
+_top_level = getattr(jax.core, "eval_context", contextlib.nullcontext)
 from .loop import LoopOutput
 from .parameters import PARAMETER_NAMES, Parameters
 from .relax import MASS_SAFETY, kinetic_damping_step
@@ -156,7 +162,7 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
         # (jax.jacfwd's batching, jax.grad's linearisation) each compiled program it calls was bound
         # to that trace and compiled again in a transformed (equivalent) form: relaxation, Newton
         # and its forces twice per grid in every design.
-        with jax.core.eval_context():
+        with _top_level():
             if adjoint == "unrolled":
                 return _unrolled_solution(scene, p, rtol, max_steps)
             return solve(p)
@@ -178,7 +184,7 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
             # gets the failed solution, whose tangent is undefined.
             nan = jnp.full(sol.nodes.shape, jnp.nan)
             return jnp.asarray(sol.nodes), nan
-        with jax.core.eval_context():  # concrete: the LU (a fresh one after chord Newton) as a plain call
+        with _top_level():  # concrete: the LU (a fresh one after chord Newton) as a plain call
             params = scene.params(concrete)
             x = jnp.asarray(sol.nodes)
             geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
