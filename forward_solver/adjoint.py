@@ -72,16 +72,16 @@ import jax.numpy as jnp
 from . import forces as fk
 from ._precision import float64_scope
 from .implicit import LINEAR_SOLVERS, ImplicitAdjoint, default_linear_solver
-
-#: Runs concrete host work at top level, outside a caller's transformation (see
-#: `differentiable_solution`); a JAX without ``jax.core.eval_context`` runs it under the caller's
-#: trace: the same result, with the programs compiled twice.
-_top_level = getattr(jax.core, "eval_context", contextlib.nullcontext)
 from .loop import LoopOutput
 from .parameters import PARAMETER_NAMES, Parameters
 from .relax import MASS_SAFETY, kinetic_damping_step
 from .scene import Scene
 from .solution import Result, Solution, make_solution, static_forces
+
+#: Runs concrete host work at top level, outside a caller's transformation (see
+#: `differentiable_solution`); a JAX without ``jax.core.eval_context`` runs it under the caller's
+#: trace: the same result, with the programs compiled twice.
+_top_level = getattr(jax.core, "eval_context", contextlib.nullcontext)
 
 __all__ = [
     "ADJOINTS",

@@ -434,27 +434,11 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         raise ValueError("rib_shape_tip has no meaning for a whole wing: give every rib's shape as "
                          "rib_shapes (n_ribs x 2K), or one rib_shape for all ribs")
     if rib_shapes is not None:
-        if parameters.rib_shape is not None:
-            raise ValueError("give the rib shapes once: per rib as rib_shapes, or one parameters.rib_shape "
-                             "for every rib, not both")
-        size = np.shape(rib_shapes)
-        if len(size) != 2 or size[0] != n_bays + 1 or size[1] < 2 or size[1] % 2:
-            raise ValueError(f"rib_shapes must be an ({n_bays + 1}, 2K) array, one row of 2K >= 2 "
-                             f"coefficients per rib, got shape {size}")
-        if not isinstance(rib_shapes, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(rib_shapes))):
-            raise ValueError("rib_shapes must be finite")
+        _check_rows(rib_shapes, "rib_shapes", parameters.rib_shape, n_bays + 1, "rib", "rib shapes")
         if not first.bay.periodic:
             raise ValueError("rib_shapes offset airfoil ribs; these bays are flat panels: leave rib_shapes None")
     if cut_patterns is not None:
-        if parameters.cut_pattern is not None:
-            raise ValueError("give the cut fields once: per bay as cut_patterns, or one parameters.cut_pattern "
-                             "for every bay, not both")
-        size = np.shape(cut_patterns)
-        if len(size) != 2 or size[0] != n_bays or size[1] < 2 or size[1] % 2:
-            raise ValueError(f"cut_patterns must be an ({n_bays}, 2K) array, one row of 2K >= 2 coefficients "
-                             f"per bay, got shape {size}")
-        if not isinstance(cut_patterns, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(cut_patterns))):
-            raise ValueError("cut_patterns must be finite")
+        _check_rows(cut_patterns, "cut_patterns", parameters.cut_pattern, n_bays, "bay", "cut fields")
     shape = (n_bays,) + first.bay.shape + (3,)
     if initial is not None:
         if not isinstance(initial, WingSolution) or tuple(np.shape(initial.nodes)) != shape:
@@ -475,6 +459,20 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         if failed:
             raise ConvergenceError(sol.bay_solution(failed[0]), (failed[0], len(failed), n_bays))
     return sol
+
+
+def _check_rows(rows, name: str, shared, count: int, what: str, things: str) -> None:
+    """Refuse per-rib or per-bay coefficient ``rows`` (argument ``name``, one row per ``what``) that
+    are also given once in the `Parameters` (``shared``), are not ``(count, 2 K)`` or not finite."""
+    if shared is not None:
+        raise ValueError(f"give the {things} once: per {what} as {name}, or one parameters.{name[:-1]} "
+                         f"for every {what}, not both")
+    size = np.shape(rows)
+    if len(size) != 2 or size[0] != count or size[1] < 2 or size[1] % 2:
+        raise ValueError(f"{name} must be an ({count}, 2K) array, one row of 2K >= 2 coefficients per {what}, "
+                         f"got shape {size}")
+    if not isinstance(rows, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(rows))):
+        raise ValueError(f"{name} must be finite")
 
 
 def _check_scenes(scenes) -> None:

@@ -82,7 +82,7 @@ from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_square
 from .objectives import check_objective, same_section
 from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
-from .variables import VARIABLES, DesignVariables
+from .variables import VARIABLES, DesignVariables, concrete_rows
 
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult", "optimise_wing", "optimise_pressure",
            "refine_design"]
@@ -491,7 +491,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             sol0 = problem.solve(u0)
         before = problem.measure(sol0, u0)
         start_parameters = sol0.parameters if design.rib_shapes is not None else design.parameters(u0).as_floats()
-        start_shapes, start_fields = _concrete(design.rib_shapes_at(u0)), _concrete(design.cut_patterns_at(u0))
+        start_shapes = concrete_rows(design.rib_shapes_at(u0))
+        start_fields = concrete_rows(design.cut_patterns_at(u0))
         violated_at_start = {
             **constraint_report(constraints, design, start_parameters, before["tensions"], fabric,
                                 problem.tension_scale, start_shapes, start_fields)[1],
@@ -521,7 +522,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
                 and np.all(np.isfinite(sol.nodes))):
             success = False
             message = f"{message}; the shape errors at the result are not finite"
-        shapes, fields = _concrete(design.rib_shapes_at(u)), _concrete(design.cut_patterns_at(u))
+        shapes, fields = concrete_rows(design.rib_shapes_at(u)), concrete_rows(design.cut_patterns_at(u))
         active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"],
                                                              fabric, problem.tension_scale, shapes, fields)
         rib_active, rib_violated, rib_values, per_rib, rib_broken = rib_report(geometries, parameters, shapes)
@@ -633,11 +634,6 @@ def _value(result: DesignResult, name: str):
     value = {"rib_shape": result.rib_shapes, "cut_pattern": result.cut_patterns}.get(name)
     value = getattr(result.parameters, name) if value is None else value
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
-
-
-def _concrete(rows):
-    """Per-rib or per-bay rows as a numpy array (None stays None)."""
-    return None if rows is None else np.asarray(rows, np.float64)
 
 
 def _failed_solve_message(failure: WingConvergenceError) -> str:

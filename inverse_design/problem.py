@@ -34,7 +34,7 @@ from forward_solver.wing import WingSolution, default_strategy
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          mean_square, row_targets, station_etas)
-from .variables import DesignVariables
+from .variables import DesignVariables, concrete_rows
 
 __all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
 
@@ -165,12 +165,11 @@ class DesignProblem:
     def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
         """``sol`` with the concrete arrays of ``aux`` (a JAX transformation's auxiliary output)."""
         u = np.asarray(u, np.float64)
-        shapes, fields = self.variables.rib_shapes_at(u), self.variables.cut_patterns_at(u)
         return dataclasses.replace(
             sol, nodes=np.asarray(aux["nodes"]), result=np.asarray(aux["result"]),
             residual=np.asarray(aux["residual"]), steps=np.asarray(aux["steps"]),
-            mounted=np.asarray(aux["mounted"]), rib_shapes=None if shapes is None else np.asarray(shapes),
-            cut_patterns=None if fields is None else np.asarray(fields),
+            mounted=np.asarray(aux["mounted"]), rib_shapes=concrete_rows(self.variables.rib_shapes_at(u)),
+            cut_patterns=concrete_rows(self.variables.cut_patterns_at(u)),
             parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
     def _transformed(self, transform, function, u):

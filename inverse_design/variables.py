@@ -40,8 +40,9 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver.wing import bay_parameters
 
-__all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START", "DEFAULT_BOUNDS",
-           "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables"]
+__all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START",
+           "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables",
+           "concrete_rows"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
@@ -351,6 +352,12 @@ class DesignVariables:
     @property
     def upper(self) -> np.ndarray:
         return self.bound(1)
+
+
+def concrete_rows(rows) -> np.ndarray | None:
+    """Per-rib shapes or per-bay fields (`DesignVariables.rib_shapes_at`, ``cut_patterns_at``) as a
+    float64 numpy array; None stays None."""
+    return None if rows is None else np.asarray(rows, np.float64)
 
 
 def _rows(name: str, given, terms: int, count: int, what: str) -> np.ndarray:
