@@ -137,13 +137,21 @@ def _main(argv: list[str] | None, started: float) -> int:
         summary = run(args, sources, progress=progress, started=started)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         return _interrupted(exc, args.out)
-    except ConvergenceError as exc:  # a forward solve failed: the reason, exit 1
-        print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
-        return 1
-    except ValueError as exc:  # bad input: one line, no traceback
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # input files are read (and checked) before: this is the output
+    except (ConvergenceError, ValueError, OSError) as exc:
+        try:
+            # An error raised while a stop unwound the run is the stop's doing: a Ctrl-C inside
+            # np.savez_compressed leaves a zip member open, and closing the zip file then raises
+            # ValueError in place of the KeyboardInterrupt.
+            interrupts.check()
+        except KeyboardInterrupt as stop:
+            return _interrupted(stop, args.out)
+        if isinstance(exc, ConvergenceError):  # a forward solve failed: the reason, exit 1
+            print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
+            return 1
+        if isinstance(exc, ValueError):  # bad input: one line, no traceback
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            return 2
+        # input files are read (and checked) before: this is the output
         print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
         return 1
     try:

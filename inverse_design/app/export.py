@@ -168,9 +168,23 @@ def write_npz(path, solution: Solution, target, scene, result: DesignResult | No
         arrays["history_objective"] = np.array([h["objective"] for h in result.history], dtype=np.float64)
         rows = [np.concatenate([np.ravel(h["values"][n]) for n in names]) for h in result.history]
         arrays["history_values"] = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
+    return save_npz(path, arrays)
+
+
+def save_npz(path, arrays: dict) -> Path:
+    """``np.savez_compressed(path, **arrays)``, never cut short by a stop of the command.
+
+    A Ctrl-C or SIGTERM that lands while a member of the zip file is being
+    closed leaves its write handle open; closing the zip file then raises
+    ValueError ("Can't close the ZIP file while there is an open writing
+    handle") in place of the stop, and the run ended with exit 2. The write
+    runs as an `interrupts.deferred` section: a stop arriving in it is raised
+    when the file is complete.
+    """
     path = Path(path)
-    with open(path, "wb") as f:
+    with interrupts.deferred(), open(path, "wb") as f:
         np.savez_compressed(f, **arrays)
+    interrupts.check()
     return path
 
 

@@ -80,8 +80,8 @@ import numpy as np
 
 from forward_solver import Solution
 
-from .export import (check_output_folder, staged_folder, write_cut_pattern, write_npz, write_obj, write_selig,
-                     write_stl)
+from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
+                     write_selig, write_stl)
 from .pattern import write_bay_patterns
 from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
 from ..optimise import DesignResult
@@ -603,9 +603,9 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         params = result.parameters
         shared = _shared_names(result)
         deviation = wing_deviation(result)
-        with open(staging / "wing.npz", "wb") as f:
-            np.savez_compressed(
-                f, nodes=np.stack([s.nodes for s in solutions]),
+        save_npz(
+            staging / "wing.npz", dict(
+                nodes=np.stack([s.nodes for s in solutions]),
                 tension_span=np.stack([s.tension_span for s in solutions]),
                 tension_chord=np.stack([s.tension_chord for s in solutions]),
                 wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
@@ -622,7 +622,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
                 history_values=np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
                                          for h in result.history], np.float64).reshape(len(result.history), -1),
                 rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
-                cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns))
+                cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns)))
         joined = wing_nodes(result)
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
         write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
