@@ -8,12 +8,16 @@ name). Runs:
 1. ``default``: the default case of the command (``python -m
    inverse_design.app.cli --quiet --out DIR``), (a) without the persistent
    compilation cache (``--no-compilation-cache``), (b) with an empty cache
-   (it fills it), (c) with that cache;
+   (it fills it), (c) with that cache; and (d) as (a) with XLA's default
+   CPU emitters (``XLA_FLAGS=--xla_cpu_use_fusion_emitters=true``, which the
+   command leaves as the caller set it), for the ratio of
+   `forward_solver.xla.enable_fast_compilation`;
 2. ``first_solve``: a notebook's first ``solve_equilibrium`` on the default
    bay (NACA 2412, chord 1 m, ribs 0.25 m apart, default fabric, 1 kPa,
    prestrain 2%) at 17x256, no persistent cache, imports included; then a
    second solve at a new pressure and prestrain (the compilations it adds
-   must be none);
+   must be none); once as the library does by default and once after
+   ``forward_solver.xla.enable_fast_compilation()``;
 3. ``resolve``: for the ratio of item 3, one process: the default bay
    (17x64) at the default case's start (10 kPa, prestrain 2%), re-solved
    (method "auto") warm-started from its equilibrium after a 1% change of
@@ -75,6 +79,9 @@ atexit.register(_dump)
 
 _FIRST_SOLVE = r"""
 _MARKS["imports_start"] = time.perf_counter() - _T0
+if __FAST__:
+    from forward_solver.xla import enable_fast_compilation
+    enable_fast_compilation()
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
 from targets import naca
 _MARKS["imported"] = time.perf_counter() - _T0
@@ -157,23 +164,32 @@ def default_case_runs(tmp: Path, top: int) -> list[dict]:
     code = ("import sys\nfrom inverse_design.app.cli import main\n"
             "_MARKS['exit'] = main(sys.argv[1:])\n")
     rows = []
-    for label, extra in [("default, no cache", ["--no-compilation-cache"]), ("default, empty cache", []),
-                         ("default, cached", [])]:
+    default_emitters = dict(env, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
+    for label, extra, run_env in [("default, no cache", ["--no-compilation-cache"], env),
+                                  ("default, empty cache", [], env), ("default, cached", [], env),
+                                  ("default, no cache, XLA's default emitters", ["--no-compilation-cache"],
+                                   default_emitters)]:
         out = tmp / f"out-{len(rows)}"
-        wall, report, _ = _child(code, tmp / f"report-{len(rows)}.json", ["--quiet", "--out", str(out), *extra], env)
+        wall, report, _ = _child(code, tmp / f"report-{len(rows)}.json", ["--quiet", "--out", str(out), *extra],
+                                 run_env)
         row = _summary(label, wall, report, top)
         summary = json.loads((out / "summary.json").read_text())
-        row["summary"] = {k: summary.get(k) for k in ("success", "forward_solves", "timings_s")}
-        row["summary"]["design"] = summary.get("design", summary.get("parameters"))
+        results = summary["results"]
+        row["summary"] = {"success": results["success"], "forward_solves": results["forward_solves"],
+                          "pressure_pa": results["values"]["pressure_pa"], "rms": summary["errors"]["after"]["rms"],
+                          "timings_s": {k: round(v, 2) for k, v in summary["timings_s"].items()}}
         rows.append(row)
     return rows
 
 
-def first_solve_run(tmp: Path, top: int, shape=(17, 256)) -> dict:
-    code = _FIRST_SOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+def first_solve_run(tmp: Path, top: int, shape=(17, 256), fast: bool = False) -> dict:
+    code = (_FIRST_SOLVE.replace("__NS__", str(shape[0])).replace("__NC__", str(shape[1]))
+            .replace("__FAST__", str(fast)))
     env = dict(os.environ, JAX_ENABLE_COMPILATION_CACHE="false")
-    wall, report, _ = _child(code, tmp / "report-first.json", env=env)
-    return _summary(f"first solve {shape[0]}x{shape[1]}", wall, report, top)
+    env.pop("XLA_FLAGS", None)
+    wall, report, _ = _child(code, tmp / f"report-first-{fast}.json", env=env)
+    label = "after enable_fast_compilation()" if fast else "the library's default"
+    return _summary(f"first solve {shape[0]}x{shape[1]}, {label}", wall, report, top)
 
 
 def resolve_run(tmp: Path, shape=(17, 64), repeats: int = 5) -> dict:
@@ -200,7 +216,7 @@ def main(argv=None) -> None:
         if not args.skip_default:
             runs += default_case_runs(tmp, args.top)
         if not args.skip_first:
-            runs.append(first_solve_run(tmp, args.top))
+            runs += [first_solve_run(tmp, args.top), first_solve_run(tmp, args.top, fast=True)]
         if not args.skip_resolve:
             runs.append(resolve_run(tmp))
     for run in runs:

@@ -11,6 +11,10 @@ command, README blocks, notebook kernels) share the programs any of them has
 compiled. It is a fresh folder each run, removed at the end, so a run starts
 cold as on CI, and no test writes to the user's own cache
 (``~/.cache/inflatable-wing``).
+
+The run compiles as the command does, with XLA's faster-compiling CPU loop
+emitters (`forward_solver.xla.enable_fast_compilation`, set before any test
+starts JAX's backend; its subprocesses inherit it).
 """
 
 import os
@@ -19,6 +23,8 @@ import tempfile
 
 import jax
 import pytest
+
+from forward_solver.xla import enable_fast_compilation
 
 CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
 
@@ -30,6 +36,7 @@ def x64():
 
 
 def pytest_configure(config):
+    enable_fast_compilation()  # (the backend has not started: JAX has computed nothing yet)
     if not os.environ.get(CACHE_VARIABLE):  # the first process of the run (xdist's workers inherit it)
         os.environ[CACHE_VARIABLE] = tempfile.mkdtemp(prefix="inflatable-wing-tests-jax-")
         config.owned_cache = os.environ[CACHE_VARIABLE]

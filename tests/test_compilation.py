@@ -1,5 +1,7 @@
 """New parameter values never recompile (issue 20, item 1), counted with `jax.monitoring`."""
 
+import os
+
 import jax.monitoring
 import numpy as np
 import pytest
@@ -87,3 +89,35 @@ def test_a_derivative_reuses_the_plain_solves_programs(first):
     assert np.isfinite(float(slope)) and float(slope) > 0.0  # more pressure, more bulge
     again = [name for name in new if name in ("jit(relax_jit)", "jit(prepare)", "jit(_jacobian_values)")]
     assert not again, f"the derivative compiled the solve again: {again}"
+
+
+def test_fast_compilation_adds_its_flags_once_and_never_overrides_the_callers(monkeypatch):
+    from forward_solver import xla
+
+    monkeypatch.setattr(xla, "_backend_started", lambda: False)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    assert xla.enable_fast_compilation()
+    assert os.environ["XLA_FLAGS"] == "--xla_dump_to=/tmp/x " + " ".join(xla.FAST_COMPILATION_FLAGS)
+    assert not xla.enable_fast_compilation()  # named already: unchanged
+    assert os.environ["XLA_FLAGS"].count("fusion_emitters") == 1
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_use_fusion_emitters=true")  # the caller's own choice
+    assert not xla.enable_fast_compilation() and os.environ["XLA_FLAGS"] == "--xla_cpu_use_fusion_emitters=true"
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setattr(xla, "_backend_started", lambda: True)  # XLA has read its flags: nothing to add
+    assert not xla.enable_fast_compilation() and "XLA_FLAGS" not in os.environ
+
+
+def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(monkeypatch):
+    from forward_solver import xla
+    from inverse_design.app import cli
+
+    seen = []
+    monkeypatch.setattr(xla, "_backend_started", lambda: False)
+    monkeypatch.setattr(cli, "_main", lambda argv, started: seen.append(os.environ.get("XLA_FLAGS")) or 0)
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+    assert cli.main([]) == 0
+    assert seen == [" ".join(xla.FAST_COMPILATION_FLAGS)] and "XLA_FLAGS" not in os.environ
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
+    assert cli.main([]) == 0
+    assert seen[-1] == "--xla_dump_to=/tmp/x " + " ".join(xla.FAST_COMPILATION_FLAGS)
+    assert os.environ["XLA_FLAGS"] == "--xla_dump_to=/tmp/x"

@@ -22,7 +22,10 @@ process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
 ``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
 else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing.
+second run of a grid compiles nothing. It also compiles with XLA's faster-
+compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
+unless ``XLA_FLAGS`` chooses otherwise): about 40% less compile time, the
+same results.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ import os
 import sys
 import time
 from pathlib import Path
+
+from forward_solver.xla import enable_fast_compilation
 
 from . import interrupts
 from .case import parse_arguments
@@ -77,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     """
     started = time.perf_counter()
     previous = interrupts.install()
+    flags = os.environ.get("XLA_FLAGS")
+    enable_fast_compilation()  # before the run's first JAX computation
     try:
         code = _main(argv, started)
     except Terminated:  # before the run (importing JAX) or after its folder was written
@@ -87,6 +94,10 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_INTERRUPTED
     finally:
         interrupts.restore(previous)
+        if flags is None:  # (read by XLA when its backend started: a caller's later children see theirs)
+            os.environ.pop("XLA_FLAGS", None)
+        else:
+            os.environ["XLA_FLAGS"] = flags
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
