@@ -292,9 +292,8 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
     Raises:
         ValueError: when the shape does not fit the grid.
     """
-    mounted = fk.mounted_nodes(geometry, params)
     if initial is None:
-        return mounted
+        return fk.mounted_nodes(geometry, params)
     solution = initial if isinstance(initial, Solution) else None
     nodes = initial if solution is None else solution.extra.get("primal_nodes", solution.nodes)
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
@@ -304,10 +303,23 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
             f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
             "interpolate it to the grid or start from the mounted shape (initial=None)"
         )
-    if solution is not None:
-        own = solution.parameters
-        own_mounted = fk.nominal_nodes(geometry, own.rib_thickness_scale, own.rib_chord_scale, *own.rib_shapes)
-        nodes = mounted + (nodes - own_mounted)
+    if solution is None:
+        return _remounted(nodes, geometry, params)
+    own = solution.parameters
+    shapes = [jnp.zeros(0, nodes.dtype) if shape is None else jnp.asarray(shape, nodes.dtype)
+              for shape in own.rib_shapes]
+    return _remounted(nodes, geometry, params, jnp.asarray(own.rib_thickness_scale, nodes.dtype),
+                      jnp.asarray(own.rib_chord_scale, nodes.dtype), *shapes)
+
+
+@jax.jit
+def _remounted(nodes, geometry: fk.Geometry, params: fk.Params, *own):
+    """`initial_nodes` as one program (a warm re-solve's start; eager, it was half of its time):
+    ``nodes`` with the held nodes at this solve's mounted shape and, given the rib variables
+    ``own`` of the solution they came from, the free nodes moved by the change of mounted shape."""
+    mounted = fk.mounted_nodes(geometry, params)
+    if own:
+        nodes = mounted + (nodes - fk.nominal_nodes(geometry, *own))
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 
