@@ -30,11 +30,12 @@ from contextlib import contextmanager
 from functools import partial
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
 
-__all__ = ["FLOAT32_EPS", "check_float32_tolerance", "float32_floor", "float64_scope"]
+__all__ = ["FLOAT32_EPS", "check_float32_tolerance", "device_arrays", "float32_floor", "float64_scope"]
 
 #: Relative rounding precision of a float32 coordinate (its machine epsilon).
 FLOAT32_EPS = float(np.finfo(np.float32).eps)
@@ -112,3 +113,17 @@ def precision_extra(precision: str, rtol: float, geometry, params, physics) -> d
         check_float32_tolerance(rtol, floor)
         extra["float32_floor"] = floor
     return extra
+
+
+def device_arrays(values, dtype=None) -> list:
+    """``[jnp.asarray(v, dtype=dtype) for v in values]``, concrete values in one transfer.
+
+    Concrete values travel in one ``jax.device_put`` of the whole list
+    instead of one transfer (and conversion) each (`Scene.params`,
+    `Bay.geometry`); a warm re-solve of the default bay spent about a quarter
+    of its 4 ms on them. With a traced value (under a JAX transformation)
+    each is converted on its own.
+    """
+    if any(isinstance(v, jax.core.Tracer) for v in values):
+        return [jnp.asarray(v, dtype=dtype) for v in values]
+    return jax.device_put([np.asarray(v, dtype=dtype) for v in values])

@@ -21,7 +21,7 @@ import numpy as np
 
 from targets.airfoil import common_trailing_edge
 
-from ._precision import float64_scope
+from ._precision import device_arrays, float64_scope
 from .forces import Geometry, nominal_nodes, surface_area
 
 __all__ = ["Bay"]
@@ -246,18 +246,12 @@ class Bay:
     # --------------------------------------------------------------- geometry
     def geometry(self) -> Geometry:
         """The bay as traced arrays for the force kernel."""
-        return Geometry(
-            contour_root=jnp.asarray(self.contour_root),
-            contour_tip=jnp.asarray(self.contour_tip),
-            camber_root=jnp.asarray(self.camber_root),
-            camber_tip=jnp.asarray(self.camber_tip),
-            # numpy scalars, not Python floats: a weakly typed scalar is another jit signature
-            # than the strongly typed one (a recompile of every kernel it reaches).
-            chord_root=jnp.asarray(np.float64(self.chord_root)),
-            chord_tip=jnp.asarray(np.float64(self.chord_tip)),
-            rib_spacing=jnp.asarray(np.float64(self.rib_spacing)),
-            free=jnp.asarray((~np.asarray(self.fixed)).astype(np.float64)),
-        )
+        # numpy scalars, not Python floats: a weakly typed scalar is another jit signature than the
+        # strongly typed one (a recompile of every kernel it reaches). One transfer for all of them.
+        return Geometry(*device_arrays([
+            self.contour_root, self.contour_tip, self.camber_root, self.camber_tip,
+            np.float64(self.chord_root), np.float64(self.chord_tip), np.float64(self.rib_spacing),
+            (~np.asarray(self.fixed)).astype(np.float64)]))
 
     def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0, rib_shape=None,
                       rib_shape_tip=None) -> jnp.ndarray:

@@ -5,17 +5,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .bay import Bay
 from .fabric import Fabric
-from ._precision import float64_scope
+from ._precision import device_arrays, float64_scope
 from .forces import Params, Physics
 from .parameters import Parameters
 
-__all__ = ["Scene", "device_arrays", "float64_scope"]
+__all__ = ["Scene", "float64_scope"]
 
 #: dtype of each precision mode.
 PRECISIONS = {"float64": jnp.float64, "float32": jnp.float32}
@@ -120,15 +118,3 @@ class Scene:
 #: Kernel value of an unset rib shape: no coefficients, no offset (`rib_shape.rib_offsets`).
 _no_shape = ()
 
-
-def device_arrays(values, dtype=None) -> list:
-    """``[jnp.asarray(v, dtype=dtype) for v in values]``, concrete values in one transfer.
-
-    Concrete values travel in one ``jax.device_put`` of the whole list
-    instead of one transfer (and conversion) each; a warm re-solve of the
-    default bay spent about a quarter of its 4 ms on them. With a traced
-    value (under a JAX transformation) each is converted on its own.
-    """
-    if any(isinstance(v, jax.core.Tracer) for v in values):
-        return [jnp.asarray(v, dtype=dtype) for v in values]
-    return jax.device_put([np.asarray(v, dtype=dtype) for v in values])

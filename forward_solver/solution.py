@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
+from ._precision import device_arrays
 from .jacobian import JacobianFactor
 from .parameters import Parameters, ParameterViews
 
@@ -306,10 +307,9 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
     if solution is None:
         return _remounted(nodes, geometry, params)
     own = solution.parameters
-    shapes = [jnp.zeros(0, nodes.dtype) if shape is None else jnp.asarray(shape, nodes.dtype)
-              for shape in own.rib_shapes]
-    return _remounted(nodes, geometry, params, jnp.asarray(own.rib_thickness_scale, nodes.dtype),
-                      jnp.asarray(own.rib_chord_scale, nodes.dtype), *shapes)
+    shapes = [np.zeros(0) if shape is None else shape for shape in own.rib_shapes]
+    return _remounted(nodes, geometry, params, *device_arrays(
+        [own.rib_thickness_scale, own.rib_chord_scale, *shapes], nodes.dtype))
 
 
 @jax.jit

@@ -17,7 +17,7 @@ from .loop import LoopOutput
 from .newton import chord_newton, newton
 from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
-from .scene import PRECISIONS, Scene, device_arrays, float64_scope
+from .scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, static_forces
 from .traced import has_abstract_values, traced_solution
 
@@ -237,7 +237,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
     with float64_scope():
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(parameters, dtype=dtype)
-        geometry = fk.Geometry(*device_arrays(bay.geometry(), dtype))
+        geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
         extra = precision_extra(precision, rtol, geometry, params, physics)
         coarse_rtol = _COARSE_RTOL
         if precision == "float32":
