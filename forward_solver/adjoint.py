@@ -61,6 +61,7 @@ small grids.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import math
 import time
 from functools import partial
@@ -90,6 +91,7 @@ __all__ = [
     "DIFFERENTIABLE",
     "GRADIENT_RTOL",
     "differentiable_solution",
+    "nodes_only",
     "unrolled_equilibrium_nodes",
 ]
 
@@ -98,6 +100,27 @@ ADJOINTS = ("implicit", "unrolled")
 
 #: Parameters the equilibrium can be differentiated in (the `Parameters` fields).
 DIFFERENTIABLE = PARAMETER_NAMES
+
+#: Whether a differentiated solve's tensions are traced too (`nodes_only` turns it off).
+_TRACED_TENSIONS = contextvars.ContextVar("traced_tensions", default=True)
+
+
+@contextlib.contextmanager
+def nodes_only():
+    """Within: a differentiated `solve_equilibrium` traces its nodes alone; its `Solution`'s
+    tensions are the concrete solve's (not differentiable).
+
+    For callers that read only the nodes under ``jax.vjp`` / ``jax.jacfwd`` (`wing.solve_bays`, whose
+    design loop computes the tensions it constrains from the nodes): the traced tensions cost an
+    extra compiled program of the force kernel under each transformation (its JVP, its transpose),
+    about a second of XLA compilation on a 2-core machine, for values nobody differentiates.
+    """
+    token = _TRACED_TENSIONS.set(False)
+    try:
+        yield
+    finally:
+        _TRACED_TENSIONS.reset(token)
+
 
 #: Relative residual ``||R_free||_2 / (p A)`` of solves whose derivative must
 #: be accurate (see the module docstring for why).
@@ -195,8 +218,11 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
     with float64_scope(parameters):
         nodes = nodes_of(parameters)
         sol = found["solution"]
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        f = static_forces(nodes, geometry, scene.params(parameters), scene.physics(dynamic=False))
+        if _TRACED_TENSIONS.get():
+            geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+            f = static_forces(nodes, geometry, scene.params(parameters), scene.physics(dynamic=False))
+        else:  # `nodes_only`: the concrete solve's
+            f = sol
     return Solution(nodes=nodes, tension_span=f.tension_span, tension_chord=f.tension_chord,
                     wrinkled=sol.wrinkled, result=sol.result, steps=sol.steps, residual=sol.residual,
                     wall_time=sol.wall_time, method=sol.method, parameters=sol.parameters,

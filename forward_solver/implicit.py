@@ -30,6 +30,9 @@ wing) both differentiate through this one object.
 
 from __future__ import annotations
 
+import collections
+import itertools
+import weakref
 from functools import partial
 
 import jax
@@ -107,49 +110,148 @@ def _float64_on_this_thread() -> None:
         jax.enable_x64(True).__enter__()
 
 
+#: The LU factors a compiled tangent may call back into, by token (`HostLU`), while their
+#: equilibrium nodes live.
+_FACTORS: dict = {}
+#: Factors whose nodes are gone, newest last, kept within `RELEASED_FACTOR_BYTES`: a pullback
+#: (``jax.vjp``, ``jax.grad``) holds copies of what it needs, not the nodes themselves.
+_RELEASED: collections.OrderedDict = collections.OrderedDict()
+#: Memory the released factors may keep (the newest one is always kept), bytes.
+RELEASED_FACTOR_BYTES = 512 * 2**20
+_TOKENS = itertools.count()
+
+
+def _factor_bytes(factor) -> int:
+    return 12 * int(getattr(factor, "nnz", 0))  # a value and an index per nonzero of L and U
+
+
+def _release(token: int) -> None:
+    """Move ``token``'s factor from the live to the released ones, dropping the oldest released
+    factors beyond `RELEASED_FACTOR_BYTES`."""
+    factor = _FACTORS.pop(token, None)
+    if factor is None:
+        return
+    _RELEASED[token] = factor
+    total = sum(_factor_bytes(f) for f in _RELEASED.values())
+    while len(_RELEASED) > 1 and total > RELEASED_FACTOR_BYTES:
+        total -= _factor_bytes(_RELEASED.popitem(last=False)[1])
+
+
+def _registered_factor(token):
+    key = int(np.asarray(token).reshape(-1)[0])
+    factor = _FACTORS.get(key, _RELEASED.get(key))
+    if factor is None:
+        raise RuntimeError("the sparse LU of this implicit derivative was released: its equilibrium is "
+                           "gone and newer factors filled forward_solver.implicit.RELEASED_FACTOR_BYTES; "
+                           "call the pullback before solving much more, or differentiate again")
+    return factor
+
+
+def _host_solve(token, b, trans: str):
+    """``J^-1 b`` (``trans="N"``) or ``J^-T b`` ("T") with the registered factor ``token``, for free-dof
+    vectors ``b`` (leading batch axes allowed; float64, or its bits as `_bits`)."""
+    _float64_on_this_thread()
+    factor = _registered_factor(token)
+    b = np.asarray(b)
+    if b.dtype == np.uint32:
+        b = _from_bits(b)
+    b = np.asarray(b, dtype=np.float64)
+    flat = b.reshape(-1, b.shape[-1]).T
+    out = factor.solve(np.ascontiguousarray(flat), trans=trans)
+    return out.T.reshape(b.shape)
+
+
+def _bits(a):
+    """float64 ``a`` as ``(..., 2)`` uint32 words: how a host callback receives float64 exactly.
+
+    JAX hands a callback its operands through ``device_put`` on the thread XLA runs it on; where
+    float64 is off on that thread (`_float64_on_this_thread`: the first callback on each of XLA's
+    threads) a float64 operand arrives rounded to float32 (relative error 6e-8 in the derivative).
+    Words of 32 bits pass unchanged.
+    """
+    return jax.lax.bitcast_convert_type(a, jnp.uint32)
+
+
+def _from_bits(words):
+    """The float64 array of `_bits` words (host side)."""
+    words = np.ascontiguousarray(words, dtype=np.uint32)
+    return words.view(np.float64).reshape(words.shape[:-1])
+
+
+def _solve_n(token, anchor, b):
+    del anchor  # an operand only: the program that calls back holds it (or a copy; `HostLU`)
+    return _host_solve(token, b, "N")
+
+
+def _solve_t(token, anchor, b):
+    del anchor
+    return _host_solve(token, b, "T")
+
+
+def _apply_lu(token, anchor, free, b, callback):
+    """``J^-1 b`` or ``J^-T b`` on a full node array through the host callback (held dofs: 0)."""
+    flat = b.reshape(-1)
+    shape = jax.ShapeDtypeStruct(flat[free].shape, jnp.float64)
+    solved = jax.pure_callback(callback, shape, token, anchor, _bits(flat[free]), vmap_method="expand_dims")
+    return flat.at[free].set(solved, unique_indices=True).reshape(b.shape)
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def _lu_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, free, token, physics):
+    """`ImplicitAdjoint.tangent` with the host LU: the right-hand side, one transposable solve, the
+    held nodes' motion, as one compiled program (the factor reached by ``token``; `HostLU`)."""
+    b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+    matvec = partial(jacobian_matvec, x, geometry, params, physics=physics)
+    dx = jax.lax.custom_linear_solve(matvec, b, solve=lambda _, r: _apply_lu(token, x, free, r, _solve_n),
+                                     transpose_solve=lambda _, r: _apply_lu(token, x, free, r, _solve_t))
+    return dx + dheld
+
+
 class HostLU:
     """The sparse LU of ``J`` on the host (scipy), reached through ``jax.pure_callback``.
+
+    The factor is registered under an integer token that the compiled tangent (`_lu_tangent`) passes
+    to two fixed host functions, so one program serves every factor: a callback closing over its own
+    factor made a new program per factor (traced, batched and compiled again on every design
+    iterate: some 50 ms a tangent, and one compilation per factor). The registration is live as
+    long as ``anchor`` (the equilibrium nodes, a JAX array, passed along to every call); after
+    that the factor stays among the most recently released ones (`RELEASED_FACTOR_BYTES`), for a
+    pullback that holds copies of the nodes but not the nodes.
 
     Args:
         factor: a ``scipy.sparse.linalg.SuperLU`` of ``J`` on the free dofs.
         free: index of each free dof into ``x.reshape(-1)`` (its numbering).
+        anchor: the equilibrium nodes ``x`` (a JAX array) the factor belongs to.
     """
 
     name = "lu"
 
-    def __init__(self, factor, free):
+    def __init__(self, factor, free, anchor):
         self.factor = factor
         self.free = jnp.asarray(free)
+        self.anchor = anchor
+        token = next(_TOKENS)
+        _FACTORS[token] = factor
+        weakref.finalize(anchor, _release, token)
+        self.token = jnp.asarray(token, jnp.int32)  # 32 bits: unchanged whether float64 is on or off
 
     @classmethod
     def at(cls, x, geometry, params, physics, factor=None) -> "HostLU":
-        """The LU at ``x``: ``factor`` (a `jacobian.JacobianFactor`) when it is current, else a fresh one."""
+        """The LU at ``x`` (a JAX array): ``factor`` (a `jacobian.JacobianFactor`) when it is current,
+        else a fresh one."""
         if factor is not None and factor.current:
-            return cls(factor.lu, np.asarray(factor.free_dofs))
-        ref = jax.jit(fk.prepare, static_argnames=("physics",))(geometry, params, fk.static_physics(physics))
+            return cls(factor.lu, np.asarray(factor.free_dofs), x)
+        ref = fk.prepare_compiled(geometry, params, fk.static_physics(physics))
         lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
-        return cls(lu, free_dofs(ref))
+        return cls(lu, free_dofs(ref), x)
 
     def host_solve(self, b, trans: str):
         """``J^-1 b`` (``trans="N"``) or ``J^-T b`` ("T") for free-dof vectors ``b`` (leading batch axes allowed)."""
-        _float64_on_this_thread()
-        b = np.asarray(b, dtype=np.float64)
-        flat = b.reshape(-1, b.shape[-1]).T
-        out = self.factor.solve(np.ascontiguousarray(flat), trans=trans)
-        return out.T.reshape(b.shape)
+        return _host_solve(self.token, b, trans)
 
-    def _apply(self, b, trans: str):
-        flat = b.reshape(-1)
-        shape = jax.ShapeDtypeStruct(flat[self.free].shape, jnp.float64)
-        solved = jax.pure_callback(partial(self.host_solve, trans=trans), shape, flat[self.free],
-                                   vmap_method="expand_dims")
-        return flat.at[self.free].set(solved, unique_indices=True).reshape(b.shape)
-
-    def solve(self, x, geometry, params, b, physics):
-        """``J^-1 b`` on full node arrays (held dofs: ``b`` itself), transposable."""
-        matvec = partial(jacobian_matvec, x, geometry, params, physics=physics)
-        return jax.lax.custom_linear_solve(matvec, b, solve=lambda _, r: self._apply(r, "N"),
-                                           transpose_solve=lambda _, r: self._apply(r, "T"))
+    def tangent(self, x, geometry, params, dparams, physics):
+        """`ImplicitAdjoint.tangent` with this factor (one compiled program for every factor)."""
+        return _lu_tangent(x, geometry, params, dparams, self.free, self.token, physics)
 
 
 class Krylov:
@@ -203,6 +305,8 @@ class ImplicitAdjoint:
 
     def tangent(self, dparams: fk.Params):
         """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
+        if isinstance(self.solver, HostLU):
+            return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
         b, dheld = parameter_rhs(self.x, self.geometry, self.params, dparams, self.physics)
         return self.solver.solve(self.x, self.geometry, self.params, b, self.physics) + dheld
 

@@ -123,7 +123,7 @@ class NewtonResult(NamedTuple):
 
 
 # -------------------------------------------------------------------- newton
-_prepare = jax.jit(fk.prepare, static_argnames=("physics",))
+_prepare = fk.prepare_compiled
 
 
 def _factorise(matrix: sp.csc_matrix):

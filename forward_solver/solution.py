@@ -294,7 +294,7 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
         ValueError: when the shape does not fit the grid.
     """
     if initial is None:
-        return fk.mounted_nodes(geometry, params)
+        return fk.mounted_compiled(geometry, params)
     solution = initial if isinstance(initial, Solution) else None
     nodes = initial if solution is None else solution.extra.get("primal_nodes", solution.nodes)
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)

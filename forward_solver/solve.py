@@ -246,7 +246,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         steps = 0
         levels = []
         if initial is None and method == "newton":
-            x_init = fk.mounted_nodes(geometry, params)
+            x_init = fk.mounted_compiled(geometry, params)
         elif initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
                                                      sequencing, symmetric, precision, coarse_rtol)
@@ -374,7 +374,7 @@ def _use_half(geometry, symmetric: bool) -> bool:
 def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric,
                      precision="float64", coarse_rtol=_COARSE_RTOL):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
-    x0 = fk.mounted_nodes(geometry, params)
+    x0 = fk.mounted_compiled(geometry, params)
     if not (sequencing and coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
@@ -386,7 +386,7 @@ def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, s
                                 max_chunks, half=_use_half(coarse, symmetric), precision=precision)
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
-    xc0 = fk.mounted_nodes(coarse, params)
+    xc0 = fk.mounted_compiled(coarse, params)
     u = _prolong(xc_full - xc0, physics.periodic)
     chunks = int(out.chunks)
     levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]

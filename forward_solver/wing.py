@@ -47,6 +47,7 @@ from targets.airfoil import common_trailing_edge
 
 from . import forces as fk
 from ._precision import float64_scope
+from .adjoint import nodes_only
 from .bay import Bay
 from .fabric import Fabric
 from .parameters import Parameters, as_parameters
@@ -512,7 +513,7 @@ def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Param
 def _mounted(scene: Scene, parameters: Parameters):
     """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly)."""
     geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-    return jax.lax.stop_gradient(fk.mounted_nodes(geometry, jax.lax.stop_gradient(scene.params(parameters))))
+    return jax.lax.stop_gradient(fk.mounted_compiled(geometry, jax.lax.stop_gradient(scene.params(parameters))))
 
 
 def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
@@ -520,8 +521,11 @@ def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
     if not isinstance(solution.nodes, jax.core.Tracer) or "primal_nodes" not in solution.extra:
         return solution
     nodes = jnp.asarray(solution.extra["primal_nodes"], jnp.float64)
-    geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-    f = static_forces(nodes, geometry, scene.params(solution.parameters), scene.physics(dynamic=False))
+    if isinstance(solution.tension_span, jax.core.Tracer):
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        f = static_forces(nodes, geometry, scene.params(solution.parameters), scene.physics(dynamic=False))
+    else:  # `nodes_only`: the concrete solve's already
+        f = solution
     extra = {k: v for k, v in solution.extra.items() if k != "primal_nodes"}
     return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
                     tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(solution.wrinkled),
@@ -545,8 +549,9 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
             start = initial.solutions[k]
         else:  # a batch's solution: its displacement on this solve's mounted shape
             start = rest + jnp.asarray(moved[k], jnp.float64)
-        sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
-                                throw=False, linear_solver=linear_solver, sequencing=sequencing)
+        with nodes_only():  # the tensions returned are the primal's (`_concrete_solution`)
+            sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
+                                    throw=False, linear_solver=linear_solver, sequencing=sequencing)
         traced = bool(sol.extra.get("traced"))
         if traced:  # under jax.jit / vmap: result codes are arrays
             x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)

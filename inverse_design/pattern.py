@@ -313,7 +313,7 @@ def _mounted(scene, parameters) -> np.ndarray:
 
     with jax.enable_x64(True):
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        return np.asarray(fk.mounted_nodes(geometry, scene.params(parameters.as_floats())))
+        return np.asarray(fk.mounted_compiled(geometry, scene.params(parameters.as_floats())))
 
 
 def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:

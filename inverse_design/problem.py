@@ -240,8 +240,12 @@ class DesignProblem:
     # ----------------------------------------------- smooth constraints (slsqp)
     def evaluate(self, u):
         """``(f, grad f, g, dg/du, solution)`` at ``u``: the objective (chord^2) and the smooth
-        constraints ``g >= 0`` (tension limits, gradients by reverse mode, one adjoint solve each;
-        then the rib limits' rows, if any, by forward mode without a solve).
+        constraints ``g >= 0`` (tension limits; then the rib limits' rows, if any, by forward mode
+        without a solve). Their derivatives come by forward mode (one tangent solve per variable,
+        all in one batched back-solve) where there are no more variables than these outputs, else
+        by reverse mode (one adjoint solve per output): forward mode compiles no transposed
+        programs and runs no eager pullback per output (on the default case, one variable and two
+        outputs, 0.4 s less of a fresh run).
 
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
@@ -257,10 +261,15 @@ class DesignProblem:
                 return jnp.concatenate([f[None], constraint_functions(self.constraints, t, self.fabric,
                                                                       self.tension_scale)])
 
-            (y, pullback), sol = self._transformed(
-                lambda wrapped, v: jax.vjp(wrapped, v, has_aux=True), outputs, u)
-            rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
-            y = np.asarray(y)
+            n_outputs = 1 + (0 if self.constraints is None else len(self.constraints.names(self.fabric)))
+            if self.variables.size <= n_outputs:
+                (y, rows), sol = self._transformed(_value_and_jacobian, outputs, u)
+                y, rows = np.asarray(y), np.asarray(rows)
+            else:
+                (y, pullback), sol = self._transformed(
+                    lambda wrapped, v: jax.vjp(wrapped, v, has_aux=True), outputs, u)
+                rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
+                y = np.asarray(y)
             recorded = y[1:]
             if self.rib_geometries:
                 g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))

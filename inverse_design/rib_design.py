@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -200,6 +201,15 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
     return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
 
 
+@partial(jax.jit, static_argnames=("physics",))
+def _cut_reference(geometry, params, physics):
+    """``(span_length, contour_length, local span prestrain, local chord prestrain)`` of `forces.prepare`
+    and `cut_field.local_prestrain`: one compiled program (eagerly, some thirty operations compiled
+    one by one, most of a second of a report)."""
+    ref = fk.prepare(geometry, params, physics)
+    return (ref.span_length, ref.contour_length) + tuple(local_prestrain(geometry, params, physics.periodic))
+
+
 def cut_lengths(scene, parameters: Parameters) -> dict:
     """The fabric's cut pattern: reference lengths of eq. (12) summed along the grid lines.
 
@@ -219,12 +229,10 @@ def cut_lengths(scene, parameters: Parameters) -> dict:
     physics = fk.static_physics(scene.physics(dynamic=False))
     with jax.enable_x64(True):
         params = scene.params(parameters.as_floats())
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        ref = fk.prepare(geometry, params, physics)
-        contour = np.asarray(ref.contour_length)
-        span = np.asarray(ref.span_length)
-        local_span, local_chord = (np.broadcast_to(np.asarray(v, np.float64), shape) for v, shape in zip(
-            local_prestrain(geometry, params, physics.periodic), (span.shape[1:], contour.shape[1:])))
+        span, contour, local_span, local_chord = (np.asarray(a, np.float64) for a in _cut_reference(
+            scene.bay.geometry(), params, physics))
+        local_span = np.broadcast_to(local_span, span.shape[1:])
+        local_chord = np.broadcast_to(local_chord, contour.shape[1:])
     return {"contour_cut_m": contour.sum(axis=1), "contour_mounted_m": (contour * (1 + local_chord)).sum(axis=1),
             "span_cut_m": span.sum(axis=0), "span_mounted_m": span.sum(axis=0) * (1 + local_span),
             "contour_edge_cut_m": contour, "span_edge_cut_m": span,

@@ -204,3 +204,62 @@ def test_host_solve_returns_float64_on_a_thread_without_float64(scene, reference
     assert out["x64_before"] is False  # the premise: a new thread starts without float64
     assert out["dtype"] == np.float64
     assert not jax.config.jax_enable_x64  # this (the caller's) thread is untouched
+
+
+def test_host_solve_receives_float64_exactly_on_a_thread_without_float64(scene, reference):
+    """JAX hands a callback its operands through ``device_put`` on the thread XLA runs it on; with
+    float64 off there, a float64 right-hand side arrived rounded to float32 (forward-mode
+    derivatives off by 6e-8 relative). Its uint32 words pass unchanged: replayed on a fresh thread."""
+    import threading
+
+    from forward_solver.implicit import _bits, _host_solve
+
+    with jax.enable_x64(True):
+        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        lin = HostLU.at(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
+                        scene.physics(dynamic=False))
+        b = np.random.default_rng(1).normal(size=lin.factor.shape[0])
+        words = np.asarray(_bits(jnp.asarray(b)))
+    out = {}
+
+    def worker():
+        out["x64_before"] = bool(jax.config.jax_enable_x64)
+        token, bits = jax.device_put((np.asarray(lin.token), words))  # as JAX passes operands
+        out["plain"] = np.asarray(jax.device_put(b)).dtype
+        out["solved"] = _host_solve(token, bits, "N")
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    thread.join()
+    assert out["x64_before"] is False and out["plain"] == np.float32  # the premise: float64 is lost
+    np.testing.assert_array_equal(out["solved"], lin.factor.solve(b))
+
+
+def test_a_pullback_finds_its_lu_factor_and_released_factors_stay_within_their_budget(
+        scene, weights, reference, implicit_gradient, monkeypatch):
+    """The compiled tangent reaches its LU by a registered token. A ``jax.vjp`` pullback called after
+    everything else is gone still finds it (it holds copies of the nodes, not the nodes, so the
+    factor outlives them among the released ones); the released factors keep to their budget."""
+    import gc
+
+    from forward_solver import implicit
+
+    with jax.enable_x64(True):
+        _, pullback = jax.vjp(lambda q: jnp.sum(weights * _solve(scene, q, initial=reference).nodes), THETA)
+    gc.collect()
+    with jax.enable_x64(True):
+        (grad,) = pullback(1.0)
+    for name in DIFFERENTIABLE:
+        want = float(getattr(implicit_gradient[0], name))
+        assert abs(float(getattr(grad, name)) - want) <= 1e-12 * abs(want)
+    del pullback
+    gc.collect()
+    # A budget of one factor: releasing more keeps only the newest.
+    one = next(iter(implicit._RELEASED.values()))
+    monkeypatch.setattr(implicit, "RELEASED_FACTOR_BYTES", implicit._factor_bytes(one))
+    for _ in range(3):
+        with jax.enable_x64(True):
+            jax.grad(lambda q: jnp.sum(weights * _solve(scene, q, initial=reference).nodes))(THETA)
+        gc.collect()
+    assert len(implicit._RELEASED) == 1
+    assert sum(implicit._factor_bytes(f) for f in implicit._RELEASED.values()) <= implicit.RELEASED_FACTOR_BYTES
