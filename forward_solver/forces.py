@@ -250,7 +250,6 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
                      surface_area(x0, physics.periodic))
 
 
-
 #: `prepare` as one compiled program (eagerly, each of its operations compiles on its own).
 prepare_compiled = jax.jit(prepare, static_argnames=("physics",))
 

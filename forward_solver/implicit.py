@@ -229,7 +229,6 @@ class HostLU:
     def __init__(self, factor, free, anchor):
         self.factor = factor
         self.free = jnp.asarray(free)
-        self.anchor = anchor
         token = next(_TOKENS)
         _FACTORS[token] = factor
         weakref.finalize(anchor, _release, token)
@@ -259,9 +258,11 @@ class Krylov:
 
     name = "iterative"
 
-    def solve(self, x, geometry, params, b, physics):
-        """``J^-1 b`` on full node arrays (held dofs: ``b`` itself), transposable."""
-        return _krylov_solve(x, geometry, params, b, fk.static_physics(physics))
+    def tangent(self, x, geometry, params, dparams, physics):
+        """`ImplicitAdjoint.tangent` by BiCGStab: the right-hand side, the transposable solve, the held
+        nodes' motion."""
+        b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+        return _krylov_solve(x, geometry, params, b, fk.static_physics(physics)) + dheld
 
 
 @partial(jax.jit, static_argnames=("physics",))
@@ -305,10 +306,7 @@ class ImplicitAdjoint:
 
     def tangent(self, dparams: fk.Params):
         """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
-        if isinstance(self.solver, HostLU):
-            return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
-        b, dheld = parameter_rhs(self.x, self.geometry, self.params, dparams, self.physics)
-        return self.solver.solve(self.x, self.geometry, self.params, b, self.physics) + dheld
+        return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))

@@ -31,12 +31,10 @@ from a slightly bulged shape or from dynamic relaxation.
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
@@ -123,9 +121,6 @@ class NewtonResult(NamedTuple):
 
 
 # -------------------------------------------------------------------- newton
-_prepare = fk.prepare_compiled
-
-
 def _factorise(matrix: sp.csc_matrix):
     """SuperLU of ``matrix``; raises RuntimeError when it is exactly singular."""
     return spla.splu(matrix, permc_spec=PERMC_SPEC)
@@ -369,7 +364,7 @@ def newton(
         if tuple(np.shape(x_init)) != shape:
             raise ValueError(f"x_init has shape {np.shape(x_init)} but this bay's grid needs {shape}")
         dtype = geometry.contour_root.dtype
-        ref = _prepare(geometry, params, physics)
+        ref = fk.prepare_compiled(geometry, params, physics)
         if divergence_bound is None:
             chord = 0.5 * float(geometry.chord_root + geometry.chord_tip)
             divergence_bound = chord + float(geometry.rib_spacing)
@@ -450,7 +445,7 @@ def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rt
         return None
     with float64_scope():
         physics = fk.static_physics(physics)
-        free = free_dofs(_prepare(geometry, params, physics))
+        free = free_dofs(fk.prepare_compiled(geometry, params, physics))
         if not np.array_equal(free, previous.free_dofs):
             return None
         dtype = geometry.contour_root.dtype

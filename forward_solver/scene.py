@@ -117,4 +117,3 @@ class Scene:
 
 #: Kernel value of an unset rib shape: no coefficients, no offset (`rib_shape.rib_offsets`).
 _no_shape = ()
-

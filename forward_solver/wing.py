@@ -516,19 +516,15 @@ def _mounted(scene: Scene, parameters: Parameters):
     return jax.lax.stop_gradient(fk.mounted_compiled(geometry, jax.lax.stop_gradient(scene.params(parameters))))
 
 
-def _concrete_solution(solution: Solution, scene: Scene) -> Solution:
+def _concrete_solution(solution: Solution) -> Solution:
     """A `Solution` returned under eager ``jax.grad`` with its primal (concrete) nodes and tensions."""
     if not isinstance(solution.nodes, jax.core.Tracer) or "primal_nodes" not in solution.extra:
         return solution
+    # Solved under `adjoint.nodes_only`: the tensions are the concrete solve's already.
     nodes = jnp.asarray(solution.extra["primal_nodes"], jnp.float64)
-    if isinstance(solution.tension_span, jax.core.Tracer):
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        f = static_forces(nodes, geometry, scene.params(solution.parameters), scene.physics(dynamic=False))
-    else:  # `nodes_only`: the concrete solve's already
-        f = solution
     extra = {k: v for k, v in solution.extra.items() if k != "primal_nodes"}
-    return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
-                    tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(solution.wrinkled),
+    return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(solution.tension_span),
+                    tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled),
                     result=solution.result, steps=solution.steps, residual=solution.residual,
                     wall_time=solution.wall_time, method=solution.method, parameters=solution.parameters,
                     rib_spacing=solution.rib_spacing, history=solution.history, extra=extra,
@@ -561,7 +557,7 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
             x = np.full(np.shape(sol.nodes), np.nan)
         nodes.append(x)
         mounted.append(rest)
-        solutions.append(sol if traced else _concrete_solution(sol, scene))
+        solutions.append(sol if traced else _concrete_solution(sol))
     if any(isinstance(x, jax.core.Tracer) for x in nodes):
         stacked = jnp.stack([jnp.asarray(x, jnp.float64) for x in nodes])
     else:
