@@ -197,20 +197,24 @@ def _apply_lu(token, anchor, free, b, callback):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _lu_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, free, token, physics):
-    """`ImplicitAdjoint.tangent` with the host LU: the right-hand side, one transposable solve, the
-    held nodes' motion, as one compiled program (the factor reached by ``token``; `HostLU`)."""
-    b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+def _lu_solve(x, geometry: fk.Geometry, params: fk.Params, b, dheld, free, token, physics):
+    """``J^-1 b + dheld``, transposable, by the host LU that ``token`` names (`HostLU`).
+
+    A program of its own, apart from the right-hand side (`parameter_rhs`): a program that calls
+    back to the host is never put in JAX's persistent compilation cache, so it is kept to the
+    solve itself (the operator ``matvec`` is only traced, for the transpose), and the large
+    right-hand side compiles once and is cached like the rest (the whole tangent as one program
+    compiled for 0.6-0.8 s in every process).
+    """
     matvec = partial(jacobian_matvec, x, geometry, params, physics=physics)
-    dx = jax.lax.custom_linear_solve(matvec, b, solve=lambda _, r: _apply_lu(token, x, free, r, _solve_n),
-                                     transpose_solve=lambda _, r: _apply_lu(token, x, free, r, _solve_t))
-    return dx + dheld
+    return jax.lax.custom_linear_solve(matvec, b, solve=lambda _, r: _apply_lu(token, x, free, r, _solve_n),
+                                       transpose_solve=lambda _, r: _apply_lu(token, x, free, r, _solve_t)) + dheld
 
 
 class HostLU:
     """The sparse LU of ``J`` on the host (scipy), reached through ``jax.pure_callback``.
 
-    The factor is registered under an integer token that the compiled tangent (`_lu_tangent`) passes
+    The factor is registered under an integer token that the compiled solve (`_lu_solve`) passes
     to two fixed host functions, so one program serves every factor: a callback closing over its own
     factor made a new program per factor (traced, batched and compiled again on every design
     iterate: some 50 ms a tangent, and one compilation per factor). The registration is live as
@@ -249,8 +253,10 @@ class HostLU:
         return _host_solve(self.token, b, trans)
 
     def tangent(self, x, geometry, params, dparams, physics):
-        """`ImplicitAdjoint.tangent` with this factor (one compiled program for every factor)."""
-        return _lu_tangent(x, geometry, params, dparams, self.free, self.token, physics)
+        """`ImplicitAdjoint.tangent` with this factor: the right-hand side, the transposable solve (one
+        compiled program for every factor), the held nodes' motion."""
+        b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+        return _lu_solve(x, geometry, params, b, dheld, self.free, self.token, fk.static_physics(physics))
 
 
 class Krylov:

@@ -140,23 +140,37 @@ def _ks_max(t, rho):
     return top + jnp.log(jnp.sum(jnp.exp(rho * (t - top)))) / rho
 
 
+@partial(jax.jit, static_argnames=("has_floor", "has_ceiling"))
+def _smooth_limits(tensions, floor, ceiling, scale, has_floor: bool, has_ceiling: bool):
+    # One program (and one more under each derivative) for what were a dozen eager operations, each
+    # traced and compiled on its own; the limits and the scale are operands, so new values do not
+    # compile again.
+    t = jnp.concatenate([jnp.reshape(x, -1) for x in tensions]) / scale
+    parts = []
+    if has_floor:
+        parts.append(-_ks_max(-t, KS_SHARPNESS) - floor / scale)
+    if has_ceiling:
+        parts.append(ceiling / scale - _ks_max(t, KS_SHARPNESS))
+    return jnp.stack(parts) if parts else jnp.zeros(0, t.dtype)
+
+
 def constraint_functions(constraints: Constraints | None, tensions, fabric, scale: float):
     """Smooth inequality constraints ``g >= 0``, one per name of `Constraints.names` (dimensionless).
 
     ``min_tension``: ``(KS-min(T) - floor) / scale``; ``max_tension``:
     ``(ceiling - KS-max(T)) / scale`` (module docstring; ``T`` the unclamped
-    cell tensions, N/m; ``scale`` the tension scale, N/m).
+    cell tensions, N/m, an array or a list of them (one per bay); ``scale``
+    the tension scale, N/m).
     """
     if constraints is None:
         return jnp.zeros(0)
-    t = tensions / scale
-    parts = []
-    if constraints.min_tension is not None:
-        parts.append(-_ks_max(-t, KS_SHARPNESS) - constraints.min_tension / scale)
+    if not isinstance(tensions, (list, tuple)):
+        tensions = [tensions]
     ceiling = constraints.ceiling(fabric)
-    if math.isfinite(ceiling):
-        parts.append(ceiling / scale - _ks_max(t, KS_SHARPNESS))
-    return jnp.stack(parts) if parts else jnp.zeros(0)
+    floor = constraints.min_tension
+    return _smooth_limits(list(tensions), 0.0 if floor is None else float(floor),
+                          ceiling if math.isfinite(ceiling) else 0.0, float(scale),
+                          has_floor=floor is not None, has_ceiling=math.isfinite(ceiling))
 
 
 def cell_constraints(constraints: Constraints | None, tensions, fabric, scale: float):

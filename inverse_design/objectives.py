@@ -71,6 +71,7 @@ __all__ = [
     "bay_distances",
     "distance_residuals",
     "mean_square",
+    "weighted_mean_square",
     "distance_errors",
 ]
 
@@ -153,9 +154,14 @@ def target_distance(target, points):
         (p,), (dp,) = primals, tangents
         projection = target.project(np.asarray(p))
         normal = jnp.asarray(projection.normal, jnp.float64)
-        return jnp.asarray(projection.distance, jnp.float64), jnp.sum(normal * dp, axis=-1)
+        return jnp.asarray(projection.distance, jnp.float64), _along(normal, dp)
 
     return distance(points)
+
+
+@jax.jit
+def _along(normal, dp):
+    return jnp.sum(normal * dp, axis=-1)
 
 
 @partial(jax.jit, static_argnames=("etas",))
@@ -269,6 +275,13 @@ def mean_square(d, objective: str):
     rows = jnp.mean(d * d, axis=1)
     top = jnp.maximum(jax.lax.stop_gradient(jnp.max(rows)), np.finfo(np.float64).tiny)  # a perfect fit
     return top * (1.0 + jnp.log(jnp.sum(jnp.exp(WORST_SHARPNESS * (rows / top - 1.0)))) / WORST_SHARPNESS)
+
+
+@partial(jax.jit, static_argnames=("objective",))
+def weighted_mean_square(distances, weights, objective: str):
+    """``sum_k weights[k] * mean_square(distances[k])``: a wing's objective from its bays' row
+    distances (one compiled program for what were a dozen eager operations per bay)."""
+    return sum(weights[k] * mean_square(d, objective) for k, d in enumerate(distances))
 
 
 def distance_errors(d, objective: str) -> tuple[float, float]:

@@ -33,7 +33,7 @@ from forward_solver.wing import WingSolution, default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
-                         mean_square, row_targets, station_etas)
+                         row_targets, station_etas, weighted_mean_square)
 from .variables import DesignVariables, concrete_rows
 
 __all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
@@ -61,15 +61,27 @@ class WingConvergenceError(ConvergenceError):
                      f"{self.args[0]}",)
 
 
+@jax.jit
+def _prepend(f, g):
+    """``[f, *g]`` (one small program; two eager operations compiled apiece before)."""
+    return jnp.concatenate([f[None], g])
+
+
 def _value_and_jacobian(wrapped, v):
-    """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode) and its auxiliary output."""
+    """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode; a NumPy array) and its auxiliary
+    output.
 
-    def twice(w):  # the value comes back as the auxiliary output
-        r, aux = wrapped(w)
-        return r, (r, aux)
+    ``jax.jacfwd`` less its bookkeeping: the basis of tangents is NumPy's and the Jacobian is
+    transposed on the host (``jax.jacfwd`` built and unravelled them with a dozen eager operations,
+    each compiled on its own in a fresh process).
+    """
 
-    jac, (r, aux) = jax.jacfwd(twice, has_aux=True)(v)
-    return r, jac, aux
+    def push(t):
+        r, dr, aux = jax.jvp(wrapped, (v,), (t,), has_aux=True)
+        return r, dr, aux
+
+    r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(np.eye(v.size, dtype=np.float64))
+    return r, np.asarray(jac).T, aux
 
 
 class DesignProblem:
@@ -145,7 +157,7 @@ class DesignProblem:
 
     def objective_value(self, distances):
         """The design's objective, chord^2: the bays' `objectives.mean_square`, weighted by area."""
-        return sum(float(w) * mean_square(d, self.objective) for w, d in zip(self.weights, distances))
+        return weighted_mean_square(list(distances), np.asarray(self.weights, np.float64), self.objective)
 
     def tensions(self, nodes, u) -> list:
         """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
@@ -256,10 +268,9 @@ class DesignProblem:
             def outputs(v, sol):
                 f = self.objective_value(self.distances(sol.nodes))
                 if self.constraints is None:
-                    return f[None]
-                t = jnp.concatenate(self.tensions(sol.nodes, v))
-                return jnp.concatenate([f[None], constraint_functions(self.constraints, t, self.fabric,
-                                                                      self.tension_scale)])
+                    return _prepend(f, jnp.zeros(0, f.dtype))
+                return _prepend(f, constraint_functions(self.constraints, self.tensions(sol.nodes, v),
+                                                        self.fabric, self.tension_scale))
 
             n_outputs = 1 + (0 if self.constraints is None else len(self.constraints.names(self.fabric)))
             if self.variables.size <= n_outputs:

@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from typing import Mapping
 
+import jax
 import numpy as np
 
 from forward_solver import Parameters
@@ -85,6 +87,13 @@ DEFAULT_BOUNDS = {
 #: Unit of each scaled variable but the pressure (whose unit is its start).
 SCALES = {"prestrain_span": 0.01, "prestrain_chord": 0.01, "rib_thickness_scale": 1.0,
           "rib_chord_scale": 1.0, "rib_shape": 0.01, "cut_pattern": 0.01}
+
+
+@partial(jax.jit, static_argnames=("layout",))
+def _scaled_pieces(u, scales, layout):
+    """``u[a:b] * scale`` (``vector``) or ``u[a] * scale`` for each ``(a, b, vector)`` of ``layout``:
+    one program under a transformation, for what were three eager operations per variable."""
+    return [(u[a:b] if vector else u[a]) * s for (a, b, vector), s in zip(layout, scales)]
 
 
 @dataclass(frozen=True)
@@ -261,13 +270,19 @@ class DesignVariables:
 
     def parameters(self, u) -> Parameters:
         """The shared `Parameters` of the scaled vector ``u`` (a JAX value keeps them traced)."""
-        changes = {}
+        names, layout = [], []
         for n, part in self.slices().items():
             if (n == "rib_shape" and self.rib_shapes is not None) or (n == "cut_pattern"
                                                                       and self.cut_patterns is not None):
                 continue  # per rib or bay: `rib_shapes_at`, `cut_patterns_at`
-            changes[n] = (u[part] if n in VECTOR_VARIABLES else u[part.start]) * self.scale(n)
-        return self.start.replace(**changes)
+            names.append(n)
+            layout.append((part.start, part.stop, n in VECTOR_VARIABLES))
+        scales = [self.scale(n) for n in names]
+        if isinstance(u, jax.core.Tracer):
+            values = _scaled_pieces(u, scales, tuple(layout))
+        else:
+            values = [(u[a:b] if vector else u[a]) * s for (a, b, vector), s in zip(layout, scales)]
+        return self.start.replace(**dict(zip(names, values)))
 
     def rib_shapes_at(self, u):
         """``(n_ribs, 2 K)`` per-rib shapes at ``u`` (JAX values stay traced), or None (not per rib)."""

@@ -213,7 +213,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
     if rib_templates and scene.bay.periodic:
         with jax.enable_x64(True):
             geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-            nodes = np.asarray(fk.mounted_nodes(geometry, scene.params(parameters.as_floats())))
+            nodes = np.asarray(fk.mounted_compiled(geometry, scene.params(parameters.as_floats())))
         for row, rib in zip((0, -1), ribs):
             if rib is None:
                 continue
