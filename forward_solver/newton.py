@@ -45,7 +45,7 @@ from .scene import float64_scope
 from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
 from .solution import Result, static_state
 
-__all__ = ["NewtonResult", "newton", "chord_newton"]
+__all__ = ["NewtonResult", "newton", "chord_newton", "warm_up"]
 
 #: Armijo constant of the line search: accept a step of length ``alpha`` when
 #: ``||R(x + alpha dx)|| <= (1 - ARMIJO alpha) ||R(x)||``.
@@ -279,6 +279,17 @@ def _continuation(problem, params, x_start, rtol, max_iterations, max_line_searc
             if increment < MIN_LOAD_INCREMENT:
                 break
     return last, iterations, levels, done
+
+
+def warm_up(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> None:
+    """Compile (running each once) the programs of a `newton` solve on ``x``'s grid: the reference
+    state, the residual and the Jacobian values, called as `newton` calls them (`ahead`)."""
+    with float64_scope():
+        physics = fk.static_physics(physics)
+        ref = fk.prepare_compiled(geometry, params, physics)
+        x = jnp.asarray(x, geometry.contour_root.dtype)
+        static_state(x, geometry, params, physics)
+        linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))
 
 
 def newton(

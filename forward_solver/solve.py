@@ -10,11 +10,12 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from ._precision import float32_floor, precision_extra
+from .ahead import Ahead, signature
 from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .explicit import simulate
 from .fallback import run_chain
 from .loop import LoopOutput
-from .newton import chord_newton, newton
+from .newton import chord_newton, newton, warm_up
 from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
@@ -234,7 +235,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
     physics = scene.physics(dynamic=False)
     symmetric = symmetry and scene.symmetric(parameters)
     max_chunks = -(-max_steps // RELAX_CHUNK)
-    with float64_scope():
+    with float64_scope(), Ahead() as ahead:
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(parameters, dtype=dtype)
         geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
@@ -242,14 +243,21 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         coarse_rtol = _COARSE_RTOL
         if precision == "float32":
             coarse_rtol = max(_COARSE_RTOL, rtol)  # coarser grids have lower floors
+        relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
+        relax = partial(_relax, params=params, bound=bound, max_chunks=max_chunks, physics=physics,
+                        symmetric=symmetric, precision=precision)
+        prepared = {}
+        if initial is None and method != "newton":
+            prepared = _compile_ahead(ahead, relax, geometry, params, physics, sequencing, coarse_rtol,
+                                      relax_rtol, newton_next=method == "relax+newton")
         start = time.perf_counter()
         steps = 0
         levels = []
         if initial is None and method == "newton":
             x_init = fk.mounted_compiled(geometry, params)
         elif initial is None:
-            x_init, steps, levels = _sequenced_start(geometry, params, physics, bound, max_chunks,
-                                                     sequencing, symmetric, precision, coarse_rtol)
+            x_init, steps, levels = _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol,
+                                                     prepared)
         else:
             x_init = initial_nodes(initial, geometry, params)
         half = _use_half(geometry, symmetric)
@@ -266,18 +274,53 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         if method == "newton":
             result = newton(x_init, geometry, params, physics, rtol, divergence_bound=bound)
             return newton_solution(result, steps, extra=extra)
-        relax_rtol = max(rtol, NEWTON_SWITCH_RTOL) if method == "relax+newton" else rtol
-        out, f, nodes = relax_jit(x_init, geometry, params, jnp.asarray(relax_rtol, dtype),
-                                  jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                  max_chunks, half=half, precision=precision)
+        ahead.ready(prepared.get(tuple(x_init.shape)))
+        out, f, nodes = relax(x_init, geometry, relax_rtol)
         jax.block_until_ready(out)
         steps += int(out.chunks) * RELAX_CHUNK
         if method == "relax+newton" and int(out.result) == Result.converged:
             extra["relax_steps"] = steps
+            ahead.ready(prepared.get("newton"))
             result = newton(nodes, geometry, params, physics, rtol, divergence_bound=bound)
             return newton_solution(result, steps, extra=extra)
         return make_solution(out, f, steps, time.perf_counter() - start, method, parameters, bay,
                              extra=extra, nodes=nodes, detail=_relax_detail(int(out.result), extra))
+
+
+def _relax(x, geometry, rtol, *, params, bound, max_chunks, physics, symmetric, precision, compile_only=False):
+    """`relax.relax_jit` from ``x`` on ``geometry``'s grid, or (``compile_only``) its program compiled
+    for those arguments (`_compile_ahead`): one function builds the arguments of both, so they meet."""
+    dtype = jnp.float64
+    args = (x, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), MASS_SAFETY, physics,
+            RELAX_CHUNK, max_chunks)
+    options = dict(half=_use_half(geometry, symmetric), precision=precision)
+    if compile_only:
+        return relax_jit.lower(*args, **options).compile()
+    return relax_jit(*args, **options)
+
+
+def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: bool, coarse_rtol: float,
+                   relax_rtol: float, newton_next: bool) -> dict:
+    """Submit to ``ahead`` what a cold solve compiles after its coarsest relaxation: the relaxation of
+    every finer grid-sequencing level, coarse to fine, then (``newton_next``) Newton's programs on
+    the full grid (`newton.warm_up`). Returns the handles by level shape ``(ns, nc, 3)`` and
+    ``"newton"``."""
+    grids = [geometry]
+    while sequencing and coarsenable(grids[-1].free.shape, physics.periodic):
+        grids.append(_coarsen(grids[-1]))
+    options = tuple(relax.keywords[k] for k in ("max_chunks", "symmetric", "precision"))
+    prepared = {}
+    for k in range(len(grids) - 2, -1, -1):  # the coarsest (last) is the solve's own first program
+        shape = tuple(grids[k].free.shape) + (3,)
+        x = jnp.zeros(shape, jnp.float64)
+        key = ("relax", signature(x, grids[k], params), physics, options)
+        rtol = relax_rtol if k == 0 else coarse_rtol
+        prepared[shape] = ahead.submit(key, partial(relax, x, grids[k], rtol, compile_only=True))
+    if newton_next:
+        x = jnp.zeros(tuple(geometry.free.shape) + (3,), jnp.float64)
+        prepared["newton"] = ahead.submit(("newton", signature(x, geometry, params), physics),
+                                          partial(warm_up, x, geometry, params, physics))
+    return prepared
 
 
 def float32_residual_floor(scene: Scene, parameters=None, prestrain=None, *, pressure=None,
@@ -371,19 +414,16 @@ def _use_half(geometry, symmetric: bool) -> bool:
     return symmetric and geometry.free.shape[0] % 2 == 1 and geometry.free.shape[0] >= 5
 
 
-def _sequenced_start(geometry, params, physics, bound, max_chunks, sequencing, symmetric,
-                     precision="float64", coarse_rtol=_COARSE_RTOL):
-    """Starting shape: the mounted shape, or the interpolated coarse-grid solution."""
+def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_COARSE_RTOL, prepared=None):
+    """Starting shape: the mounted shape, or the interpolated coarse-grid solution (``relax``: `_relax`
+    with the solve's options; ``prepared``: `_compile_ahead`'s handles)."""
     x0 = fk.mounted_compiled(geometry, params)
     if not (sequencing and coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
-    xc, steps, levels = _sequenced_start(coarse, params, physics, bound, max_chunks, sequencing,
-                                         symmetric, precision, coarse_rtol)
-    dtype = x0.dtype
-    out, _, xc_full = relax_jit(xc, coarse, params, jnp.asarray(coarse_rtol, dtype),
-                                jnp.asarray(bound, dtype), MASS_SAFETY, physics, RELAX_CHUNK,
-                                max_chunks, half=_use_half(coarse, symmetric), precision=precision)
+    xc, steps, levels = _sequenced_start(coarse, params, physics, relax, sequencing, coarse_rtol, prepared)
+    Ahead.ready((prepared or {}).get(tuple(xc.shape)))
+    out, _, xc_full = relax(xc, coarse, coarse_rtol)
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
     xc0 = fk.mounted_compiled(coarse, params)

@@ -121,3 +121,65 @@ def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(mon
     assert cli.main([]) == 0
     assert seen[-1] == "--xla_dump_to=/tmp/x " + " ".join(xla.FAST_COMPILATION_FLAGS)
     assert os.environ["XLA_FLAGS"] == "--xla_dump_to=/tmp/x"
+
+
+def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
+    """`forward_solver.ahead`: the coarsest relaxation compiles on the caller's thread while the
+    finer level and Newton's programs compile on the worker; each is compiled once (a 9x48 bay:
+    levels 5x24 and 9x48, shapes no other test of this module solves)."""
+    import threading
+
+    from forward_solver import ahead
+
+    threads = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            threads.append((kwargs.get("fun_name"), threading.current_thread().name))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    previous = ahead.set_compile_ahead(True)
+    try:
+        scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=48), Fabric())
+        sol = solve_equilibrium(scene, Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02),
+                                method="relax+newton")
+    finally:
+        ahead.set_compile_ahead(previous)
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert sol.converged and [level["shape"] for level in sol.extra["levels"]] == [(5, 24)]
+    relax = [name for fun, name in threads if fun == "jit(relax_jit)"]
+    assert len(relax) == 2 and relax.count("MainThread") == 1, threads
+    worker = {fun for fun, name in threads if name.startswith("compile-ahead")}
+    assert {"jit(relax_jit)", "jit(static_state)", "jit(_jacobian_values)"} <= worker, threads
+    main = [fun for fun, name in threads if name == "MainThread"]
+    assert "jit(static_state)" not in main and "jit(_jacobian_values)" not in main, threads
+
+
+def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
+    import concurrent.futures
+    import threading
+
+    from forward_solver import ahead
+
+    previous = ahead.set_compile_ahead(True)
+    started, gate, ran = threading.Event(), threading.Event(), []
+    try:
+        with ahead.Ahead() as a:
+            a.submit(("test", "busy"), lambda: started.set() or gate.wait())  # holds the single worker
+            started.wait()
+            later = a.submit(("test", "later"), lambda: ran.append("later"))
+            assert a.submit(("test", "later"), lambda: ran.append("twice")) is None  # one per key
+            a.ready(later)  # not begun: cancelled, left to the caller
+            assert later[1].cancelled()
+            again = a.submit(("test", "later"), lambda: ran.append("again"))  # and may be submitted again
+            failing = a.submit(("test", "failing"), lambda: 1 / 0)
+            gate.set()
+            concurrent.futures.wait([again[1], failing[1]])
+            # the error is dropped: the caller meets it when it does the work itself
+            assert again[1].result() is True and failing[1].result() is False
+        assert ran == ["again"]
+        ahead.set_compile_ahead(False)
+        assert ahead.Ahead().submit(("test", "off"), lambda: None) is None
+    finally:
+        gate.set()
+        ahead.set_compile_ahead(previous)
