@@ -30,6 +30,7 @@ same results.
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import sys
@@ -45,7 +46,7 @@ from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import run
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
 #: Exit codes of a run stopped by Ctrl-C (SIGINT) or SIGTERM: 128 + the signal number, as a shell reports it.
 EXIT_INTERRUPTED = 130
@@ -69,8 +70,17 @@ def _exit_now(code: int) -> None:
     os._exit(code)
 
 
+def _finish(code: int) -> None:
+    """End the command's process with ``code`` once its work is done: the exit functions run
+    (``atexit``), then `_exit_now` skips the interpreter's teardown of its modules and of XLA's
+    client (0.5 s of every run with JAX, SciPy and matplotlib loaded, on the 2-core development
+    machine: 8% of the default case). Every file of the run is closed by then."""
+    atexit._run_exitfuncs()
+    _exit_now(code)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``optimise-pressure`` console script; returns the exit code.
+    """The ``optimise-pressure`` command's work on ``argv`` (default the command line); returns the exit code.
 
     While it runs, SIGTERM raises `Terminated`, which unwinds like Ctrl-C
     (the staging folder is removed): exit code 143, or 130 for Ctrl-C. Both
@@ -78,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     callback is raised again at the next safe point. The previous handlers
     are restored on return. Run as the command
     (``argv`` None), an interrupted or terminated run ends the process
-    itself with that code (see `_exit_now`); called with ``argv`` it returns.
+    itself with that code (see `_exit_now`); otherwise it returns (the console script,
+    `command`, then ends the process).
     """
     started = time.perf_counter()
     previous = interrupts.install()
@@ -101,6 +112,12 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
+
+
+def command() -> None:
+    """The ``optimise-pressure`` console script: `main` on the command line's arguments, then the
+    process ends with its exit code (`_finish`)."""
+    _finish(main())
 
 
 def compilation_cache_dir() -> Path:
@@ -187,4 +204,4 @@ def _main(argv: list[str] | None, started: float) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    command()

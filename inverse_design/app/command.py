@@ -10,7 +10,10 @@ writer. No physics lives here.
 from __future__ import annotations
 
 import argparse
+import importlib
+import os
 import sys
+import threading
 import time
 
 from . import interrupts
@@ -35,6 +38,25 @@ NOT_FOR_A_WING = {
 def safe_point(entry=None) -> None:
     """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
     interrupts.check()
+
+
+#: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
+REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
+
+
+def _import_report_modules() -> None:
+    for name in REPORT_MODULES:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - the report imports it again and says what failed
+            pass
+
+
+def _import_report_modules_meanwhile() -> None:
+    """Import the report's libraries (matplotlib, ezdxf: 0.5 s) on a second thread while the design
+    runs: the design's compiling and computing release Python's lock, the import takes it then."""
+    if (os.cpu_count() or 1) > 1:
+        threading.Thread(target=_import_report_modules, name="import-report", daemon=True).start()
 
 
 def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = False,
@@ -93,6 +115,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     from .report import write_report
 
     out = check_output_folder(args.out)  # before the long work, not after it
+    _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
     options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,

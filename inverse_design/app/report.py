@@ -98,6 +98,8 @@ SCHEMA_VERSION = 2
 
 #: Resolution of the PNG files in the folder, dots per inch.
 _DPI = 150
+#: zlib level of the PNG figures: 3 writes them 0.07 s faster each than PIL's default 6, 13% larger.
+_PNG_COMPRESSION = 3
 #: A wing of at most this many bays also gets one mid-bay section plot per bay (more: only
 #: ``wing_overview.png``, which shows every bay; a plot per bay took 0.3 s each and 15 s of a 40-bay report).
 PER_BAY_PLOTS = 8
@@ -307,6 +309,10 @@ def _equilibrium_entry(solution: Solution, scene, target, rms: float, largest: f
 
 
 # ------------------------------------------------------------------ the folder
+def _save(fig, path) -> None:
+    fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
+
+
 def write_report(out_dir, result, target=None, *, scene=None, objective: str | None = None,
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
@@ -401,7 +407,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                 solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
                 rib_limits)))
         for name, make in figures:
-            make().savefig(staging / name, dpi=_DPI)
+            _save(make(), staging / name)
             files.append(name)
         times = dict(summary["timings_s"])
         times["report"] = time.perf_counter() - start
@@ -627,7 +633,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
         write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
         files += ["wing.npz", "skin.obj", "skin.stl"]
-        plot_wing_overview(result, deviation).savefig(staging / "wing_overview.png", dpi=_DPI)
+        _save(plot_wing_overview(result, deviation), staging / "wing_overview.png")
         files.append("wing_overview.png")
         for k, bay in enumerate(sol.bays if len(sol.bays) <= PER_BAY_PLOTS else ()):
             target = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip,
@@ -635,7 +641,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
             name = f"bay_{k}_mid_bay_section.png"
             fig = plot_section(solutions[k], target, sol.scene(k), magnification=magnification)
             fig.suptitle(f"bay {k} (ribs {k}-{k + 1}): {fig.get_suptitle()}")
-            fig.savefig(staging / name, dpi=_DPI)
+            _save(fig, staging / name)
             files.append(name)
         if len(sol.bays) > PER_BAY_PLOTS:
             skipped["bay_K_mid_bay_section.png"] = (f"{len(sol.bays)} bays: more than {PER_BAY_PLOTS}, so "
@@ -663,7 +669,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
             files += names
             summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
         if result.history:
-            plot_history(_SharedHistory(result), bounds).savefig(staging / "history.png", dpi=_DPI)
+            _save(plot_history(_SharedHistory(result), bounds), staging / "history.png")
             files.append("history.png")
         else:
             skipped["history.png"] = "no optimiser history"
