@@ -393,7 +393,7 @@ def _float32_stagnation(scene, steps):
         out, _, nodes = relax_jit(jnp.asarray(bay.nominal_nodes()), bay.geometry(), params,
                                   jnp.asarray(1e-14), jnp.asarray(bay.chord + bay.rib_spacing),
                                   MASS_SAFETY, scene.physics(dynamic=False), 100, steps // 100,
-                                  half=True, precision="float32")
+                                  half=True, precision="float32", with_forces=False)
         return np.asarray(nodes), float(out.residual)
 
 

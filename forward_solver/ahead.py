@@ -28,7 +28,7 @@ import threading
 
 import jax
 
-__all__ = ["compile_ahead_enabled", "set_compile_ahead", "signature", "Ahead"]
+__all__ = ["compile_ahead_enabled", "set_compile_ahead", "compiling", "signature", "Ahead"]
 
 _ENABLED = (os.cpu_count() or 1) > 1
 _LOCK = threading.Lock()
@@ -64,6 +64,12 @@ def _run(task):
         except Exception:  # noqa: BLE001 - speculative: the solve meets any error itself
             return False
     return True
+
+
+def compiling(jitted, *args, **kwargs):
+    """A task that compiles ``jitted`` for ``args`` (``jitted.lower(...).compile()``: the program a
+    call with arguments of the same shapes, types and static values then takes)."""
+    return lambda: jitted.lower(*args, **kwargs).compile()
 
 
 def signature(*trees) -> tuple:

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from ._precision import float32_floor, precision_extra
-from .ahead import Ahead, signature
+from .ahead import Ahead, compiling, signature
 from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .explicit import simulate
 from .fallback import run_chain
@@ -275,7 +275,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
             result = newton(x_init, geometry, params, physics, rtol, divergence_bound=bound)
             return newton_solution(result, steps, extra=extra)
         ahead.ready(prepared.get(tuple(x_init.shape)))
-        out, f, nodes = relax(x_init, geometry, relax_rtol)
+        out, f, nodes = relax(x_init, geometry, relax_rtol, with_forces=method != "relax+newton")
         jax.block_until_ready(out)
         steps += int(out.chunks) * RELAX_CHUNK
         if method == "relax+newton" and int(out.result) == Result.converged:
@@ -283,17 +283,21 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
             ahead.ready(prepared.get("newton"))
             result = newton(nodes, geometry, params, physics, rtol, divergence_bound=bound)
             return newton_solution(result, steps, extra=extra)
+        if f is None:  # Newton was to finish: the forces of where the relaxation stopped
+            ahead.ready(prepared.get("newton"))
+            f = static_forces(nodes, geometry, params, physics)
         return make_solution(out, f, steps, time.perf_counter() - start, method, parameters, bay,
                              extra=extra, nodes=nodes, detail=_relax_detail(int(out.result), extra))
 
 
-def _relax(x, geometry, rtol, *, params, bound, max_chunks, physics, symmetric, precision, compile_only=False):
+def _relax(x, geometry, rtol, with_forces=False, *, params, bound, max_chunks, physics, symmetric, precision,
+           compile_only=False):
     """`relax.relax_jit` from ``x`` on ``geometry``'s grid, or (``compile_only``) its program compiled
     for those arguments (`_compile_ahead`): one function builds the arguments of both, so they meet."""
     dtype = jnp.float64
     args = (x, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), MASS_SAFETY, physics,
             RELAX_CHUNK, max_chunks)
-    options = dict(half=_use_half(geometry, symmetric), precision=precision)
+    options = dict(half=_use_half(geometry, symmetric), precision=precision, with_forces=with_forces)
     if compile_only:
         return relax_jit.lower(*args, **options).compile()
     return relax_jit(*args, **options)
@@ -309,13 +313,21 @@ def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: b
     while sequencing and coarsenable(grids[-1].free.shape, physics.periodic):
         grids.append(_coarsen(grids[-1]))
     options = tuple(relax.keywords[k] for k in ("max_chunks", "symmetric", "precision"))
-    prepared = {}
+    prepared, prolongations = {}, []
     for k in range(len(grids) - 2, -1, -1):  # the coarsest (last) is the solve's own first program
         shape = tuple(grids[k].free.shape) + (3,)
         x = jnp.zeros(shape, jnp.float64)
         key = ("relax", signature(x, grids[k], params), physics, options)
-        rtol = relax_rtol if k == 0 else coarse_rtol
-        prepared[shape] = ahead.submit(key, partial(relax, x, grids[k], rtol, compile_only=True))
+        rtol, with_forces = (relax_rtol, not newton_next) if k == 0 else (coarse_rtol, False)
+        prepared[shape] = ahead.submit(key + (with_forces,),
+                                       partial(relax, x, grids[k], rtol, with_forces, compile_only=True))
+        xc = jnp.zeros(tuple(grids[k + 1].free.shape) + (3,), jnp.float64)
+        prolongations.append((("prolong", shape), ("prolong", signature(x, xc, grids[k].free), physics.periodic),
+                              compiling(_prolonged, x, xc, xc, grids[k].free, physics.periodic)))
+    # The small programs that carry a level's solution to the next after the long ones: if the
+    # solve reaches one first it compiles it itself, beside the worker's longer compilation.
+    for name, key, task in prolongations:
+        prepared[name] = ahead.submit(key, task)
     if newton_next:
         x = jnp.zeros(tuple(geometry.free.shape) + (3,), jnp.float64)
         prepared["newton"] = ahead.submit(("newton", signature(x, geometry, params), physics),
@@ -427,7 +439,15 @@ def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
     xc0 = fk.mounted_compiled(coarse, params)
-    u = _prolong(xc_full - xc0, physics.periodic)
+    Ahead.ready((prepared or {}).get(("prolong", tuple(x0.shape))))
     chunks = int(out.chunks)
     levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]
-    return x0 + u * geometry.free[..., None], steps + chunks * RELAX_CHUNK, levels
+    return _prolonged(x0, xc_full, xc0, geometry.free, physics.periodic), steps + chunks * RELAX_CHUNK, levels
+
+
+@partial(jax.jit, static_argnames=("periodic",))
+def _prolonged(x0, xc, xc0, free, periodic: bool):
+    """The fine grid's start: its mounted shape ``x0`` plus the coarse solution's displacement
+    ``xc - xc0`` interpolated (`_prolong`) on the free nodes (one program: twenty eager
+    operations before, each compiled on its own and, while a level compiled ahead, waiting for it)."""
+    return x0 + _prolong(xc - xc0, periodic) * free[..., None]

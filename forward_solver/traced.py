@@ -78,7 +78,7 @@ def relaxed_nodes(x_init, geometry, params, rtol, bound, physics, chunk: int, ma
     """
     fixed = jax.lax.stop_gradient(params)
     out, _, x_star = relax_jit(jax.lax.stop_gradient(x_init), geometry, fixed, rtol, bound, MASS_SAFETY,
-                               physics, chunk, max_chunks, half=half)
+                               physics, chunk, max_chunks, half=half, with_forces=False)
     return implicit_nodes(physics, x_star, geometry, params, out.result == Result.converged), out
 
 
