@@ -41,7 +41,6 @@ corners rounded).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -110,7 +109,9 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     span_cut = np.asarray(span_cut, np.float64)
     n, m = span_cut.shape[0] + 1, contour_cut.shape[1] + 1
     cos_angle = np.zeros((n - 1, m - 1)) if cos_angle is None else np.asarray(cos_angle, np.float64)
-    index = np.arange(n * m).reshape(n, m)
+    # Nodes numbered along the shorter grid direction first: the normal matrix of the least
+    # squares is then banded with the least half-width (`_normal_step`).
+    index = np.arange(n * m).reshape(n, m) if n >= m else np.arange(n * m).reshape(m, n).T
     # edges (a, b) of the grid and their cut lengths: contour edges, then span edges
     a = np.concatenate([index[:, :-1].ravel(), index[:-1].ravel()])
     b = np.concatenate([index[:, 1:].ravel(), index[1:].ravel()])
@@ -125,7 +126,9 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     arc = np.concatenate([np.zeros((n, 1)), np.cumsum(contour_cut, axis=1)], axis=1)
     x0 = arc - 0.5 * (arc[:, -1:] - arc[:1, -1:])
     y0 = np.concatenate([np.zeros((1, m)), np.cumsum(span_cut, axis=0)]).mean(axis=1, keepdims=True)
-    start = np.stack([x0, np.broadcast_to(y0, (n, m))], axis=-1).ravel()
+    start = np.empty((n * m, 2))
+    start[index] = np.stack([x0, np.broadcast_to(y0, (n, m))], axis=-1)
+    start = start.ravel()
 
     def parts(z):
         p = z.reshape(-1, 2)
@@ -169,7 +172,7 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     z = start
     for weight in (shear_weight, 0.0):
         z = _levenberg_marquardt(*make(weight), z, exact=weight == 0.0)
-    flat = z.reshape(n, m, 2)
+    flat = z.reshape(-1, 2)[index]
     contour, span = _edges(flat)
     error = max(np.max(np.abs(contour - contour_cut) / contour_cut), np.max(np.abs(span - span_cut) / span_cut))
     if not error <= LAYOUT_TOLERANCE:
@@ -197,26 +200,14 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
     itself (the layout then moves by about 1e-14 m: bay 11 of
     ``wing_40_cells.toml``, against 1e-14 relative).
     """
-    from scipy.sparse import identity
-    from scipy.sparse.linalg import MatrixRankWarning, spsolve
-
     r = fun(z)
     cost = float(r @ r)
     damping = 1e-6
-    eye = identity(z.size, format="csc")
     for iteration in range(max_iterations):
         if exact and np.max(np.abs(r)) < 1e-14:
             break
         J = jac(z)
-        normal = (J.T @ J).tocsc()
-        # The residuals leave the panel's position (and, without the angle terms, its shear) free,
-        # so a damping lost in rounding leaves the normal matrix singular: a rejected step.
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", MatrixRankWarning)
-            try:
-                step = spsolve(normal + damping * eye, -(J.T @ r))
-            except MatrixRankWarning:
-                step = None
+        step = _normal_step((J.T @ J).tocoo(), -(J.T @ r), damping)
         if step is None or not np.all(np.isfinite(step)):
             if exact and np.max(np.abs(r)) < _ROUNDING_FLOOR:
                 break
@@ -240,6 +231,27 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
             if damping > 1e12:
                 break
     return z
+
+
+def _normal_step(normal, rhs, damping: float):
+    """``(N + damping I)^-1 rhs`` for the symmetric banded normal matrix ``N`` (COO), by a banded
+    Cholesky factorisation (LAPACK ``pbsv``; a 17x33 panel: half-width 37, 0.3 ms against 2.4 ms
+    of a general sparse LU); None where rounding leaves it not positive definite: the residuals
+    leave the panel's position (and, without the angle terms, its shear) free, so a damping lost
+    in rounding leaves it singular, and the step is rejected."""
+    from scipy.linalg import LinAlgError, solveh_banded
+
+    normal.sum_duplicates()  # (a no-op on a sparse product, which has none)
+    upper = normal.col >= normal.row
+    row, col, data = normal.row[upper], normal.col[upper], normal.data[upper]
+    width = int(np.max(col - row, initial=0))
+    banded = np.zeros((width + 1, rhs.size))
+    banded[width + row - col, col] = data
+    banded[width] += damping
+    try:
+        return solveh_banded(banded, rhs, check_finite=False)
+    except LinAlgError:
+        return None
 
 
 def panel_outline(flat) -> tuple[np.ndarray, np.ndarray]:
