@@ -210,7 +210,7 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
         with _top_level():  # concrete: the LU (a fresh one after chord Newton) as a plain call
             params = scene.params(concrete)
             x = jnp.asarray(sol.nodes)
-            geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+            geometry = scene.bay.geometry()
             implicit = ImplicitAdjoint(x, geometry, params, scene.physics(dynamic=False), linear_solver,
                                        factor=sol.factor)
         return x, implicit.tangent(_kernel_tangent(dp, params))
@@ -219,7 +219,7 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
         nodes = nodes_of(parameters)
         sol = found["solution"]
         if _TRACED_TENSIONS.get():
-            geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+            geometry = scene.bay.geometry()
             f = static_forces(nodes, geometry, scene.params(parameters), scene.physics(dynamic=False))
         else:  # `nodes_only`: the concrete solve's
             f = sol
@@ -237,7 +237,7 @@ def _unrolled_solution(scene: Scene, parameters: Parameters, rtol: float, steps:
     start = time.perf_counter()
     with float64_scope():
         params = scene.params(parameters)
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        geometry = scene.bay.geometry()
         physics = scene.physics(dynamic=False)
         nodes = unrolled_equilibrium_nodes(scene, parameters, n_steps=steps)
         f = static_forces(nodes, geometry, params, physics)
@@ -280,7 +280,7 @@ def unrolled_equilibrium_nodes(scene: Scene, parameters: Parameters, *, n_steps:
     """
     with float64_scope(parameters):
         params = scene.params(parameters.resolved(scene.fabric))
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        geometry = scene.bay.geometry()
         physics = fk.static_physics(scene.physics(dynamic=False))
         n_chunks = max(1, -(-int(n_steps) // int(chunk)))
         return _unrolled(geometry, params, physics, n_chunks, int(chunk))

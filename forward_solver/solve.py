@@ -295,14 +295,15 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
 
 def _relax(x, geometry, rtol, with_forces=False, *, params, bound, max_chunks, physics, symmetric, precision,
            compile_only=False):
-    """`relax.relax_jit` from ``x`` on ``geometry``'s grid, or (``compile_only``) its program compiled
-    for those arguments (`_compile_ahead`): one function builds the arguments of both, so they meet."""
+    """`relax.relax_jit` from ``x`` on ``geometry``'s grid, or (``compile_only``) the task that compiles
+    its program for those arguments (`ahead.compiling`): one function builds the arguments of both,
+    so they meet."""
     dtype = jnp.float64
     args = (x, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), MASS_SAFETY, physics,
             RELAX_CHUNK, max_chunks)
     options = dict(half=_use_half(geometry, symmetric), precision=precision, with_forces=with_forces)
     if compile_only:
-        return relax_jit.lower(*args, **options).compile()
+        return compiling(relax_jit, *args, **options)
     return relax_jit(*args, **options)
 
 
@@ -322,8 +323,7 @@ def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: b
         x = jnp.zeros(shape, jnp.float64)
         key = ("relax", signature(x, grids[k], params), physics, options)
         rtol, with_forces = (relax_rtol, not newton_next) if k == 0 else (coarse_rtol, False)
-        prepared[shape] = ahead.submit(key + (with_forces,),
-                                       partial(relax, x, grids[k], rtol, with_forces, compile_only=True))
+        prepared[shape] = ahead.submit(key + (with_forces,), relax(x, grids[k], rtol, with_forces, compile_only=True))
         xc = jnp.zeros(tuple(grids[k + 1].free.shape) + (3,), jnp.float64)
         prolongations.append((("prolong", shape), ("prolong", signature(x, xc, grids[k].free), physics.periodic),
                               compiling(_prolonged, x, xc, xc, grids[k].free, physics.periodic)))
@@ -358,7 +358,7 @@ def float32_residual_floor(scene: Scene, parameters=None, prestrain=None, *, pre
                                rib_chord_scale=rib_chord_scale).resolved(scene.fabric).check()
     with float64_scope():
         params = scene.params(parameters)
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        geometry = scene.bay.geometry()
         return float32_floor(geometry, params, scene.physics(dynamic=False))
 
 

@@ -105,7 +105,7 @@ def traced_solution(scene: Scene, parameters: Parameters, *, rtol: float, initia
     physics = fk.static_physics(scene.physics(dynamic=False))
     with float64_scope(parameters):
         params = scene.params(parameters)
-        geometry = jax.tree_util.tree_map(jnp.asarray, bay.geometry())
+        geometry = bay.geometry()
         x_init = initial_nodes(initial, geometry, jax.lax.stop_gradient(params))
         bound = jnp.asarray(bay.chord + bay.rib_spacing, jnp.float64)
         nodes, out = relaxed_nodes(x_init, geometry, params, jnp.asarray(rtol, jnp.float64), bound,

@@ -228,7 +228,7 @@ class WingSolution:
         parameters = self.bay_parameters(bay)
         with float64_scope():
             nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
-            f = static_forces(nodes, jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry()),
+            f = static_forces(nodes, scene.bay.geometry(),
                               scene.params(parameters), scene.physics(dynamic=False))
             return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
                             tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
@@ -298,7 +298,7 @@ def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> Non
 
     eps = float(np.finfo(np.float64).eps)
     for k, bay in enumerate(bays):
-        geometry = jax.tree_util.tree_map(jnp.asarray, bay.geometry())
+        geometry = bay.geometry()
         floor = float(rounding_floor(geometry, params, physics, eps))
         if floor > ROUNDING_MARGIN * rtol:
             gap = bay.rib_spacing
@@ -512,7 +512,7 @@ def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Param
 
 def _mounted(scene: Scene, parameters: Parameters):
     """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly)."""
-    geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+    geometry = scene.bay.geometry()
     return jax.lax.stop_gradient(fk.mounted_compiled(geometry, jax.lax.stop_gradient(scene.params(parameters))))
 
 

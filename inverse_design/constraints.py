@@ -125,7 +125,7 @@ def cell_tensions(scene, nodes, parameters: Parameters):
         parameters: the `forward_solver.Parameters` (JAX values allowed).
     """
     params = scene.params(parameters)
-    geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+    geometry = scene.bay.geometry()
     return _tensions(nodes, geometry, params, scene.physics(dynamic=False))
 
 

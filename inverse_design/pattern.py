@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Panel", "bay_panels", "develop", "offset_outline", "panel_outline"]
+__all__ = ["Panel", "bay_panels", "develop", "mounted_skin", "offset_outline", "panel_outline"]
 
 #: Largest edge-length error accepted by `develop`, as a fraction of the edge's cut length.
 LAYOUT_TOLERANCE = 1e-9
@@ -316,15 +316,14 @@ def _cell_cosines(nodes, columns) -> np.ndarray:
     return np.sum(s * c, axis=-1) / (np.linalg.norm(s, axis=-1) * np.linalg.norm(c, axis=-1))
 
 
-def _mounted(scene, parameters) -> np.ndarray:
+def mounted_skin(scene, parameters) -> np.ndarray:
     """``(n_span, n_contour, 3)`` the mounted skin of a bay (`forces.mounted_nodes`), m."""
     import jax
-    import jax.numpy as jnp
 
     from forward_solver import forces as fk
 
     with jax.enable_x64(True):
-        geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
+        geometry = scene.bay.geometry()
         return np.asarray(fk.mounted_compiled(geometry, scene.params(parameters.as_floats())))
 
 
@@ -346,7 +345,7 @@ def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:
 
     cuts = cut_lengths(scene, parameters)
     contour, span = cuts["contour_edge_cut_m"], cuts["span_edge_cut_m"]
-    nodes = _mounted(scene, parameters)
+    nodes = mounted_skin(scene, parameters)
     n_contour = scene.bay.n_contour
     if scene.bay.periodic:
         j_le = int(np.argmin(np.asarray(scene.bay.contour_root)[:, 0]))

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pattern import bay_panels, offset_outline, panel_outline
+from ..pattern import bay_panels, mounted_skin, offset_outline, panel_outline
 
 __all__ = ["LAYERS", "MARK_EVERY", "write_bay_patterns", "write_panel_dxf", "write_panel_svg", "write_rib_dxf"]
 
@@ -196,11 +196,6 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
     Returns:
         ``(names, panels)``: the names of the files written and the `pattern.Panel` objects.
     """
-    import jax
-    import jax.numpy as jnp
-
-    from forward_solver import forces as fk
-
     folder = Path(folder)
     allowance = seam_allowance_m * _MM
     names = []
@@ -211,9 +206,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
             write(folder / name, panel, allowance)
             names.append(name)
     if rib_templates and scene.bay.periodic:
-        with jax.enable_x64(True):
-            geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-            nodes = np.asarray(fk.mounted_compiled(geometry, scene.params(parameters.as_floats())))
+        nodes = mounted_skin(scene, parameters)
         for row, rib in zip((0, -1), ribs):
             if rib is None:
                 continue
