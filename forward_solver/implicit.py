@@ -17,6 +17,9 @@ dofs. `ImplicitAdjoint` is that rule at one equilibrium:
   transposes it into the adjoint system ``J^T lambda = xbar`` with the same
   solver's transpose: one adjoint solve per gradient, whatever the number
   of parameters; forward and reverse mode cannot disagree;
+* a caller that takes forward-mode derivatives only (the design's Jacobian)
+  may say so (`forward_only`): the "lu" tangents of a batch are then solved
+  on the host as arrays, without the transposable program;
 * the linear solver is pluggable (``linear_solver``): "lu", the sparse LU
   of ``J`` on the host (`HostLU`: scipy through ``jax.pure_callback``; a
   Newton solve's own factor is reused), or "iterative", the matrix-free
@@ -31,6 +34,8 @@ wing) both differentiate through this one object.
 from __future__ import annotations
 
 import collections
+import contextlib
+import contextvars
 import itertools
 import weakref
 from functools import partial
@@ -46,7 +51,7 @@ from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
-           "parameter_rhs", "jacobian_matvec", "implicit_nodes"]
+           "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
 
 #: Linear solvers of the implicit derivative: the host sparse LU, or matrix-free BiCGStab in JAX.
 LINEAR_SOLVERS = ("lu", "iterative")
@@ -84,6 +89,68 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Param
 
     _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))
     return -dr, (1.0 - geometry.free[..., None]) * dnodes
+
+
+@partial(jax.jit, static_argnames=("physics",))
+def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
+    """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
+    program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
+    level, so that it compiles ahead (`batched_rhs_task`) and is found in the persistent cache
+    without batching a traced program in every process."""
+    return jax.vmap(partial(parameter_rhs, physics=physics), in_axes=(None, None, None, 0))(
+        x, geometry, params, dparams)
+
+
+def batched_rhs_task(geometry: fk.Geometry, params: fk.Params, physics: fk.Physics, n_tangents: int):
+    """``(key, task)`` for `ahead.Ahead.submit`: compile `_batched_rhs` for ``n_tangents`` tangents at
+    an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
+    batched, float64 and strongly typed)."""
+    from .ahead import compiling, signature
+
+    physics = fk.static_physics(physics)
+    x = jax.ShapeDtypeStruct(tuple(geometry.free.shape) + (3,), jnp.float64)
+    dparams = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((n_tangents,) + tuple(np.shape(a)),
+                                                                    jnp.result_type(a)), params)
+    key = ("tangents", signature(x, geometry, params), physics, n_tangents)
+    return key, compiling(_batched_rhs, x, geometry, params, dparams, physics)
+
+
+#: Whether implicit tangents may skip transposability (`forward_only`), and how many tangents the
+#: caller will ask for (a cold solve compiles their program ahead: `expected_tangents`).
+_FORWARD_ONLY = contextvars.ContextVar("forward_only", default=False)
+_EXPECTED_TANGENTS = contextvars.ContextVar("expected_tangents", default=None)
+
+
+def expected_tangents() -> int | None:
+    """Within ``forward_only(n_tangents)``: ``n_tangents``, else None."""
+    return _EXPECTED_TANGENTS.get() if _FORWARD_ONLY.get() else None
+
+
+@contextlib.contextmanager
+def forward_only(n_tangents: int | None = None):
+    """Within: the "lu" implicit tangent need not be transposable, and under a top-level ``jax.vmap``
+    (``jax.jacfwd``'s batching of ``jax.jvp``) it is computed on the concrete batch of tangents:
+    one `_batched_rhs` program and one host back-solve of all its columns with the LU, no host
+    callback and no ``custom_linear_solve``.
+
+    For callers that take forward-mode derivatives only (the design's ``vmap(jvp)`` Jacobian,
+    `inverse_design.problem`): the transposable solve is a program that calls back to the host,
+    which JAX's persistent cache never keeps, and whose trace holds the operator's JVP for the
+    transpose; both were paid in every process (0.4 s of a cached run of the default case on
+    the 2-core development machine). Reverse mode within raises JAX's NotImplementedError (the
+    custom batching has no transpose rule); under an enclosing transformation other than the one
+    ``jax.vmap`` the batch is traced (`parameter_rhs` and the host callback, as one tangent is).
+
+    ``n_tangents``, the batch's size when known, lets a cold solve within compile the right-hand
+    sides' program on the compile-ahead worker while it relaxes (`batched_rhs_task`).
+    """
+    token = _FORWARD_ONLY.set(True)
+    expected = _EXPECTED_TANGENTS.set(n_tangents)
+    try:
+        yield
+    finally:
+        _EXPECTED_TANGENTS.reset(expected)
+        _FORWARD_ONLY.reset(token)
 
 
 @partial(jax.jit, static_argnames=("physics",))
@@ -232,6 +299,7 @@ class HostLU:
 
     def __init__(self, factor, free, anchor):
         self.factor = factor
+        self.free_host = np.asarray(free)
         self.free = jnp.asarray(free)
         token = next(_TOKENS)
         _FACTORS[token] = factor
@@ -254,9 +322,48 @@ class HostLU:
 
     def tangent(self, x, geometry, params, dparams, physics):
         """`ImplicitAdjoint.tangent` with this factor: the right-hand side, the transposable solve (one
-        compiled program for every factor), the held nodes' motion."""
+        compiled program for every factor), the held nodes' motion; within `forward_only`, the
+        direct solve of the concrete tangents (`direct_tangent`)."""
+        physics = fk.static_physics(physics)
+        if _FORWARD_ONLY.get():
+            return self.direct_tangent(x, geometry, params, dparams, physics)
+        return self._transposable(x, geometry, params, dparams, physics)
+
+    def _transposable(self, x, geometry, params, dparams, physics):
         b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
-        return _lu_solve(x, geometry, params, b, dheld, self.free, self.token, fk.static_physics(physics))
+        return _lu_solve(x, geometry, params, b, dheld, self.free, self.token, physics)
+
+    def direct_tangent(self, x, geometry, params, dparams, physics):
+        """The tangent as `tangent`, not transposable. Batched by a top-level ``jax.vmap`` (whose
+        custom batching rule sees the batch as arrays), the right-hand sides come from one
+        `_batched_rhs` program and the LU back-solves them all in one host call; otherwise (one
+        tangent, or under an enclosing trace) `parameter_rhs` and the host callback solve, traced."""
+
+        def traced(dparams):
+            b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+            return _apply_lu(self.token, x, self.free, b, _solve_n) + dheld
+
+        solve = jax.custom_batching.custom_vmap(traced)
+
+        @solve.def_vmap
+        def solve_batch(axis_size, in_batched, dparams):
+            batched = tuple(bool(b) for b in jax.tree_util.tree_leaves(in_batched[0]))
+            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dparams)):
+                axes = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(dparams),
+                                                    [0 if b else None for b in batched])
+                return jax.vmap(traced, in_axes=(axes,))(dparams), True
+            # Every leaf batched and on the host: one program per batch size (`batched_rhs_task`).
+            dparams = jax.tree_util.tree_map(
+                lambda a, b: np.asarray(a) if b else np.broadcast_to(np.asarray(a), (axis_size,) + np.shape(a)),
+                dparams, in_batched[0])
+            b, dheld = _batched_rhs(x, geometry, params, dparams, physics)
+            b, dheld = np.asarray(b, np.float64), np.asarray(dheld, np.float64)
+            flat = b.reshape(axis_size, -1)
+            out = np.zeros_like(flat)
+            out[:, self.free_host] = self.factor.solve(np.ascontiguousarray(flat[:, self.free_host].T)).T
+            return jnp.asarray(out.reshape(b.shape) + dheld), True
+
+        return solve(dparams)
 
 
 class Krylov:
@@ -268,11 +375,13 @@ class Krylov:
         """`ImplicitAdjoint.tangent` by BiCGStab: the right-hand side, the transposable solve, the held
         nodes' motion."""
         b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
-        return _krylov_solve(x, geometry, params, b, fk.static_physics(physics)) + dheld
+        return _krylov_solve(x, geometry, params, b, dheld, fk.static_physics(physics))
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _krylov_solve(x, geometry, params, b, physics):
+def _krylov_solve(x, geometry, params, b, dheld, physics):
+    """``J^-1 b + dheld`` by BiCGStab, transposable (the held nodes' motion added in the program: an
+    eager addition was one more compilation in a fresh process)."""
     matvec, preconditioner, transposed_preconditioner = jacobian_operator(x, geometry, params, physics)
 
     def solver(precondition):
@@ -283,7 +392,7 @@ def _krylov_solve(x, geometry, params, b, physics):
         return solve
 
     return jax.lax.custom_linear_solve(matvec, b, solve=solver(preconditioner),
-                                       transpose_solve=solver(transposed_preconditioner))
+                                       transpose_solve=solver(transposed_preconditioner)) + dheld
 
 
 class ImplicitAdjoint:

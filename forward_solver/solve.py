@@ -14,6 +14,7 @@ from .ahead import Ahead, compiling, signature
 from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .explicit import simulate
 from .fallback import run_chain
+from .implicit import batched_rhs_task, expected_tangents
 from .loop import LoopOutput
 from .newton import chord_newton, newton, warm_up
 from .parameters import Parameters, as_parameters
@@ -335,6 +336,9 @@ def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: b
         x = jnp.zeros(tuple(geometry.free.shape) + (3,), jnp.float64)
         prepared["newton"] = ahead.submit(("newton", signature(x, geometry, params), physics),
                                           partial(warm_up, x, geometry, params, physics))
+    n_tangents = expected_tangents()
+    if n_tangents and default_linear_solver() == "lu":  # the design's forward-mode derivative next
+        ahead.submit(*batched_rhs_task(geometry, params, physics, n_tangents))
     return prepared
 
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
+from forward_solver.implicit import forward_only
 from forward_solver.wing import WingSolution, default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
@@ -73,14 +74,16 @@ def _value_and_jacobian(wrapped, v):
 
     ``jax.jacfwd`` less its bookkeeping: the basis of tangents is NumPy's and the Jacobian is
     transposed on the host (``jax.jacfwd`` built and unravelled them with a dozen eager operations,
-    each compiled on its own in a fresh process).
+    each compiled on its own in a fresh process). Nothing here is transposed, so the implicit
+    tangents are `forward_only`: the host LU back-solves the batch of them as arrays.
     """
 
     def push(t):
         r, dr, aux = jax.jvp(wrapped, (v,), (t,), has_aux=True)
         return r, dr, aux
 
-    r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(np.eye(v.size, dtype=np.float64))
+    with forward_only(v.size):
+        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(np.eye(v.size, dtype=np.float64))
     return r, np.asarray(jac).T, aux
 
 
@@ -137,6 +140,9 @@ class DesignProblem:
         self.on_record = None  # called with each new history entry (progress bar, callback)
         self._cache: dict = {}  # the last evaluation with its derivatives
         self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
+        # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
+        self._measured: dict = {}
+        self._recording: dict | None = None  # within a transformed evaluation: what it computes
         # The ribs' manufacturability limits: no solve in them, so their Jacobian comes from forward
         # mode on the design vector alone.
         self.rib_geometries = list(rib_geometries)
@@ -153,7 +159,8 @@ class DesignProblem:
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
         """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
-        return [bay_distances(nodes[k], self.rows[k], self.etas, self.chords[k]) for k in range(len(self.bays))]
+        return self._record("distances", [bay_distances(nodes[k], self.rows[k], self.etas, self.chords[k])
+                                          for k in range(len(self.bays))])
 
     def objective_value(self, distances):
         """The design's objective, chord^2: the bays' `objectives.mean_square`, weighted by area."""
@@ -161,8 +168,15 @@ class DesignProblem:
 
     def tensions(self, nodes, u) -> list:
         """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
-        return [cell_tensions(scene, nodes[k], self.variables.bay_parameters(u, k))
-                for k, scene in enumerate(self.scenes)]
+        return self._record("tensions", [cell_tensions(scene, nodes[k], self.variables.bay_parameters(u, k))
+                                         for k, scene in enumerate(self.scenes)])
+
+    def _record(self, name: str, values: list) -> list:
+        """``values``, kept as ``name`` when a transformed evaluation computes them (`measure` reads
+        their primal values instead of compiling the plain programs again)."""
+        if self._recording is not None:
+            self._recording[name] = values
+        return values
 
     # ------------------------------------------------------------ solves
     def _solve(self, u, initial) -> WingSolution:
@@ -203,11 +217,20 @@ class DesignProblem:
                        "mounted": sol.mounted}
                 if not sol.converged:  # NaN nodes: stop here, nothing downstream is used
                     return jnp.zeros(0), aux
-                return function(v, sol), aux
+                self._recording = {}
+                try:
+                    out = function(v, sol)
+                finally:
+                    aux["measured"], self._recording = self._recording, None
+                return out, aux
 
             out = transform(wrapped, jnp.asarray(u, jnp.float64))
             sol = self._concrete(held["sol"], out[-1], u)
             if sol.converged:
+                measured = out[-1].get("measured")
+                if measured:  # their primal values (the transformation's auxiliary output)
+                    self._measured[key_of(u)] = (sol.nodes, {name: [np.asarray(a) for a in values]
+                                                             for name, values in measured.items()})
                 return out[:-1], self.remember(sol, u)
         raise WingConvergenceError(sol, sol.failed_bays()[0])
 
@@ -388,9 +411,16 @@ class DesignProblem:
         """Per-bay errors and tensions of a concrete converged solution at ``u``: ``rms``, ``max``
         (arrays over the bays, fractions of the local chord), ``wing_rms`` (the square root of the
         weighted mean squares), ``tensions`` (per bay, N/m) and their extremes."""
-        d = [np.asarray(x) for x in self.distances(jnp.asarray(sol.nodes))]
+        nodes, kept = self._measured.get(key_of(u), (None, {}))
+        if nodes is not sol.nodes:  # another solve at u than the evaluation's
+            kept = {}
+        d = kept.get("distances")
+        if d is None:
+            d = [np.asarray(x) for x in self.distances(jnp.asarray(sol.nodes))]
         errors = [distance_errors(x, self.objective) for x in d]
-        t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
+        t = kept.get("tensions")
+        if t is None:
+            t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
         mean_squares = np.array([np.mean(x**2) if self.objective != "worst" else e[0] ** 2
                                  for x, e in zip(d, errors)])
         rms = np.array([e[0] for e in errors])

@@ -155,6 +155,47 @@ def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
     assert "jit(static_state)" not in main and "jit(_jacobian_values)" not in main, threads
 
 
+def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
+    """Within ``forward_only(n)`` a cold solve compiles the batched right-hand sides of its ``n``
+    tangents (`implicit.batched_rhs_task`) on the worker, and the derivative takes that program
+    (no compilation of it on the caller's thread); its Jacobian is the transposable one's to
+    rounding (a 9x40 bay, a grid no other test solves)."""
+    import threading
+
+    import jax.numpy as jnp
+
+    from forward_solver import ahead
+    from forward_solver.implicit import forward_only
+
+    threads = []
+
+    def listen(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            threads.append((kwargs.get("fun_name"), threading.current_thread().name))
+
+    scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=40), Fabric())
+    weights = np.random.default_rng(1).normal(size=(9, 40, 3))
+
+    def loss(q):
+        parameters = Parameters(pressure=q[0], prestrain_span=q[1], prestrain_chord=0.02)
+        return jnp.sum(weights * solve_equilibrium(scene, parameters, method="relax+newton").nodes)
+
+    q = np.array([1e4, 0.02])
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    previous = ahead.set_compile_ahead(True)
+    try:
+        with jax.enable_x64(True), forward_only(q.size):
+            direct = np.asarray(jax.jacfwd(loss)(jnp.asarray(q)))
+    finally:
+        ahead.set_compile_ahead(previous)
+        jax.monitoring.unregister_event_duration_listener(listen)
+    with jax.enable_x64(True):
+        transposable = np.asarray(jax.jacfwd(loss)(jnp.asarray(q)))
+    rhs = [name for fun, name in threads if fun == "jit(_batched_rhs)"]
+    assert rhs and all(name.startswith("compile-ahead") for name in rhs), threads
+    np.testing.assert_allclose(direct, transposable, rtol=1e-9)
+
+
 def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     import concurrent.futures
     import threading

@@ -13,7 +13,7 @@ import pytest
 
 from forward_solver import Bay, Parameters, Scene, Solution, solve_equilibrium
 from forward_solver.adjoint import DIFFERENTIABLE
-from forward_solver.implicit import HostLU
+from forward_solver.implicit import HostLU, forward_only
 from inverse_design.objectives import objective_residuals
 from targets import naca
 
@@ -108,6 +108,29 @@ def test_forward_mode_matches_reverse_mode(scene, weights, reference, implicit_g
         # Same linear algebra, two directions of the same factor: rounding only.
         rev = float(getattr(implicit_gradient[0], name))
         assert abs(float(getattr(jac, name)) - rev) <= 1e-9 * abs(rev)
+
+
+def test_forward_only_tangents_match_the_transposable_ones(scene, weights, reference, implicit_gradient):
+    """`forward_only`: the batch of tangents back-solved on the host (``jax.jacfwd``) and one tangent
+    by the traced callback solve (``jax.jvp``) against the reverse-mode gradient: rounding only."""
+    def loss(q):
+        return jnp.sum(weights * _solve(scene, q, reference).nodes)
+
+    with jax.enable_x64(True), forward_only():
+        jac = jax.jacfwd(loss)(THETA)
+        direction = THETA.replace(pressure=1.0, prestrain_span=0.0, prestrain_chord=0.0, stiffness_span=0.0,
+                                  stiffness_chord=0.0, rib_thickness_scale=0.0, rib_chord_scale=0.0)
+        _, one = jax.jvp(loss, (THETA,), (direction,))
+    for name in DIFFERENTIABLE:
+        rev = float(getattr(implicit_gradient[0], name))
+        assert abs(float(getattr(jac, name)) - rev) <= 1e-9 * abs(rev), name
+    rev = float(implicit_gradient[0].pressure)
+    assert abs(float(one) - rev) <= 1e-9 * abs(rev)
+
+
+def test_reverse_mode_within_forward_only_is_refused(scene, weights, reference):
+    with jax.enable_x64(True), forward_only(), pytest.raises(NotImplementedError, match="Transpose rule"):
+        jax.grad(lambda q: jnp.sum(weights * _solve(scene, q, reference).nodes))(THETA)
 
 
 def test_implicit_gradient_matches_unrolled_relaxation(scene, weights):

@@ -54,6 +54,30 @@ def test_objective_and_constraint_gradients_match_central_differences(wing):
     assert abs(grad[0]) > 1e-3 * f  # the objective does depend on the pressure
 
 
+def test_measure_reads_what_the_evaluation_computed(wing):
+    """`DesignProblem.measure` at an evaluated iterate takes the distances and tensions the
+    evaluation computed (no second program of either), the same values as computing them again;
+    for another solve at the same vector (other nodes) it computes them."""
+    import dataclasses
+
+    with jax.enable_x64(True):
+        variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
+        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
+                                Constraints(), rtol=1e-12)
+        u = np.array([1.0])
+        sol = problem.evaluate(u)[-1]
+        calls = []
+        computed = problem.distances
+        problem.distances = lambda nodes: calls.append(1) or computed(nodes)
+        kept = problem.measure(sol, u)
+        assert not calls
+        other = problem.measure(dataclasses.replace(sol, nodes=np.array(sol.nodes)), u)
+        assert len(calls) == 1
+    for name in ("rms", "max", "min_tension", "max_tension"):
+        np.testing.assert_allclose(kept[name], other[name], rtol=1e-12, atol=0)
+    assert kept["wing_rms"] == pytest.approx(other["wing_rms"], rel=1e-12)
+
+
 def test_per_rib_shape_gradients_match_central_differences(wing):
     # The design vector: pressure, then 4 ribs x 4 coefficients (K = 2). Coefficient 1 of rib 1
     # moves bays 0 and 1 (its tip and root); the objective's and the wrinkle row's derivatives
