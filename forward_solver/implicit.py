@@ -264,6 +264,14 @@ def _apply_lu(token, anchor, free, b, callback):
 
 
 @partial(jax.jit, static_argnames=("physics",))
+def _callback_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, free, token, physics):
+    """``J^-1 (-dR/dtheta . dtheta) + dheld`` by the host LU that ``token`` names, not transposable
+    (`HostLU.direct_tangent` of one tangent, or under an enclosing trace)."""
+    b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+    return _apply_lu(token, x, free, b, _solve_n) + dheld
+
+
+@partial(jax.jit, static_argnames=("physics",))
 def _lu_solve(x, geometry: fk.Geometry, params: fk.Params, b, dheld, free, token, physics):
     """``J^-1 b + dheld``, transposable, by the host LU that ``token`` names (`HostLU`).
 
@@ -339,9 +347,8 @@ class HostLU:
         `_batched_rhs` program and the LU back-solves them all in one host call; otherwise (one
         tangent, or under an enclosing trace) `parameter_rhs` and the host callback solve, traced."""
 
-        def traced(dparams):
-            b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
-            return _apply_lu(self.token, x, self.free, b, _solve_n) + dheld
+        def traced(dparams):  # a compiled function: its trace is cached (custom_vmap traces it per call)
+            return _callback_tangent(x, geometry, params, dparams, self.free, self.token, physics)
 
         solve = jax.custom_batching.custom_vmap(traced)
 

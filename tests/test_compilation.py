@@ -196,6 +196,20 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
     np.testing.assert_allclose(direct, transposable, rtol=1e-9)
 
 
+def test_a_bays_geometry_is_made_once_per_float64_setting_and_never_kept_from_a_trace():
+    import jax.numpy as jnp
+
+    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=16)
+    with jax.enable_x64(True):
+        traced = jax.jit(lambda x: x * bay.geometry().chord_root)(jnp.ones(()))  # made inside a trace
+        made = bay.geometry()
+        assert not any(isinstance(a, jax.core.Tracer) for a in made)
+        assert bay.geometry() is made and made.contour_root.dtype == np.float64
+        assert float(traced) == 1.0
+    single = bay.geometry()
+    assert single is not made and single.contour_root.dtype == np.float32
+
+
 def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     import concurrent.futures
     import threading
