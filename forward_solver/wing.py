@@ -128,12 +128,20 @@ class Wing:
         return len(self.airfoils) - 1
 
     def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
-        """The bays, root to tip, each between ribs k and k + 1, all on one grid shape."""
-        return [Bay.from_airfoil(self.sections[k], chord=self.chords[k],
-                                 rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
-                                 n_contour=n_contour, fix_trailing_edge=self.fix_trailing_edge,
-                                 tip_airfoil=self.sections[k + 1], tip_chord=self.chords[k + 1])
-                for k in range(self.n_bays)]
+        """The bays, root to tip, each between ribs k and k + 1, all on one grid shape.
+
+        Made once per grid shape (bays are immutable): the command, the design and its report
+        ask for them several times (40 bays: 0.35 s each time).
+        """
+        made = self.__dict__.setdefault("_bays", {})  # a cache, not a field (frozen dataclass)
+        key = (int(n_span), int(n_contour))
+        if key not in made:
+            made[key] = tuple(Bay.from_airfoil(self.sections[k], chord=self.chords[k],
+                                               rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
+                                               n_contour=n_contour, fix_trailing_edge=self.fix_trailing_edge,
+                                               tip_airfoil=self.sections[k + 1], tip_chord=self.chords[k + 1])
+                              for k in range(self.n_bays))
+        return list(made[key])
 
     def scenes(self, fabric: Fabric, n_span: int = 17, n_contour: int = 64, **switches) -> list[Scene]:
         """The bays as `Scene`s of one fabric and one set of physics switches (`Scene`'s keywords)."""
