@@ -311,7 +311,7 @@ def simulate(
     with float64_scope():
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(parameters, dtype=dtype)
-        geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        geometry = bay.geometry()  # float64 within the scope (made once per bay)
         extra = precision_extra(precision, rtol, geometry, params, physics)
         floor = extra.get("float32_floor")
         x_init = initial_nodes(initial, geometry, params)

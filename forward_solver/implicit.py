@@ -354,21 +354,18 @@ class HostLU:
 
         @solve.def_vmap
         def solve_batch(axis_size, in_batched, dparams):
-            batched = tuple(bool(b) for b in jax.tree_util.tree_leaves(in_batched[0]))
             if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dparams)):
-                axes = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(dparams),
-                                                    [0 if b else None for b in batched])
+                axes = jax.tree_util.tree_map(lambda b: 0 if b else None, in_batched[0])
                 return jax.vmap(traced, in_axes=(axes,))(dparams), True
             # Every leaf batched and on the host: one program per batch size (`batched_rhs_task`).
             dparams = jax.tree_util.tree_map(
                 lambda a, b: np.asarray(a) if b else np.broadcast_to(np.asarray(a), (axis_size,) + np.shape(a)),
                 dparams, in_batched[0])
             b, dheld = _batched_rhs(x, geometry, params, dparams, physics)
-            b, dheld = np.asarray(b, np.float64), np.asarray(dheld, np.float64)
-            flat = b.reshape(axis_size, -1)
+            flat = np.asarray(b, np.float64).reshape(axis_size, -1)
             out = np.zeros_like(flat)
-            out[:, self.free_host] = self.factor.solve(np.ascontiguousarray(flat[:, self.free_host].T)).T
-            return jnp.asarray(out.reshape(b.shape) + dheld), True
+            out[:, self.free_host] = self.host_solve(flat[:, self.free_host], "N")
+            return jnp.asarray(out.reshape(b.shape) + np.asarray(dheld, np.float64)), True
 
         return solve(dparams)
 

@@ -242,7 +242,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
     with float64_scope(), Ahead() as ahead:
         dtype = jnp.float64  # inputs, stop test and results; the iteration runs in `precision`
         params = scene.params(parameters, dtype=dtype)
-        geometry = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype), bay.geometry())
+        geometry = bay.geometry()  # float64 within the scope (made once per bay)
         extra = precision_extra(precision, rtol, geometry, params, physics)
         coarse_rtol = _COARSE_RTOL
         if precision == "float32":
