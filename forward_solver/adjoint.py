@@ -69,6 +69,7 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import forces as fk
 from ._precision import float64_scope
@@ -137,10 +138,18 @@ def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
     tangents["rib_shape_root"], tangents["rib_shape_tip"] = dparameters.rib_shapes
     tangents["cut_pattern"] = dparameters.cut_pattern
     # Cast to the primal's dtype: a weakly typed tangent (a Python zero) would be another jit
-    # signature of the kernels it reaches than a strongly typed one, and recompile them.
-    return fk.Params(*(jnp.zeros_like(getattr(like, name)) if tangents.get(name) is None
-                       else jnp.asarray(tangents[name], dtype=getattr(like, name).dtype)
-                       for name in fk.Params._fields))
+    # signature of the kernels it reaches than a strongly typed one, and recompile them. Zeros
+    # are NumPy's and a tangent already of that type is kept: an eager JAX operation is a program
+    # compiled (or fetched from the cache) in every process.
+    def tangent(name):
+        primal, value = getattr(like, name), tangents.get(name)
+        if value is None:
+            return np.zeros(np.shape(primal), primal.dtype)
+        if isinstance(value, jax.Array) and jax.typeof(value) == jax.typeof(primal).update(weak_type=False):
+            return value
+        return jnp.asarray(value, dtype=primal.dtype)
+
+    return fk.Params(*(tangent(name) for name in fk.Params._fields))
 
 
 def _concrete(parameters: Parameters) -> Parameters:

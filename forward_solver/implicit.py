@@ -49,6 +49,7 @@ from jax.scipy.sparse.linalg import bicgstab
 from . import forces as fk
 from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
+from .programs import stored
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -74,7 +75,7 @@ def held_at_mounted(x, geometry: fk.Geometry, params: fk.Params):
     return free * x + (1.0 - free) * mounted
 
 
-@partial(jax.jit, static_argnames=("physics",))
+@stored(static_argnames=("physics",))
 def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
     """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
 
@@ -91,7 +92,7 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Param
     return -dr, (1.0 - geometry.free[..., None]) * dnodes
 
 
-@partial(jax.jit, static_argnames=("physics",))
+@stored(static_argnames=("physics",))
 def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
     """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
     program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
@@ -112,7 +113,19 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.Params, physics: fk.Physi
     dparams = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((n_tangents,) + tuple(np.shape(a)),
                                                                     jnp.result_type(a)), params)
     key = ("tangents", signature(x, geometry, params), physics, n_tangents)
-    return key, compiling(_batched_rhs, x, geometry, params, dparams, physics)
+    compile_rhs = compiling(_batched_rhs, x, geometry, params, dparams, physics)
+    # `HostLU.direct_tangent`'s custom_vmap traces its one-tangent function (`_callback_tangent`)
+    # before it batches it: trace it here, so that the call finds its trace in JAX's cache.
+    n_free = 3 * int(np.count_nonzero(np.asarray(geometry.free) > 0.5))
+    one = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape[1:], a.dtype), dparams)
+    free = jax.ShapeDtypeStruct((n_free,), jax.dtypes.canonicalize_dtype(np.int64))  # as HostLU's
+    token = jax.ShapeDtypeStruct((), jnp.int32)
+
+    def task():
+        compile_rhs()
+        _callback_tangent.trace(x, geometry, params, one, free, token, physics)
+
+    return key, task
 
 
 #: Whether implicit tangents may skip transposability (`forward_only`), and how many tangents the
@@ -308,11 +321,11 @@ class HostLU:
     def __init__(self, factor, free, anchor):
         self.factor = factor
         self.free_host = np.asarray(free)
-        self.free = jnp.asarray(free)
+        self.free = jax.device_put(self.free_host)  # (a transfer: no eager program to compile)
         token = next(_TOKENS)
         _FACTORS[token] = factor
         weakref.finalize(anchor, _release, token)
-        self.token = jnp.asarray(token, jnp.int32)  # 32 bits: unchanged whether float64 is on or off
+        self.token = jax.device_put(np.int32(token))  # 32 bits: unchanged whether float64 is on or off
 
     @classmethod
     def at(cls, x, geometry, params, physics, factor=None) -> "HostLU":

@@ -7,6 +7,7 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from . import forces as fk
 from ._precision import float32_floor, precision_extra
@@ -18,6 +19,7 @@ from .implicit import batched_rhs_task, expected_tangents
 from .loop import LoopOutput
 from .newton import chord_newton, newton, warm_up
 from .parameters import Parameters, as_parameters
+from .programs import stored
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, static_forces
@@ -321,11 +323,11 @@ def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: b
     prepared, prolongations = {}, []
     for k in range(len(grids) - 2, -1, -1):  # the coarsest (last) is the solve's own first program
         shape = tuple(grids[k].free.shape) + (3,)
-        x = jnp.zeros(shape, jnp.float64)
+        x = np.zeros(shape)  # (NumPy: no eager program to compile for a placeholder)
         key = ("relax", signature(x, grids[k], params), physics, options)
         rtol, with_forces = (relax_rtol, not newton_next) if k == 0 else (coarse_rtol, False)
         prepared[shape] = ahead.submit(key + (with_forces,), relax(x, grids[k], rtol, with_forces, compile_only=True))
-        xc = jnp.zeros(tuple(grids[k + 1].free.shape) + (3,), jnp.float64)
+        xc = np.zeros(tuple(grids[k + 1].free.shape) + (3,))
         prolongations.append((("prolong", shape), ("prolong", signature(x, xc, grids[k].free), physics.periodic),
                               compiling(_prolonged, x, xc, xc, grids[k].free, physics.periodic)))
     # The small programs that carry a level's solution to the next after the long ones: if the
@@ -333,7 +335,7 @@ def _compile_ahead(ahead: Ahead, relax, geometry, params, physics, sequencing: b
     for name, key, task in prolongations:
         prepared[name] = ahead.submit(key, task)
     if newton_next:
-        x = jnp.zeros(tuple(geometry.free.shape) + (3,), jnp.float64)
+        x = np.zeros(tuple(geometry.free.shape) + (3,))
         prepared["newton"] = ahead.submit(("newton", signature(x, geometry, params), physics),
                                           partial(warm_up, x, geometry, params, physics))
     n_tangents = expected_tangents()
@@ -452,7 +454,7 @@ def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_
     return _prolonged(x0, xc_full, xc0, geometry.free, physics.periodic), steps + chunks * RELAX_CHUNK, levels
 
 
-@partial(jax.jit, static_argnames=("periodic",))
+@stored(static_argnames=("periodic",))
 def _prolonged(x0, xc, xc0, free, periodic: bool):
     """The fine grid's start: its mounted shape ``x0`` plus the coarse solution's displacement
     ``xc - xc0`` interpolated (`_prolong`) on the free nodes (one program: twenty eager

@@ -22,7 +22,9 @@ process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
 ``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
 else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing. It also compiles with XLA's faster-
+second run of a grid compiles nothing, and keeps the solver's main programs
+in its ``programs`` sub-folder (`forward_solver.programs`), so a second run
+loads them without tracing and lowering them again. It also compiles with XLA's faster-
 compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
 unless ``XLA_FLAGS`` chooses otherwise): about 40% less compile time, the
 same results.
@@ -129,14 +131,25 @@ def compilation_cache_dir() -> Path:
     return Path(base) / "inflatable-wing" / "jax"
 
 
+#: Environment variable that, set to "0", keeps the command from using the program store (JAX's
+#: persistent cache alone), e.g. to measure what the store saves.
+PROGRAM_STORE_VARIABLE = "INFLATABLE_WING_PROGRAM_STORE"
+
+
 def use_compilation_cache(path: Path) -> None:
     """Turn on JAX's persistent compilation cache in ``path`` for this process (every entry kept:
-    the solver's functions compile in 0.3-6 s each and load in milliseconds)."""
+    the solver's functions compile in 0.3-6 s each and load in milliseconds), and the solver's
+    program store in its ``programs`` sub-folder (`forward_solver.programs`: its main programs
+    load without being traced and lowered again; ``INFLATABLE_WING_PROGRAM_STORE=0`` leaves it off)."""
     import jax
+
+    from forward_solver.programs import use_program_store
 
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    if os.environ.get(PROGRAM_STORE_VARIABLE, "").strip() != "0":
+        use_program_store(Path(path) / "programs")
 
 
 def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
