@@ -24,10 +24,12 @@ else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
 second run of a grid compiles nothing, and keeps the solver's main programs
 in its ``programs`` sub-folder (`forward_solver.programs`), so a second run
-loads them without tracing and lowering them again. It also compiles with XLA's faster-
-compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
+loads them without tracing and lowering them again. It also compiles with
+XLA's faster-compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
 unless ``XLA_FLAGS`` chooses otherwise): about 40% less compile time, the
-same results.
+same results; and its report saves the figures on a second core, a forked
+child drawing them while the other files are written
+(`inverse_design.app.drawing`, on for the command's own run only).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from forward_solver.xla import enable_fast_compilation
 from . import interrupts
 from .case import parse_arguments
 from .console import describe
+from .drawing import set_parallel_figures
 from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import run
@@ -97,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
     enable_fast_compilation()  # before the run's first JAX computation
+    figures = set_parallel_figures(True)  # the report's figures on a second core (`drawing`)
     try:
         code = _main(argv, started)
     except Terminated:  # before the run (importing JAX) or after its folder was written
@@ -107,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_INTERRUPTED
     finally:
         interrupts.restore(previous)
+        set_parallel_figures(figures)
         if flags is None:  # (read by XLA when its backend started: a caller's later children see theirs)
             os.environ.pop("XLA_FLAGS", None)
         else:
