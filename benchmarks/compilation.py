@@ -46,6 +46,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -159,15 +161,22 @@ def _summary(label: str, wall: float, report: dict, top: int) -> dict:
             "marks": report["marks"]}
 
 
-def default_case_runs(tmp: Path, top: int) -> list[dict]:
+def default_case_runs(tmp: Path, top: int, repeats: int = 3) -> list[dict]:
     env = dict(os.environ, INFLATABLE_WING_CACHE=str(tmp / "cache"))
     # as the console script: the command's work, then the process ends without the interpreter's
     # teardown (`cli.command`; the listener's report is written by its exit function)
     code = "from inverse_design.app.cli import command\ncommand()\n"
     rows = []
     default_emitters = dict(env, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
+    no_store = dict(env, INFLATABLE_WING_PROGRAM_STORE="0")
+    serial = dict(env, INFLATABLE_WING_SERIAL_FIGURES="1")
+    # The cached variants alternate, `repeats` times each, for ratios taken in one run: with the
+    # program store and the forked figures (as the command runs), without the store (JAX's
+    # persistent cache alone), and with the figures saved serially.
+    cached = [("default, cached", [], env), ("default, cached, no program store", [], no_store),
+              ("default, cached, figures saved serially", [], serial)] * repeats
     for label, extra, run_env in [("default, no cache", ["--no-compilation-cache"], env),
-                                  ("default, empty cache", [], env), ("default, cached", [], env),
+                                  ("default, empty cache", [], env), *cached,
                                   ("default, no cache, XLA's default emitters", ["--no-compilation-cache"],
                                    default_emitters)]:
         out = tmp / f"out-{len(rows)}"
@@ -181,6 +190,19 @@ def default_case_runs(tmp: Path, top: int) -> list[dict]:
                           "timings_s": {k: round(v, 2) for k, v in summary["timings_s"].items()}}
         rows.append(row)
     return rows
+
+
+def cached_medians(runs: list[dict]) -> dict:
+    """Median wall time of each cached variant of the default case, and its ratio to the first
+    ("default, cached": the command as it runs)."""
+    walls: dict = {}
+    for run in runs:
+        if run["run"].startswith("default, cached"):
+            walls.setdefault(run["run"], []).append(round(run["wall_s"], 2))
+    medians = {label: float(np.median(w)) for label, w in walls.items()}
+    base = medians.get("default, cached")
+    return {label: {"wall_s": m, "walls_s": walls[label], "ratio": m / base if base else float("nan")}
+            for label, m in medians.items()}
 
 
 def first_solve_run(tmp: Path, top: int, shape=(17, 256), fast: bool = False) -> dict:
@@ -207,6 +229,8 @@ def main(argv=None) -> None:
     parser.add_argument("--skip-first", action="store_true", help="skip the first 17x256 solve")
     parser.add_argument("--skip-resolve", action="store_true", help="skip the warm re-solve ratios")
     parser.add_argument("--top", type=int, default=12, help="compile consumers listed per run")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="runs of each cached variant of the default case, alternating (medians printed)")
     args = parser.parse_args(argv)
     load = os.getloadavg()
     machine = f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cores, load {load[0]:.1f}"
@@ -215,7 +239,7 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as name:
         tmp = Path(name)
         if not args.skip_default:
-            runs += default_case_runs(tmp, args.top)
+            runs += default_case_runs(tmp, args.top, args.repeats)
         if not args.skip_first:
             runs += [first_solve_run(tmp, args.top), first_solve_run(tmp, args.top, fast=True)]
         if not args.skip_resolve:
@@ -239,9 +263,14 @@ def main(argv=None) -> None:
             print(f"  marks: {marks}")
         for t in run["top"]:
             print(f"    {t['seconds']:6.2f} s  {t['count']:3d}x  {t['function']}")
+    medians = cached_medians(runs)
+    for label, entry in medians.items():
+        print(f"\n{label}: median wall {entry['wall_s']:.2f} s of {entry['walls_s']}, "
+              f"ratio to the command as it runs {entry['ratio']:.2f}")
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / "compilation.json"
-    path.write_text(json.dumps({"machine": machine, "date": time.strftime("%Y-%m-%d"), "runs": runs}, indent=1))
+    path.write_text(json.dumps({"machine": machine, "date": time.strftime("%Y-%m-%d"), "runs": runs,
+                                "cached_medians": medians}, indent=1))
     print(f"\nwrote {path}")
 
 
