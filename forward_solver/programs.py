@@ -58,8 +58,7 @@ from pathlib import Path
 
 import jax
 
-__all__ = ["ProgramStore", "program_key", "program_store", "stored",
-           "use_program_store"]
+__all__ = ["ProgramStore", "program_key", "program_store", "stored", "use_program_store"]
 
 #: The packages whose source shapes the stored programs.
 _PACKAGES = ("forward_solver", "inverse_design", "targets")
