@@ -105,7 +105,8 @@ def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params
 def batched_rhs_task(geometry: fk.Geometry, params: fk.Params, physics: fk.Physics, n_tangents: int):
     """``(key, task)`` for `ahead.Ahead.submit`: compile `_batched_rhs` for ``n_tangents`` tangents at
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
-    batched, float64 and strongly typed)."""
+    batched, float64 and strongly typed; from the program store when one is in use), and trace the
+    one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""
     from .ahead import compiling, signature
 
     physics = fk.static_physics(physics)
