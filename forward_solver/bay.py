@@ -243,6 +243,14 @@ class Bay:
             name="flat panel",
         )
 
+    def __getstate__(self) -> dict:
+        """Pickled without the `geometry` cache (device arrays, made again on first use): a pickled
+        bay loads in a process that has not started JAX's backend (the report's figure workers,
+        `inverse_design.app.drawing.FigureWorkers`)."""
+        state = dict(self.__dict__)
+        state.pop("_geometry", None)
+        return state
+
     # --------------------------------------------------------------- geometry
     def geometry(self) -> Geometry:
         """The bay as traced arrays for the force kernel.

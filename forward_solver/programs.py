@@ -38,6 +38,19 @@ JAX leaves them out of its key. If the cache has the entry anyway (the
 store's file was deleted but the cache's kept), the program is used but
 not stored.
 
+A store can also load ahead (`ProgramStore.prefetch`): the programs that
+the last run of the same kind (a ``profile`` the caller names, e.g. the
+command's grid, variables and method) used, in the order it used them, as
+`ProgramStore.remember` wrote them to ``recent-<profile>.json``, are
+loaded on a daemon thread while the caller goes on (deserialising an
+executable runs without Python's lock); a call then takes its executable
+from there, waiting for it if it is being loaded. A listed program that a
+call needs first is loaded by the call, and a run of another code version
+(another `_environment_version`) prefetches nothing. The command's cached
+default case (2-core development machine, six alternating runs each): its
+first design evaluation ends 0.09 s sooner (1.80-1.94 s after the start
+against 1.91-2.00 s); the loads now wait for nothing but the relaxation's.
+
 Loading an executable runs code from the store's folder, as JAX's
 persistent cache does: both live in the user's own cache folder.
 """
@@ -47,12 +60,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import inspect
+import json
 import os
 import pickle
 import platform
 import tempfile
 import threading
 import uuid
+from concurrent.futures import Future
 from functools import partial
 from pathlib import Path
 
@@ -65,6 +80,7 @@ _PACKAGES = ("forward_solver", "inverse_design", "targets")
 _STORE: "ProgramStore | None" = None
 _VERSION: str | None = None
 _LOCK = threading.Lock()
+_VERSION_LOCK = threading.Lock()
 _WATCH = threading.local()  # per thread: whether a persistent-cache hit was seen while compiling
 _LISTENING = False
 
@@ -72,21 +88,26 @@ _LISTENING = False
 def _environment_version() -> str:
     """One digest of everything outside a call's arguments that decides its compiled program."""
     global _VERSION
-    if _VERSION is None:
-        digest = hashlib.sha256()
-        root = Path(__file__).resolve().parents[1]
-        for package in _PACKAGES:
-            for path in sorted((root / package).rglob("*.py")):
-                digest.update(str(path.relative_to(root)).encode())
-                digest.update(path.read_bytes())
-        import jaxlib
-
-        device = jax.devices()[0]
-        for part in (jax.__version__, jaxlib.__version__, os.environ.get("XLA_FLAGS", ""),
-                     device.platform, device.device_kind, _processor()):
-            digest.update(b"\0" + str(part).encode())
-        _VERSION = digest.hexdigest()
+    with _VERSION_LOCK:  # (computed once: by the first caller, a prefetch thread or a call)
+        if _VERSION is None:
+            _VERSION = _compute_environment_version()
     return _VERSION
+
+
+def _compute_environment_version() -> str:
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1]
+    for package in _PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    import jaxlib
+
+    device = jax.devices()[0]
+    for part in (jax.__version__, jaxlib.__version__, os.environ.get("XLA_FLAGS", ""),
+                 device.platform, device.device_kind, _processor()):
+        digest.update(b"\0" + str(part).encode())
+    return digest.hexdigest()
 
 
 def _processor() -> str:
@@ -112,14 +133,31 @@ def _listen(event: str, **kwargs) -> None:
 
 
 class ProgramStore:
-    """A folder of serialised executables, one file per `program_key`, written atomically."""
+    """A folder of serialised executables, one file per `program_key`, written atomically, and the
+    list of the programs each profile's last run used (`prefetch`, `remember`)."""
 
     def __init__(self, path):
         self.path = Path(path)
+        #: The keys this process ran (loaded or compiled), in the order of their first use.
+        self.used: list[str] = []
+        self._lock = threading.Lock()
+        self._claimed: set[str] = set()  # keys a call or the prefetch thread has loaded or is loading
+        self._ahead: dict[str, Future] = {}  # key -> the prefetch thread's load, until a call takes it
+        self._remembered: tuple | None = None  # (profile, version, keys) as `prefetch` read it
 
     def load(self, key: str):
         """The stored executable of ``key`` (a `jax.stages.Compiled`), or None if there is none or
-        it does not load (then it is removed)."""
+        it does not load (then it is removed). One loaded ahead (`prefetch`) is taken from there,
+        once it is ready."""
+        with self._lock:
+            ahead = self._ahead.pop(key, None)
+            self._claimed.add(key)
+        compiled = self._read(key) if ahead is None else ahead.result()
+        if compiled is not None:
+            self._use(key)
+        return compiled
+
+    def _read(self, key: str):
         file = self.path / f"{key}.bin"
         try:
             payload = file.read_bytes()
@@ -133,6 +171,65 @@ class ProgramStore:
         except Exception:  # noqa: BLE001 - a damaged or foreign entry: compile again
             file.unlink(missing_ok=True)
             return None
+
+    def _use(self, key: str) -> None:
+        with self._lock:
+            if key not in self.used:
+                self.used.append(key)
+
+    def _recent_file(self, profile: str) -> Path:
+        return self.path / f"recent-{hashlib.sha256(profile.encode()).hexdigest()[:16]}.json"
+
+    def prefetch(self, profile: str) -> threading.Thread:
+        """Start loading, on a daemon thread, the programs that the last run of ``profile`` used
+        (`remember`), if it ran this code version; returns the thread (module docstring).
+
+        ``profile`` names a kind of run whose programs are alike (e.g. the command's grid,
+        variables and methods); any string."""
+        thread = threading.Thread(target=self._load_ahead, args=(profile,), name="program-store-prefetch",
+                                  daemon=True)
+        thread.start()
+        return thread
+
+    def _load_ahead(self, profile: str) -> None:
+        try:
+            version = _environment_version()  # (the calls need it too: computed here first)
+            try:
+                recent = json.loads(self._recent_file(profile).read_text())
+                keys = [str(key) for key in recent["keys"]] if recent.get("version") == version else []
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                keys = []
+            self._remembered = (profile, version, tuple(keys))
+            for key in keys:
+                with self._lock:
+                    if key in self._claimed:  # a call got there first
+                        continue
+                    self._claimed.add(key)
+                    future = self._ahead[key] = Future()
+                try:
+                    future.set_result(self._read(key))
+                finally:
+                    if not future.done():  # (an error the read does not catch: the call loads it)
+                        future.set_result(None)
+        except Exception:  # noqa: BLE001 - loading ahead only saves time: the calls load what they need
+            pass
+
+    def remember(self, profile: str) -> bool:
+        """Write the keys this process used (`used`) as ``profile``'s list for the next run's
+        `prefetch`, unless it is the list already there; returns whether it wrote. A full or
+        read-only disk writes nothing."""
+        version = _environment_version()
+        with self._lock:
+            keys = tuple(self.used)
+        if not keys or self._remembered == (profile, version, keys):
+            return False
+        try:
+            self._write_file(self._recent_file(profile),
+                             json.dumps({"profile": profile, "version": version, "keys": list(keys)}).encode())
+        except OSError:
+            return False
+        self._remembered = (profile, version, keys)
+        return True
 
     def compile(self, key: str, lower):
         """Compile the program that ``lower(salt)`` lowers (`_Stored.lower_for_store`) and keep it
@@ -157,19 +254,24 @@ class ProgramStore:
                     self._write(key, compiled)
                 except OSError:  # a full or read-only disk: the run goes on without storing
                     pass
+                else:
+                    self._use(key)
                 break
         return compiled
 
     def _write(self, key: str, compiled) -> None:
         from jax.experimental.serialize_executable import serialize
 
-        payload = pickle.dumps(serialize(compiled))
+        self._write_file(self.path / f"{key}.bin", pickle.dumps(serialize(compiled)))
+
+    def _write_file(self, file: Path, payload: bytes) -> None:
+        """Write ``payload`` to ``file`` atomically (a temporary file in the store, then a rename)."""
         self.path.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=self.path, prefix=f".{key}.", suffix=".tmp")
+        handle, temporary = tempfile.mkstemp(dir=self.path, prefix=f".{file.name}.", suffix=".tmp")
         try:
             with os.fdopen(handle, "wb") as f:
                 f.write(payload)
-            os.replace(temporary, self.path / f"{key}.bin")
+            os.replace(temporary, file)
         except BaseException:
             Path(temporary).unlink(missing_ok=True)
             raise

@@ -209,6 +209,45 @@ def test_every_png_is_an_image(default_run):
             assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000, name
 
 
+_COUNTED = r"""
+import json, sys
+from inverse_design.app import cli, drawing
+
+saved = []
+finish = drawing.FigureWorkers.finish
+drawing.FigureWorkers.finish = lambda self, *a, **k: saved.append(sorted(finish(self, *a, **k))) or set(saved[-1])
+code = cli.main(sys.argv[1:])
+print(json.dumps({"code": code, "saved": saved}))
+"""
+
+
+def test_the_figure_workers_draw_the_figures_a_serial_report_draws(default_run, cli_env):
+    """The command's figure workers (forked before the design) save every figure of a single bay's
+    report, byte for byte as the report saves them in one process."""
+    base, out, _, _ = default_run
+    counted = subprocess.run([sys.executable, "-c", _COUNTED, *SMALL, "--quiet", "--out", "counted"], cwd=base,
+                             env=cli_env, capture_output=True, text=True, timeout=600)
+    assert counted.returncode == 0, counted.stderr
+    run = json.loads(counted.stdout.strip().splitlines()[-1])
+    if drawing_workers_possible():
+        assert run["saved"] == [[0, 1, 2, 3]]  # all four by the workers, none left to this process
+    serial = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--quiet", "--out", "serial"],
+                            cwd=base, env=dict(cli_env, INFLATABLE_WING_SERIAL_FIGURES="1"), capture_output=True,
+                            text=True, timeout=600)
+    assert serial.returncode == 0, serial.stderr
+    for name in sorted(n for n in FOLDER if n.endswith(".png")):
+        assert (base / "counted" / name).read_bytes() == (base / "serial" / name).read_bytes(), name
+        assert (out / name).read_bytes() == (base / "serial" / name).read_bytes(), name
+
+
+def drawing_workers_possible() -> bool:
+    """Whether the command can fork figure workers here (Linux, two cores or more, an OpenBLAS it can set)."""
+    from inverse_design.app import drawing
+
+    return (sys.platform.startswith("linux") and drawing._cores() > 1
+            and all(get is not None for _, _, get, _ in drawing._openblas_libraries()))
+
+
 # ------------------------------------------------------------------ case files
 def test_a_case_file_is_read_and_the_command_line_overrides_it(run_cli, tmp_path):
     (tmp_path / "case.toml").write_text(

@@ -276,3 +276,132 @@ def test_an_openblas_that_cannot_be_read_makes_the_figures_save_serially(tmp_pat
         pass
     assert saver.pid is None
     assert _contents(tmp_path / "out") == expected
+
+
+# ---------------------------------------------------------------------- workers forked before the design
+_WORKERS = r"""
+import json, os, sys, time
+import numpy as np
+from inverse_design.app import drawing
+
+mode, folder = sys.argv[1], sys.argv[2]
+PARENT = os.getpid()
+
+
+def plot(k):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(2.4, 1.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    x = np.linspace(0.0, 1.0, 60)
+    fig.add_subplot().plot(x, np.sin(6.0 * (k + 1) * x), color=f"C{k}")
+    return fig
+
+
+def save(fig, path):
+    if os.getpid() != PARENT and path.endswith("figure_1.png"):
+        if mode == "fail":
+            raise RuntimeError("a worker's figure failed")
+        if mode == "hang":
+            time.sleep(60)
+    fig.savefig(path, dpi=72)
+
+
+drawing.set_parallel_figures(True)
+workers = drawing.FigureWorkers.start(2)
+out = {"started": workers is not None, "modules": "matplotlib" in sys.modules}
+if workers is not None:
+    pids = list(workers.pids)
+    os.makedirs(os.path.join(folder, "workers"))
+    os.makedirs(os.path.join(folder, "serial"))
+    tasks = [(os.path.join(folder, "workers", f"figure_{k}.png"), plot, (k,), {}) for k in range(4)]
+    t = time.monotonic()
+    if mode == "unused":
+        workers.close()
+        saved = set()
+    else:
+        assert workers.draw(tasks, save)
+        saved = workers.finish(timeout=3.0 if mode == "hang" else 60.0)
+    out["seconds"] = time.monotonic() - t
+    for k, (path, function, args, kwargs) in enumerate(tasks):
+        if k not in saved:
+            save(function(*args), path)
+        save(plot(k), os.path.join(folder, "serial", f"figure_{k}.png"))
+    workers.close()  # (twice: harmless)
+    gone = []
+    for pid in pids:
+        try:
+            os.waitpid(pid, os.WNOHANG)
+            gone.append(False)
+        except ChildProcessError:
+            gone.append(True)
+
+    def read(sub):
+        return [open(os.path.join(folder, sub, f"figure_{k}.png"), "rb").read() for k in range(4)]
+
+    out.update(saved=sorted(saved), gone=gone, same=read("workers") == read("serial"),
+               exitcodes=sorted(workers.exitcodes.values()))
+print(json.dumps(out))
+"""
+
+
+def _run_workers(mode, tmp_path) -> dict:
+    import json
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if k != drawing.SERIAL_VARIABLE}
+    done = subprocess.run([sys.executable, "-c", _WORKERS, mode, str(tmp_path)], capture_output=True, text=True,
+                          timeout=120, env=env)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    if not out["started"]:
+        pytest.skip("no figure workers on this machine (one core, or an OpenBLAS a fork could hang)")
+    return out
+
+
+@needs_fork
+def test_workers_forked_first_draw_every_figure_as_this_process_would(tmp_path):
+    """Forked before matplotlib was imported, the workers import it, take the tasks and save the same bytes."""
+    out = _run_workers("ok", tmp_path)
+    assert not out["modules"]  # (the parent imported matplotlib only to compare, after the workers)
+    assert out["saved"] == [0, 1, 2, 3] and out["same"] and all(out["gone"]) and out["exitcodes"] == [0, 0]
+
+
+@needs_fork
+def test_a_failed_workers_figures_are_drawn_by_the_caller(tmp_path):
+    """The worker whose figure raised exits 1: none of its figures counts as saved, the caller draws them."""
+    out = _run_workers("fail", tmp_path)
+    assert 1 not in out["saved"] and len(out["saved"]) < 4 and out["same"] and all(out["gone"])
+    assert out["exitcodes"] == [0, 1]
+
+
+@needs_fork
+def test_a_hanging_worker_is_killed_at_the_deadline_and_its_figures_drawn_by_the_caller(tmp_path):
+    out = _run_workers("hang", tmp_path)
+    assert 1 not in out["saved"] and out["same"] and all(out["gone"])
+    assert -signal.SIGKILL in out["exitcodes"] and out["seconds"] < 10.0
+
+
+@needs_fork
+def test_unused_workers_are_killed_and_reaped_at_once(tmp_path):
+    out = _run_workers("unused", tmp_path)
+    assert out["saved"] == [] and out["same"] and all(out["gone"]) and out["seconds"] < 1.0
+
+
+def test_no_workers_while_another_thread_runs_or_the_fork_is_off(monkeypatch):
+    """A second thread at the fork could hold a lock the workers need: then, and with the fork off,
+    `FigureWorkers.start` gives None and the report builds its figures itself."""
+    monkeypatch.setattr(drawing, "_ENABLED", False)
+    assert drawing.FigureWorkers.start(2) is None
+    monkeypatch.setattr(drawing, "_ENABLED", True)
+    monkeypatch.setattr(drawing, "_cores", lambda: 2)
+    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
+    release = threading.Event()
+    thread = threading.Thread(target=release.wait)
+    thread.start()
+    try:
+        assert drawing.FigureWorkers.start(2) is None
+    finally:
+        release.set()
+        thread.join()

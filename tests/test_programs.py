@@ -144,3 +144,52 @@ def test_a_stored_program_loads_in_a_fresh_process_without_tracing(tmp_path):
     assert len(stored_traces(runs[0])) == 1 and runs[0]["traces"].count("mounted_nodes") == 1
     assert stored_traces(runs[1]) == [] and runs[1]["traces"].count("mounted_nodes") == 1  # the reference
     assert len(list((tmp_path / "programs").glob("*.bin"))) == 1
+
+
+def _reads(store, monkeypatch) -> list:
+    """Record ``(thread name, key)`` of every executable ``store`` reads from its folder."""
+    import threading
+
+    reads, read = [], store._read
+    monkeypatch.setattr(store, "_read", lambda key: reads.append((threading.current_thread().name, key)) or read(key))
+    return reads
+
+
+def test_a_profiles_programs_are_loaded_ahead_by_the_next_run_and_taken_from_there(store, x64, monkeypatch):
+    """`remember` lists what a run used; a later store (a fresh process) loads that list on its
+    prefetch thread, and the calls take the executables from there instead of reading them again."""
+    x = jnp.arange(4.0)
+    _scaled_powers(x, 2.0, 3)
+    _scaled_powers(jnp.arange(5.0), 2.0, 3)
+    keys = list(store.used)
+    assert len(keys) == 2 and len(_files(store)) == 2
+    assert store.remember("default case") and not store.remember("default case")  # (unchanged: not rewritten)
+    fresh = programs.ProgramStore(store.path)
+    reads = _reads(fresh, monkeypatch)
+    fresh.prefetch("default case").join(timeout=60)
+    assert reads == [("program-store-prefetch", key) for key in keys]
+    for key in keys:
+        assert fresh.load(key) is not None
+    assert len(reads) == 2 and fresh.used == keys  # taken from the prefetch, not read again
+    fresh.prefetch("another profile").join(timeout=60)  # nothing remembered for it
+    assert len(reads) == 2
+
+
+def test_nothing_is_loaded_ahead_for_another_code_version_or_a_program_a_call_took_first(store, x64, monkeypatch):
+    _scaled_powers(jnp.arange(4.0), 2.0, 3)
+    _scaled_powers(jnp.arange(5.0), 2.0, 3)
+    first, second = store.used
+    store.remember("p")
+    (recent,) = store.path.glob("recent-*.json")
+    listed = json.loads(recent.read_text())
+    recent.write_text(json.dumps(dict(listed, version="an older code version")))
+    fresh = programs.ProgramStore(store.path)
+    reads = _reads(fresh, monkeypatch)
+    fresh.prefetch("p").join(timeout=60)
+    assert reads == []
+    recent.write_text(json.dumps(listed))
+    fresh = programs.ProgramStore(store.path)
+    reads = _reads(fresh, monkeypatch)
+    assert fresh.load(first) is not None  # a call took it before the prefetch started
+    fresh.prefetch("p").join(timeout=60)
+    assert [key for _, key in reads] == [first, second] and reads[1][0] == "program-store-prefetch"

@@ -46,7 +46,7 @@ from forward_solver.xla import enable_fast_compilation
 from . import interrupts
 from .case import parse_arguments
 from .console import describe
-from .drawing import set_parallel_figures
+from .drawing import FigureWorkers, set_parallel_figures
 from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import run
@@ -141,11 +141,13 @@ def compilation_cache_dir() -> Path:
 PROGRAM_STORE_VARIABLE = "INFLATABLE_WING_PROGRAM_STORE"
 
 
-def use_compilation_cache(path: Path) -> None:
+def use_compilation_cache(path: Path, profile: str | None = None) -> None:
     """Turn on JAX's persistent compilation cache in ``path`` for this process (every entry kept:
     the solver's functions compile in 0.3-6 s each and load in milliseconds), and the solver's
     program store in its ``programs`` sub-folder (`forward_solver.programs`: its main programs
-    load without being traced and lowered again; ``INFLATABLE_WING_PROGRAM_STORE=0`` leaves it off)."""
+    load without being traced and lowered again; ``INFLATABLE_WING_PROGRAM_STORE=0`` leaves it off).
+    With a ``profile`` (`program_profile`), the store starts loading the programs that the last run
+    of that profile used, on a second thread (`forward_solver.programs.ProgramStore.prefetch`)."""
     import jax
 
     from forward_solver.programs import use_program_store
@@ -155,6 +157,30 @@ def use_compilation_cache(path: Path) -> None:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     if os.environ.get(PROGRAM_STORE_VARIABLE, "").strip() != "0":
         use_program_store(Path(path) / "programs")
+        if profile is not None:
+            from forward_solver.programs import program_store
+
+            program_store().prefetch(profile)
+
+
+def program_profile(args) -> str:
+    """The kind of run whose compiled programs are alike (the grid, the number of bays, the
+    variables, the methods and the objective), as the program store's profile: a run loads ahead
+    what the last run of its profile used (`use_compilation_cache`)."""
+    wing = getattr(args, "wing", None)
+    return json.dumps({"grid": [args.n_span, args.n_contour], "bays": 1 if wing is None else len(wing) - 1,
+                       "variables": args.variables, "method": args.method, "equilibrium": args.equilibrium_method,
+                       "objective": args.objective, "evaluate": args.evaluate, "refine": args.refine,
+                       "aero": args.aero}, sort_keys=True)
+
+
+def _remember_programs(profile: str) -> None:
+    """The program store's list of this run's programs, for the next run of ``profile`` to load ahead."""
+    from forward_solver.programs import program_store
+
+    store = program_store()
+    if store is not None:
+        store.remember(profile)
 
 
 def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
@@ -172,15 +198,24 @@ def _main(argv: list[str] | None, started: float) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     progress = sys.stderr.isatty() and not (args.quiet or args.json)
+    workers = None
     try:
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
 
+        # A single bay's report figures: workers forked now, before any other thread (the store's below)
+        # or JAX's backend starts, import matplotlib while the design runs (`drawing.FigureWorkers`).
+        if getattr(args, "wing", None) is None:
+            workers = FigureWorkers.start()
         if not args.no_compilation_cache:
-            use_compilation_cache(compilation_cache_dir())
+            use_compilation_cache(compilation_cache_dir(), program_profile(args))
     except KeyboardInterrupt as exc:
+        if workers is not None:
+            workers.close()
         return _interrupted(exc, args.out)
     try:
-        summary = run(args, sources, progress=progress, started=started)
+        summary = run(args, sources, progress=progress, started=started, figure_workers=workers)
+        if not args.no_compilation_cache:
+            _remember_programs(program_profile(args))
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         return _interrupted(exc, args.out)
     except (ConvergenceError, ValueError, OSError) as exc:
@@ -200,6 +235,9 @@ def _main(argv: list[str] | None, started: float) -> int:
         # input files are read (and checked) before: this is the output
         print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if workers is not None:  # (unused, or left running by an error: killed and reaped)
+            workers.close()
     try:
         interrupts.check()  # a stop that arrived while the files were put in place
     except KeyboardInterrupt as exc:

@@ -74,6 +74,7 @@ import tempfile
 import threading
 import time
 import warnings
+from functools import partial
 
 __all__ = ["CHILD_TIMEOUT_S", "MIN_FIGURES", "SERIAL_VARIABLE", "FigureSaver", "parallel_figures_enabled",
            "set_parallel_figures"]
@@ -222,6 +223,10 @@ class _Claims:
         self._fd = self._file.fileno()
         os.pwrite(self._fd, struct.pack(self._FORMAT, 0, n), 0)
 
+    def reset(self, n: int) -> None:
+        """Make all of ``n`` figures untaken again (before any process takes one)."""
+        os.pwrite(self._fd, struct.pack(self._FORMAT, 0, n), 0)
+
     def take(self, from_front: bool, deadline: float | None = None) -> int | None:
         """Take the next figure from the front (the child) or the back (the parent); None when none is left.
 
@@ -260,6 +265,61 @@ class _Claims:
 
     def close(self) -> None:
         self._file.close()
+
+
+def _fork_process(child, record) -> None:
+    """Fork a child that runs ``child(held)`` and never returns into the caller's code; ``record(pid)``
+    runs in the parent before any stop (SIGINT, SIGTERM) can raise here.
+
+    Python raises a signal handler's exception at the first bytecode after
+    the call that it arrived during: a stop arriving while ``os.fork()``
+    copies the process would be raised before the pid were stored, and the
+    child could be neither killed nor reaped. So the main thread's Python
+    handlers are swapped for ones that only record the stop (in ``held``, which
+    the child gets too) until ``record`` has run; a recorded stop is raised
+    again afterwards. ``child`` ends the child with `os._exit`; an exception
+    escaping it ends the child with status 1.
+    """
+    held, swapped = [], []
+    if threading.current_thread() is threading.main_thread():
+        for signum in _STOPS:
+            handler = signal.getsignal(signum)
+            if callable(handler):  # (SIG_DFL and SIG_IGN raise nothing)
+                swapped.append((signum, handler))
+                signal.signal(signum, lambda number, frame: held.append(number))
+    parent = os.getpid()
+    try:
+        _flush_standard_streams()
+        with warnings.catch_warnings():
+            for message, category in _FORK_WARNINGS:
+                warnings.filterwarnings("ignore", message=message, category=category)
+            pid = os.fork()
+            if pid == 0:
+                child(held)  # never returns
+                os._exit(1)
+            record(pid)
+    except BaseException:
+        if os.getpid() != parent:  # an exception in the child before `child` took over: never
+            os._exit(1)  # let it unwind into the caller's code (it would clean up the caller's files)
+        raise
+    finally:
+        _restore_handlers(swapped)
+    for signum in held:
+        signal.raise_signal(signum)
+
+
+def _child_setup(setters: list) -> None:
+    """A forked child's first steps: the default SIGINT and SIGTERM (a Ctrl-C to the process group
+    ends it), no garbage collector (JAX registers a collection callback; the child is short-lived),
+    and every OpenBLAS on one thread (the pools are down after the fork: never restarted here)."""
+    for signum in _STOPS:
+        try:
+            signal.signal(signum, signal.SIG_DFL)
+        except (OSError, ValueError):
+            pass
+    gc.disable()
+    for set_threads in setters:
+        set_threads(1)
 
 
 def _restore_handlers(handlers: list) -> None:
@@ -351,40 +411,12 @@ class FigureSaver:
         return False
 
     def _fork(self) -> None:
-        """Fork the child and record its pid before any stop (SIGINT, SIGTERM) can raise here.
+        """Fork the child (`_fork_process`) and record its pid before any stop can raise here."""
 
-        Python raises a signal handler's exception at the first bytecode after
-        the call that it arrived during: a stop arriving while ``os.fork()``
-        copies the process would be raised before the pid were stored, and the
-        child could be neither killed nor reaped. So the main thread's Python
-        handlers are swapped for ones that only record the stop until the pid
-        is stored; a recorded stop is raised again afterwards.
-        """
-        held, swapped = [], []
-        if threading.current_thread() is threading.main_thread():
-            for signum in _STOPS:
-                handler = signal.getsignal(signum)
-                if callable(handler):  # (SIG_DFL and SIG_IGN raise nothing)
-                    swapped.append((signum, handler))
-                    signal.signal(signum, lambda number, frame: held.append(number))
-        parent = os.getpid()
-        try:
-            _flush_standard_streams()
-            with warnings.catch_warnings():
-                for message, category in _FORK_WARNINGS:
-                    warnings.filterwarnings("ignore", message=message, category=category)
-                pid = os.fork()
-                if pid == 0:
-                    self._child(held)  # never returns
-                self.pid, self._alive = pid, True
-        except BaseException:
-            if os.getpid() != parent:  # an exception in the child before `_child` took over: never
-                os._exit(1)  # let it unwind into the caller's code (it would clean up the caller's files)
-            raise
-        finally:
-            _restore_handlers(swapped)
-        for signum in held:
-            signal.raise_signal(signum)
+        def record(pid):
+            self.pid, self._alive = pid, True
+
+        _fork_process(self._child, record)
 
     def _finish(self) -> None:
         """Save the parent's share, wait for the child, and save again whatever the child did not save."""
@@ -455,14 +487,7 @@ class FigureSaver:
         code = 1
         try:
             try:
-                for signum in _STOPS:
-                    try:
-                        signal.signal(signum, signal.SIG_DFL)
-                    except (OSError, ValueError):
-                        pass
-                gc.disable()
-                for set_threads in self._blas:  # (the pools are down after the fork: never restarted here)
-                    set_threads(1)
+                _child_setup(self._blas)
                 if not held:  # (a stop that arrived during the fork ends the child: the parent raises it)
                     while (k := self._claims.take(from_front=True)) is not None:
                         self._save(self._items[k][1], self._items[k][0])
@@ -471,3 +496,227 @@ class FigureSaver:
                 code = 1
         finally:
             os._exit(code)
+
+
+# ---------------------------------------------------------------------- workers forked before the design
+#: The modules a figure worker imports while the design runs (`FigureWorkers`).
+WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
+                  "inverse_design.app.plots")
+#: Most figure workers (one per core, up to this many).
+MAX_WORKERS = 4
+_RESULT = struct.Struct("<q")
+
+
+class FigureWorkers:
+    """Processes forked before the design that import matplotlib meanwhile, then build and save figures.
+
+    `FigureSaver` forks after the figures are built, so the parent still
+    imports matplotlib (0.28 s on the 2-core development machine) and builds
+    every figure (0.16 s on the default case) itself, holding Python's lock
+    while the design runs (an import on a second thread slowed the design by
+    as much as it saved: README, "Compilation"). Workers forked when the
+    command starts, before JAX's backend and any thread of the process start,
+    import matplotlib on the other cores while the design runs; the report
+    then hands them the figures as *tasks*: a module-level plotting function
+    and its picklable, NumPy-only arguments (a `forward_solver.Bay` pickles
+    without its device arrays). The job is written once to an unnamed
+    temporary file the workers share; a byte on each worker's pipe wakes it.
+    Each worker takes the next task not taken (`_Claims`: the slowest first
+    when the caller orders them so), builds the figure, saves it, and reports
+    its index on its result pipe; it never calls JAX (a plotting function
+    that does is drawn by the caller, not sent).
+
+    The result never depends on them: `finish` waits at most
+    `CHILD_TIMEOUT_S`, kills and reaps every worker still running, and
+    returns the tasks a worker that exited 0 reported saved; the caller draws
+    the rest itself. `close` kills and reaps them (an unused worker too: a run
+    that ends before its report, an error, Ctrl-C), and is safe to call twice.
+
+    Started by the command for a single bay's report only (`start` returns
+    None where `FigureSaver` would not fork: `parallel_figures_enabled`, an
+    OpenBLAS that a fork could hang, a second thread already running).
+    """
+
+    def __init__(self, pids: list, wake: list, results: list, job, claims: "_Claims"):
+        self.pids = list(pids)
+        self._wake = list(wake)  # the write end of each worker's wake-up pipe
+        self._results = list(results)  # the read end of each worker's result pipe
+        self._job = job  # the unnamed temporary file of the job
+        self._claims = claims
+        self._alive = set(self.pids)
+        self.exitcodes: dict = {}
+        self.sent = False
+
+    @classmethod
+    def start(cls, count: int | None = None) -> "FigureWorkers | None":
+        """Fork ``count`` workers (default one per core, at most `MAX_WORKERS`, at least two); None
+        when forking is off or unsafe here (class docstring)."""
+        if not parallel_figures_enabled() or threading.active_count() > 1:
+            return None
+        count = max(2, min(_cores(), MAX_WORKERS)) if count is None else int(count)
+        setters = _make_blas_fork_safe()
+        if setters is None:
+            return None
+        try:
+            claims = _Claims(0)
+            job = tempfile.TemporaryFile()
+        except (ImportError, OSError):
+            return None
+        pids, wake, results = [], [], []
+        workers = cls(pids, wake, results, job, claims)
+        try:
+            for _ in range(count):
+                wake_read, wake_write = os.pipe()
+                result_read, result_write = os.pipe()
+                workers._wake.append(wake_write)
+                workers._results.append(result_read)
+
+                def record(pid):
+                    workers.pids.append(pid)
+                    workers._alive.add(pid)
+
+                _fork_process(partial(_run_worker, wake_read, result_write, job.fileno(), claims, setters), record)
+                os.close(wake_read)
+                os.close(result_write)
+        except BaseException as error:
+            workers.close()
+            if isinstance(error, OSError):
+                return None
+            raise
+        return workers
+
+    def draw(self, tasks: list, save) -> bool:
+        """Hand ``tasks`` to the workers: ``(path, function, args, kwargs)``, where
+        ``function(*args, **kwargs)`` builds a figure that ``save(figure, path)`` saves; ``function``
+        and ``save`` are module-level functions (pickled by name), the arguments NumPy-only.
+        Returns False, handing nothing, if they do not pickle (the caller draws them)."""
+        import pickle
+
+        try:
+            payload = pickle.dumps((save, [(str(path), function, args, kwargs)
+                                           for path, function, args, kwargs in tasks]),
+                                   protocol=pickle.HIGHEST_PROTOCOL)
+        except (pickle.PicklingError, TypeError, AttributeError):
+            return False
+        os.pwrite(self._job.fileno(), struct.pack("<q", len(payload)) + payload, 0)
+        self._claims.reset(len(tasks))
+        for fd in self._wake:
+            try:
+                os.write(fd, b"1")
+            except OSError:  # (a worker that died already: `finish` leaves its tasks to the caller)
+                pass
+        self.sent = True
+        return True
+
+    def finish(self, timeout: float = CHILD_TIMEOUT_S) -> set:
+        """Wait for the workers (at most ``timeout`` s in all), kill any still running, and return the
+        indices of the tasks saved by a worker that exited 0."""
+        deadline = time.monotonic() + timeout
+        delay = 0.0005
+        while self._alive and time.monotonic() < deadline:
+            for pid in list(self._alive):
+                done, status = os.waitpid(pid, os.WNOHANG)
+                if done:
+                    self._alive.discard(pid)
+                    self.exitcodes[pid] = os.waitstatus_to_exitcode(status)
+            if self._alive:
+                time.sleep(delay)
+                delay = min(2 * delay, 0.005)
+        self._kill()
+        saved = set()
+        for pid, fd in zip(self.pids, self._results):
+            reported = _read_all(fd)
+            if self.exitcodes.get(pid) == 0:
+                saved.update(_RESULT.unpack_from(reported, k)[0] for k in range(0, len(reported), _RESULT.size))
+        self.close()
+        return saved
+
+    def _kill(self) -> None:
+        stop = None
+        for pid in list(self._alive):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            while pid in self._alive:
+                try:
+                    _, status = os.waitpid(pid, 0)
+                    self.exitcodes[pid] = os.waitstatus_to_exitcode(status)
+                    self._alive.discard(pid)
+                except ChildProcessError:
+                    self._alive.discard(pid)
+                except KeyboardInterrupt as error:
+                    stop = error
+        if stop is not None:
+            raise stop
+
+    def close(self) -> None:
+        """Kill and reap every worker still running and close the pipes and files (twice is harmless)."""
+        try:
+            self._kill()
+        finally:
+            for fd in self._wake + self._results:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+            self._wake, self._results = [], []
+            if self._job is not None:
+                self._job.close()
+                self._job = None
+            if self._claims is not None:
+                self._claims.close()
+                self._claims = None
+
+    def __enter__(self) -> "FigureWorkers":
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False
+
+
+def _read_all(fd: int) -> bytes:
+    """Everything left in a pipe whose writers have all exited (EOF), non-blocking otherwise."""
+    os.set_blocking(fd, False)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(fd, 65536)
+        except BlockingIOError:
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    return b"".join(chunks)
+
+
+def _run_worker(wake: int, result: int, job: int, claims: "_Claims", setters: list, held: list) -> None:
+    """A figure worker (`FigureWorkers`): `_worker`, then the end of the process with its exit code."""
+    code = 1
+    try:
+        if not held:  # (a stop that arrived during the fork ends the worker: the parent raises it)
+            code = _worker(wake, result, job, claims, setters)
+    except BaseException:  # noqa: BLE001 - any failure: the caller draws this worker's figures
+        code = 1
+    finally:
+        os._exit(code)
+
+
+def _worker(wake: int, result: int, job: int, claims: "_Claims", setters: list) -> int:
+    """A figure worker's life: import, wait for the job, draw tasks; its exit code."""
+    import importlib
+    import pickle
+
+    _child_setup(setters)
+    for name in WORKER_MODULES:
+        importlib.import_module(name)
+    if not os.read(wake, 1):  # the parent closed the pipe: no figures for this run
+        return 0
+    (size,) = struct.unpack("<q", os.pread(job, 8, 0))
+    save, tasks = pickle.loads(os.pread(job, size, 8))
+    while (k := claims.take(from_front=True)) is not None:
+        path, function, args, kwargs = tasks[k]
+        save(function(*args, **kwargs), path)
+        os.write(result, _RESULT.pack(k))
+    return 0

@@ -77,6 +77,7 @@ a design that breaks its limits or did not converge are not to be cut);
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import platform
@@ -119,6 +120,12 @@ PER_BAY_PLOTS = 8
 #: after the fork; in the folder's order (section, deviation, tensions, history) the child drew three
 #: and the parent waited for it: 0.94-0.96 s. Figures not named keep their place after these.
 _SAVE_ORDER = ("history.png", "tensions.png", "mid_bay_section.png", "deviation.png")
+#: The figures a `drawing.FigureWorkers` may build: their plotting functions call no JAX and take
+#: picklable NumPy-only arguments.
+_PORTABLE = frozenset(_SAVE_ORDER)
+#: The order of a single bay's figures in the summary's ``files``.
+_FOLDER_ORDER = ("mid_bay_section.png", "deviation.png", "tensions.png", "history.png", "aero.png",
+                 "rib_design.png")
 
 
 # ------------------------------------------------------------------ inputs
@@ -333,7 +340,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
                  rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None,
-                 patterns: bool = True, seam_allowance_mm: float = 10.0) -> dict:
+                 patterns: bool = True, seam_allowance_mm: float = 10.0, figure_workers=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -359,6 +366,11 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        figure_workers: `drawing.FigureWorkers` forked before the design (the
+            command's), to build and save a single bay's section, deviation,
+            tensions and history figures while this process writes the other
+            files; the figures they do not save are drawn here. Default none:
+            every figure is built here (`drawing.FigureSaver`).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -382,54 +394,70 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
     start = time.perf_counter()
     out = check_output_folder(out_dir)
     solution, design = _unpack(result)
-    summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings, aero=aero,
-                        rib=rib, rib_limits=rib_limits, warnings=warnings)
     files, skipped = [], {}
     start_rib = target if rib is None else rib
     shaped = solution.parameters.rib_shape is not None
     has_history = design is not None and bool(design.history)
     with staged_folder(out) as staging:
-        # Every figure is built first (here, where JAX may be called), then saved on two cores while the
-        # other files are written (`drawing.FigureSaver`).
-        figures = [("mid_bay_section.png", lambda: plot_section(solution, target, scene,
-                                                                magnification=magnification,
-                                                                start_rib=start_rib if shaped else None)),
-                   ("deviation.png", lambda: plot_deviation(solution, target, scene)),
-                   ("tensions.png", lambda: plot_tensions(solution, scene))]
+        # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the figure
+        # workers if there are any; every other is built here (where JAX may be called), then saved
+        # on two cores while the other files are written (`drawing.FigureSaver`).
+        specs = [("mid_bay_section.png", plot_section, (solution, target, scene),
+                  dict(magnification=magnification, start_rib=start_rib if shaped else None)),
+                 ("deviation.png", plot_deviation, (solution, target, scene), {}),
+                 ("tensions.png", plot_tensions, (solution, scene), {})]
         if has_history:
-            figures.append(("history.png", lambda: plot_history(design, bounds)))
+            specs.append(("history.png", plot_history, (design, bounds), {}))
         if aero is not None:
-            figures.append(("aero.png", lambda: plot_aero(aero)))
+            specs.append(("aero.png", plot_aero, (aero,), {}))
         if shaped:
-            figures.append(("rib_design.png", lambda: plot_rib_design(
+            specs.append(("rib_design.png", plot_rib_design, (
                 solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
-                rib_limits)))
-        built = [(staging / name, make()) for name, make in figures]
-        built.sort(key=lambda item: _SAVE_ORDER.index(item[0].name) if item[0].name in _SAVE_ORDER
-                   else len(_SAVE_ORDER))
-        with FigureSaver(built, _save):
-            write_npz(staging / "equilibrium.npz", solution, target, scene, design)
-            write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
-            write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
-            write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
-            files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
-            if _patterns_wanted(patterns, summary, skipped):
-                names, panels = write_bay_patterns(staging, scene, solution.parameters,
-                                                   seam_allowance_m=seam_allowance_mm / 1000.0)
-                files += names
-                summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
-            if shaped:
-                from forward_solver import rib_section
+                rib_limits), {}))
+        specs.sort(key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER else len(_SAVE_ORDER))
+        tasks = []
+        if figure_workers is not None and not figure_workers.sent:
+            tasks = [(staging / name, function, tuple(_without_factors(a) for a in args), kwargs)
+                     for name, function, args, kwargs in specs if name in _PORTABLE]
+            if not figure_workers.draw(tasks, _save):
+                tasks = []
+        try:
+            summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings,
+                                aero=aero, rib=rib, rib_limits=rib_limits, warnings=warnings)
+            built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in specs
+                     if not any(name == task[0].name for task in tasks)]
+            with FigureSaver(built, _save):
+                write_npz(staging / "equilibrium.npz", solution, target, scene, design)
+                write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
+                write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
+                write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
+                files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
+                if _patterns_wanted(patterns, summary, skipped):
+                    names, panels = write_bay_patterns(staging, scene, solution.parameters,
+                                                       seam_allowance_m=seam_allowance_mm / 1000.0)
+                    files += names
+                    summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
+                if shaped:
+                    from forward_solver import rib_section
 
-                section = rib_section(start_rib, solution.parameters.rib_shape,
-                                      float(solution.parameters.rib_thickness_scale),
-                                      name=f"{start_rib.name} designed rib")
-                chord = scene.bay.chord * float(solution.parameters.rib_chord_scale)
-                write_selig(staging / "rib.dat", section, comment=f"chord {chord:g} m")
-                files.append("rib.dat")
-            if not has_history:
-                skipped["history.png"] = "a single equilibrium has no optimiser history"
-        files += [name for name, _ in figures]
+                    section = rib_section(start_rib, solution.parameters.rib_shape,
+                                          float(solution.parameters.rib_thickness_scale),
+                                          name=f"{start_rib.name} designed rib")
+                    chord = scene.bay.chord * float(solution.parameters.rib_chord_scale)
+                    write_selig(staging / "rib.dat", section, comment=f"chord {chord:g} m")
+                    files.append("rib.dat")
+                if not has_history:
+                    skipped["history.png"] = "a single equilibrium has no optimiser history"
+            if tasks:  # the workers' figures; any they did not save is drawn here
+                saved = figure_workers.finish()
+                for k, (path, function, args, kwargs) in enumerate(tasks):
+                    if k not in saved:
+                        _save(function(*args, **kwargs), path)
+            files += [name for name, *_ in sorted(specs, key=lambda spec: _FOLDER_ORDER.index(spec[0]))]
+        except BaseException:
+            if tasks:  # (no worker writes into the staging folder once it is removed)
+                figure_workers.close()
+            raise
         times = dict(summary["timings_s"])
         times["report"] = time.perf_counter() - start
         times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
@@ -437,6 +465,17 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def _without_factors(value):
+    """``value`` without LU factors (host objects that do not pickle) if it is a `Solution` or a
+    `DesignResult`, for the figure workers; anything else as it is."""
+    if isinstance(value, Solution):
+        return value if value.factor is None else dataclasses.replace(value, factor=None)
+    if isinstance(value, DesignResult) and getattr(value.wing_solution, "solutions", None):
+        solutions = [dataclasses.replace(s, factor=None) for s in value.wing_solution.solutions]
+        return dataclasses.replace(value, wing_solution=dataclasses.replace(value.wing_solution, solutions=solutions))
+    return value
 
 
 def check_seam_allowance(seam_allowance_mm) -> float:
