@@ -504,6 +504,8 @@ WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matpl
                   "inverse_design.app.plots")
 #: Most figure workers (one per core, up to this many).
 MAX_WORKERS = 4
+#: How much lower than the command's the workers' scheduling priority is (``os.nice``).
+WORKER_NICE = 10
 _RESULT = struct.Struct("<q")
 
 
@@ -676,6 +678,15 @@ class FigureWorkers:
         return False
 
 
+def _lower_priority(increment: int = WORKER_NICE) -> None:
+    """Run this process below the design (``os.nice``): its imports take only the cores the design
+    leaves idle."""
+    try:
+        os.nice(increment)
+    except (AttributeError, OSError):  # (no nice on this system: the same work, at the same priority)
+        pass
+
+
 def _read_all(fd: int) -> bytes:
     """Everything left in a pipe whose writers have all exited (EOF), non-blocking otherwise."""
     os.set_blocking(fd, False)
@@ -709,6 +720,7 @@ def _worker(wake: int, result: int, job: int, claims: "_Claims", setters: list) 
     import pickle
 
     _child_setup(setters)
+    _lower_priority()
     for name in WORKER_MODULES:
         importlib.import_module(name)
     if not os.read(wake, 1):  # the parent closed the pipe: no figures for this run
