@@ -214,23 +214,23 @@ import json, sys
 from inverse_design.app import cli, drawing
 
 saved = []
-finish = drawing.FigureWorkers.finish
-drawing.FigureWorkers.finish = lambda self, *a, **k: saved.append(sorted(finish(self, *a, **k))) or set(saved[-1])
+finish = drawing.ReportWorkers.finish
+drawing.ReportWorkers.finish = lambda self, *a, **k: saved.append(sorted(finish(self, *a, **k))) or set(saved[-1])
 code = cli.main(sys.argv[1:])
 print(json.dumps({"code": code, "saved": saved}))
 """
 
 
-def test_the_figure_workers_draw_the_figures_a_serial_report_draws(default_run, cli_env):
-    """The command's figure workers (forked before the design) save every figure of a single bay's
-    report, byte for byte as the report saves them in one process."""
+def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, cli_env):
+    """The command's report workers (forked before the design) save every figure and DXF pattern of a
+    single bay's report, byte for byte as the report writes them in one process."""
     base, out, _, _ = default_run
     counted = subprocess.run([sys.executable, "-c", _COUNTED, *SMALL, "--quiet", "--out", "counted"], cwd=base,
                              env=cli_env, capture_output=True, text=True, timeout=600)
     assert counted.returncode == 0, counted.stderr
     run = json.loads(counted.stdout.strip().splitlines()[-1])
-    if drawing_workers_possible():
-        assert run["saved"] == [[0, 1, 2, 3]]  # all four by the workers, none left to this process
+    if drawing_workers_possible():  # four figures, two panels' and two ribs' DXF: none left to this process
+        assert run["saved"] == [list(range(8))]
     serial = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--quiet", "--out", "serial"],
                             cwd=base, env=dict(cli_env, INFLATABLE_WING_SERIAL_FIGURES="1"), capture_output=True,
                             text=True, timeout=600)
@@ -238,6 +238,15 @@ def test_the_figure_workers_draw_the_figures_a_serial_report_draws(default_run, 
     for name in sorted(n for n in FOLDER if n.endswith(".png")):
         assert (base / "counted" / name).read_bytes() == (base / "serial" / name).read_bytes(), name
         assert (out / name).read_bytes() == (base / "serial" / name).read_bytes(), name
+    for name in sorted(n for n in FOLDER if n.endswith(".dxf")):  # (the header dates each file: the drawing)
+        assert _dxf_entities(base / "counted" / name) == _dxf_entities(base / "serial" / name), name
+
+
+def _dxf_entities(path) -> str:
+    """The ENTITIES section of a DXF file (what is drawn, without the header's dates and GUIDs)."""
+    text = path.read_text()
+    start = text.index("ENTITIES")
+    return text[start:text.index("ENDSEC", start)]
 
 
 def drawing_workers_possible() -> bool:

@@ -300,6 +300,7 @@ def plot(k):
 
 
 def save(fig, path):
+    path = str(path)
     if os.getpid() != PARENT and path.endswith("figure_1.png"):
         if mode == "fail":
             raise RuntimeError("a worker's figure failed")
@@ -308,26 +309,36 @@ def save(fig, path):
     fig.savefig(path, dpi=72)
 
 
+def write_text(path, text):
+    with open(path, "w") as f:
+        f.write(text)
+
+
 drawing.set_parallel_figures(True)
-workers = drawing.FigureWorkers.start(2)
+workers = drawing.ReportWorkers.start(("matplotlib.figure",), count=2)
 out = {"started": workers is not None, "modules": "matplotlib" in sys.modules}
 if workers is not None:
     pids = list(workers.pids)
     os.makedirs(os.path.join(folder, "workers"))
     os.makedirs(os.path.join(folder, "serial"))
-    tasks = [(os.path.join(folder, "workers", f"figure_{k}.png"), plot, (k,), {}) for k in range(4)]
+    tasks = [(os.path.join(folder, "workers", f"figure_{k}.png"), drawing.save_figure, (save, plot, (k,)), {})
+             for k in range(4)]
+    texts = [(os.path.join(folder, "workers", f"note_{k}.txt"), write_text, (f"note {k}",), {}) for k in range(2)]
     t = time.monotonic()
     if mode == "unused":
         workers.close()
         saved = set()
+        assert not workers.submit(tasks)  # (closed: nothing handed over)
     else:
-        assert workers.draw(tasks, save)
+        assert workers.submit(tasks) and workers.submit(texts)  # two batches, numbered in order
         saved = workers.finish(timeout=3.0 if mode == "hang" else 60.0)
     out["seconds"] = time.monotonic() - t
-    for k, (path, function, args, kwargs) in enumerate(tasks):
+    for k, task in enumerate(tasks + texts):
         if k not in saved:
-            save(function(*args), path)
+            drawing.run_task(task)
+    for k in range(4):
         save(plot(k), os.path.join(folder, "serial", f"figure_{k}.png"))
+    out["notes"] = [open(path).read() for path, *_ in texts]
     workers.close()  # (twice: harmless)
     gone = []
     for pid in pids:
@@ -362,24 +373,27 @@ def _run_workers(mode, tmp_path) -> dict:
 
 @needs_fork
 def test_workers_forked_first_draw_every_figure_as_this_process_would(tmp_path):
-    """Forked before matplotlib was imported, the workers import it, take the tasks and save the same bytes."""
+    """Forked before matplotlib was imported, the workers import it, take the tasks of two batches and
+    save the same bytes."""
     out = _run_workers("ok", tmp_path)
     assert not out["modules"]  # (the parent imported matplotlib only to compare, after the workers)
-    assert out["saved"] == [0, 1, 2, 3] and out["same"] and all(out["gone"]) and out["exitcodes"] == [0, 0]
+    assert out["saved"] == [0, 1, 2, 3, 4, 5] and out["same"] and all(out["gone"]) and out["exitcodes"] == [0, 0]
+    assert out["notes"] == ["note 0", "note 1"]
 
 
 @needs_fork
 def test_a_failed_workers_figures_are_drawn_by_the_caller(tmp_path):
-    """The worker whose figure raised exits 1: none of its figures counts as saved, the caller draws them."""
+    """The worker whose figure raised exits 1: none of its tasks counts as done, the caller runs them."""
     out = _run_workers("fail", tmp_path)
-    assert 1 not in out["saved"] and len(out["saved"]) < 4 and out["same"] and all(out["gone"])
+    assert 1 not in out["saved"] and len(out["saved"]) < 6 and out["same"] and all(out["gone"])
+    assert out["notes"] == ["note 0", "note 1"]
     assert out["exitcodes"] == [0, 1]
 
 
 @needs_fork
 def test_a_hanging_worker_is_killed_at_the_deadline_and_its_figures_drawn_by_the_caller(tmp_path):
     out = _run_workers("hang", tmp_path)
-    assert 1 not in out["saved"] and out["same"] and all(out["gone"])
+    assert 1 not in out["saved"] and out["same"] and all(out["gone"]) and out["notes"] == ["note 0", "note 1"]
     assert -signal.SIGKILL in out["exitcodes"] and out["seconds"] < 10.0
 
 
@@ -391,9 +405,9 @@ def test_unused_workers_are_killed_and_reaped_at_once(tmp_path):
 
 def test_no_workers_while_another_thread_runs_or_the_fork_is_off(monkeypatch):
     """A second thread at the fork could hold a lock the workers need: then, and with the fork off,
-    `FigureWorkers.start` gives None and the report builds its figures itself."""
+    `ReportWorkers.start` gives None and the report writes every file itself."""
     monkeypatch.setattr(drawing, "_ENABLED", False)
-    assert drawing.FigureWorkers.start(2) is None
+    assert drawing.ReportWorkers.start(count=2) is None
     monkeypatch.setattr(drawing, "_ENABLED", True)
     monkeypatch.setattr(drawing, "_cores", lambda: 2)
     monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
@@ -401,7 +415,7 @@ def test_no_workers_while_another_thread_runs_or_the_fork_is_off(monkeypatch):
     thread = threading.Thread(target=release.wait)
     thread.start()
     try:
-        assert drawing.FigureWorkers.start(2) is None
+        assert drawing.ReportWorkers.start(count=2) is None
     finally:
         release.set()
         thread.join()

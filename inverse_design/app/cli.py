@@ -46,10 +46,10 @@ from forward_solver.xla import enable_fast_compilation
 from . import interrupts
 from .case import parse_arguments
 from .console import describe
-from .drawing import FigureWorkers, set_parallel_figures
+from .drawing import ReportWorkers, set_parallel_figures
 from .interrupts import Terminated
 from .options import PROG, InputError
-from .command import run
+from .command import WORKER_MODULES, run
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
@@ -202,10 +202,11 @@ def _main(argv: list[str] | None, started: float) -> int:
     try:
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
 
-        # A single bay's report figures: workers forked now, before any other thread (the store's below)
-        # or JAX's backend starts, import matplotlib while the design runs (`drawing.FigureWorkers`).
+        # A single bay's figures and DXF patterns: workers forked now, before any other thread (the
+        # store's below) or JAX's backend starts, import matplotlib and ezdxf while the design runs
+        # (`drawing.ReportWorkers`).
         if getattr(args, "wing", None) is None:
-            workers = FigureWorkers.start()
+            workers = ReportWorkers.start(WORKER_MODULES)
         if not args.no_compilation_cache:
             use_compilation_cache(compilation_cache_dir(), program_profile(args))
     except KeyboardInterrupt as exc:
@@ -213,7 +214,7 @@ def _main(argv: list[str] | None, started: float) -> int:
             workers.close()
         return _interrupted(exc, args.out)
     try:
-        summary = run(args, sources, progress=progress, started=started, figure_workers=workers)
+        summary = run(args, sources, progress=progress, started=started, workers=workers)
         if not args.no_compilation_cache:
             _remember_programs(program_profile(args))
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)

@@ -21,7 +21,7 @@ from .case import design_inputs, load_section
 from .options import PROG, InputError
 from .resources import check_grid
 
-__all__ = ["NOT_FOR_A_WING", "plausibility", "run", "safe_point"]
+__all__ = ["NOT_FOR_A_WING", "WORKER_MODULES", "plausibility", "run", "safe_point"]
 
 #: Options that have no meaning for a wing, or that the command does not run for one, and why.
 NOT_FOR_A_WING = {
@@ -42,26 +42,30 @@ def safe_point(entry=None) -> None:
 
 #: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
+#: What the report's workers (`drawing.ReportWorkers`) import while the design runs: the libraries of
+#: the figures and of the DXF patterns they write.
+WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
+                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern")
 
 
-def _import_report_modules(names=REPORT_MODULES) -> None:
-    for name in names:
+def _import_report_modules() -> None:
+    for name in REPORT_MODULES:
         try:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001 - the report imports it again and says what failed
             pass
 
 
-def _import_report_modules_meanwhile(names=REPORT_MODULES) -> None:
+def _import_report_modules_meanwhile() -> None:
     """Import the report's libraries (matplotlib, ezdxf: 0.4 s) on a second thread while the design
     runs: the design's compiling and computing release Python's lock, the import takes it then
     (measured: the design slows by about what the report saves)."""
     if (os.cpu_count() or 1) > 1:
-        threading.Thread(target=_import_report_modules, args=(names,), name="import-report", daemon=True).start()
+        threading.Thread(target=_import_report_modules, name="import-report", daemon=True).start()
 
 
 def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = False,
-        started: float | None = None, figure_workers=None) -> dict:
+        started: float | None = None, workers=None) -> dict:
     """Run the case described by ``args`` (one bay, or a wing of ``[[rib]]`` tables), write the output
     folder and return its summary.
 
@@ -73,8 +77,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     one line that says why.
 
     ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
-    start of `main`, so that it includes importing JAX. ``figure_workers`` (a
-    `drawing.FigureWorkers`, the command's) draw a single bay's figures (`report.write_report`).
+    start of `main`, so that it includes importing JAX. ``workers`` (a
+    `drawing.ReportWorkers`, the command's, which import `WORKER_MODULES`) write a single bay's
+    figures and DXF patterns (`report.write_report`).
 
     Raises:
         ValueError: bad input (`InputError` among them).
@@ -117,8 +122,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     from .report import write_report
 
     out = check_output_folder(args.out)  # before the long work, not after it
-    # (the figure workers import matplotlib in their own processes)
-    _import_report_modules_meanwhile(("ezdxf",) if figure_workers is not None else REPORT_MODULES)
+    if workers is None:  # (the workers import them in their own processes)
+        _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
     options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
@@ -158,7 +163,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
                   rib=rib, rib_limits=rib_limits, warnings=notes, patterns=not args.no_patterns,
-                  seam_allowance_mm=args.seam_allowance, figure_workers=figure_workers)
+                  seam_allowance_mm=args.seam_allowance, workers=workers)
     timings = {"setup": time.perf_counter() - start}
     if args.evaluate:
         t = time.perf_counter()

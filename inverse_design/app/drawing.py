@@ -76,8 +76,8 @@ import time
 import warnings
 from functools import partial
 
-__all__ = ["CHILD_TIMEOUT_S", "MIN_FIGURES", "SERIAL_VARIABLE", "FigureSaver", "parallel_figures_enabled",
-           "set_parallel_figures"]
+__all__ = ["CHILD_TIMEOUT_S", "MIN_FIGURES", "SERIAL_VARIABLE", "FigureSaver", "ReportWorkers",
+           "parallel_figures_enabled", "run_task", "save_figure", "set_parallel_figures"]
 
 #: Environment variable that, set to anything but "" or "0", makes every `FigureSaver` save serially.
 SERIAL_VARIABLE = "INFLATABLE_WING_SERIAL_FIGURES"
@@ -223,9 +223,14 @@ class _Claims:
         self._fd = self._file.fileno()
         os.pwrite(self._fd, struct.pack(self._FORMAT, 0, n), 0)
 
-    def reset(self, n: int) -> None:
-        """Make all of ``n`` figures untaken again (before any process takes one)."""
-        os.pwrite(self._fd, struct.pack(self._FORMAT, 0, n), 0)
+    def extend(self, n: int) -> None:
+        """Add ``n`` figures at the back, untaken (`ReportWorkers.submit`)."""
+        self._lock(None)
+        try:
+            front, back = struct.unpack(self._FORMAT, os.pread(self._fd, self._SIZE, 0))
+            os.pwrite(self._fd, struct.pack(self._FORMAT, front, back + n), 0)
+        finally:
+            self._fcntl.lockf(self._fd, self._fcntl.LOCK_UN)
 
     def take(self, from_front: bool, deadline: float | None = None) -> int | None:
         """Take the next figure from the front (the child) or the back (the parent); None when none is left.
@@ -499,60 +504,65 @@ class FigureSaver:
 
 
 # ---------------------------------------------------------------------- workers forked before the design
-#: The modules a figure worker imports while the design runs (`FigureWorkers`).
-WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
-                  "inverse_design.app.plots")
-#: Most figure workers (one per core, up to this many).
+#: Most report workers (one per core, up to this many).
 MAX_WORKERS = 4
 #: How much lower than the command's the workers' scheduling priority is (``os.nice``).
 WORKER_NICE = 10
 _RESULT = struct.Struct("<q")
+_SIZE = struct.Struct("<q")
 
 
-class FigureWorkers:
-    """Processes forked before the design that import matplotlib meanwhile, then build and save figures.
+class ReportWorkers:
+    """Processes forked before the design that import the report's libraries meanwhile, then write files.
 
     `FigureSaver` forks after the figures are built, so the parent still
-    imports matplotlib (0.28 s on the 2-core development machine) and builds
-    every figure (0.16 s on the default case) itself, holding Python's lock
-    while the design runs (an import on a second thread slowed the design by
-    as much as it saved: README, "Compilation"). Workers forked when the
-    command starts, before JAX's backend and any thread of the process start,
-    import matplotlib on the other cores while the design runs; the report
-    then hands them the figures as *tasks*: a module-level plotting function
-    and its picklable, NumPy-only arguments (a `forward_solver.Bay` pickles
-    without its device arrays). The job is written once to an unnamed
-    temporary file the workers share; a byte on each worker's pipe wakes it.
-    Each worker takes the next task not taken (`_Claims`: the slowest first
-    when the caller orders them so), builds the figure, saves it, and reports
-    its index on its result pipe; it never calls JAX (a plotting function
-    that does is drawn by the caller, not sent).
+    imports matplotlib (0.28 s on the 2-core development machine) and ezdxf
+    (0.14 s) and builds every figure (0.16 s on the default case) itself,
+    holding Python's lock while the design runs (an import on a second thread
+    slowed the design by as much as it saved: README, "Compilation"). Workers
+    forked when the command starts, before JAX's backend and any thread of
+    the process start, import those libraries (``modules``) at a lower
+    priority (`WORKER_NICE`) on the cores the design leaves idle; the report
+    then hands them *tasks* ``(path, function, args, kwargs)``: a module-level
+    function (pickled by name) that writes ``path`` as
+    ``function(path, *args, **kwargs)``, with picklable NumPy-only arguments
+    (a `forward_solver.Bay` pickles without its device arrays), such as a
+    figure (`save_figure`) or a DXF pattern. It never sends a function that
+    calls JAX: the children never touch the parent's JAX runtime.
+
+    Tasks come in batches (`submit`), appended to an unnamed temporary file
+    the workers share; a byte on each worker's pipe says a batch was added,
+    and closing the pipe (`finish`) that no more will come. Each worker takes
+    the next task not taken (`_Claims`: the slowest first when the caller
+    orders them so), runs it, and reports its index on its result pipe.
 
     The result never depends on them: `finish` waits at most
     `CHILD_TIMEOUT_S`, kills and reaps every worker still running, and
-    returns the tasks a worker that exited 0 reported saved; the caller draws
-    the rest itself. `close` kills and reaps them (an unused worker too: a run
-    that ends before its report, an error, Ctrl-C), and is safe to call twice.
+    returns the tasks a worker that exited 0 reported done; the caller runs
+    the rest itself (`run_task`). `close` kills and reaps them (an unused
+    worker too: a run that ends before its report, an error, Ctrl-C), and is
+    safe to call twice.
 
     Started by the command for a single bay's report only (`start` returns
     None where `FigureSaver` would not fork: `parallel_figures_enabled`, an
     OpenBLAS that a fork could hang, a second thread already running).
     """
 
-    def __init__(self, pids: list, wake: list, results: list, job, claims: "_Claims"):
-        self.pids = list(pids)
-        self._wake = list(wake)  # the write end of each worker's wake-up pipe
-        self._results = list(results)  # the read end of each worker's result pipe
-        self._job = job  # the unnamed temporary file of the job
+    def __init__(self, job, claims: "_Claims"):
+        self.pids: list = []
+        self._wake: list = []  # the write end of each worker's wake-up pipe
+        self._results: list = []  # the read end of each worker's result pipe
+        self._job = job  # the unnamed temporary file of the batches
         self._claims = claims
-        self._alive = set(self.pids)
+        self._alive: set = set()
+        self._end = 0  # where the next batch goes in the job file
+        self.submitted = 0  # tasks handed over so far
         self.exitcodes: dict = {}
-        self.sent = False
 
     @classmethod
-    def start(cls, count: int | None = None) -> "FigureWorkers | None":
-        """Fork ``count`` workers (default one per core, at most `MAX_WORKERS`, at least two); None
-        when forking is off or unsafe here (class docstring)."""
+    def start(cls, modules=(), count: int | None = None) -> "ReportWorkers | None":
+        """Fork ``count`` workers (default one per core, at most `MAX_WORKERS`, at least two) that
+        import ``modules`` while they wait; None when forking is off or unsafe here (class docstring)."""
         if not parallel_figures_enabled() or threading.active_count() > 1:
             return None
         count = max(2, min(_cores(), MAX_WORKERS)) if count is None else int(count)
@@ -564,8 +574,7 @@ class FigureWorkers:
             job = tempfile.TemporaryFile()
         except (ImportError, OSError):
             return None
-        pids, wake, results = [], [], []
-        workers = cls(pids, wake, results, job, claims)
+        workers = cls(job, claims)
         try:
             for _ in range(count):
                 wake_read, wake_write = os.pipe()
@@ -577,7 +586,11 @@ class FigureWorkers:
                     workers.pids.append(pid)
                     workers._alive.add(pid)
 
-                _fork_process(partial(_run_worker, wake_read, result_write, job.fileno(), claims, setters), record)
+                # (the child closes the parent's ends of its own and earlier workers' pipes: a wake-up
+                # pipe must end when the parent closes it, not live on in a sibling)
+                child = partial(_run_worker, tuple(modules), wake_read, result_write, job.fileno(), claims, setters,
+                                tuple(workers._wake + workers._results))
+                _fork_process(child, record)
                 os.close(wake_read)
                 os.close(result_write)
         except BaseException as error:
@@ -587,32 +600,36 @@ class FigureWorkers:
             raise
         return workers
 
-    def draw(self, tasks: list, save) -> bool:
-        """Hand ``tasks`` to the workers: ``(path, function, args, kwargs)``, where
-        ``function(*args, **kwargs)`` builds a figure that ``save(figure, path)`` saves; ``function``
-        and ``save`` are module-level functions (pickled by name), the arguments NumPy-only.
-        Returns False, handing nothing, if they do not pickle (the caller draws them)."""
+    def submit(self, tasks: list) -> bool:
+        """Hand a batch of ``tasks`` (class docstring) to the workers, numbered after the earlier
+        batches' (`finish` returns those indices). Returns False, handing nothing, if the batch does
+        not pickle or the workers are closed (the caller runs it itself)."""
         import pickle
 
+        if self._job is None or not tasks:
+            return False
         try:
-            payload = pickle.dumps((save, [(str(path), function, args, kwargs)
-                                           for path, function, args, kwargs in tasks]),
-                                   protocol=pickle.HIGHEST_PROTOCOL)
+            payload = pickle.dumps([(str(path), function, tuple(args), dict(kwargs))
+                                    for path, function, args, kwargs in tasks], protocol=pickle.HIGHEST_PROTOCOL)
         except (pickle.PicklingError, TypeError, AttributeError):
             return False
-        os.pwrite(self._job.fileno(), struct.pack("<q", len(payload)) + payload, 0)
-        self._claims.reset(len(tasks))
+        os.pwrite(self._job.fileno(), _SIZE.pack(len(payload)) + payload, self._end)
+        self._end += _SIZE.size + len(payload)
+        self._claims.extend(len(tasks))  # (the batch is in the file before any index of it can be taken)
+        self.submitted += len(tasks)
         for fd in self._wake:
             try:
                 os.write(fd, b"1")
             except OSError:  # (a worker that died already: `finish` leaves its tasks to the caller)
                 pass
-        self.sent = True
         return True
 
     def finish(self, timeout: float = CHILD_TIMEOUT_S) -> set:
-        """Wait for the workers (at most ``timeout`` s in all), kill any still running, and return the
-        indices of the tasks saved by a worker that exited 0."""
+        """Say that no batch will follow, wait for the workers (at most ``timeout`` s in all), kill any
+        still running, and return the indices of the tasks done by a worker that exited 0."""
+        for fd in self._wake:
+            os.close(fd)
+        self._wake = []
         deadline = time.monotonic() + timeout
         delay = 0.0005
         while self._alive and time.monotonic() < deadline:
@@ -625,13 +642,13 @@ class FigureWorkers:
                 time.sleep(delay)
                 delay = min(2 * delay, 0.005)
         self._kill()
-        saved = set()
+        done = set()
         for pid, fd in zip(self.pids, self._results):
             reported = _read_all(fd)
             if self.exitcodes.get(pid) == 0:
-                saved.update(_RESULT.unpack_from(reported, k)[0] for k in range(0, len(reported), _RESULT.size))
+                done.update(_RESULT.unpack_from(reported, k)[0] for k in range(0, len(reported), _RESULT.size))
         self.close()
-        return saved
+        return done
 
     def _kill(self) -> None:
         stop = None
@@ -670,12 +687,23 @@ class FigureWorkers:
                 self._claims.close()
                 self._claims = None
 
-    def __enter__(self) -> "FigureWorkers":
+    def __enter__(self) -> "ReportWorkers":
         return self
 
     def __exit__(self, *exc) -> bool:
         self.close()
         return False
+
+
+def run_task(task) -> None:
+    """Run one task ``(path, function, args, kwargs)`` here: ``function(path, *args, **kwargs)``."""
+    path, function, args, kwargs = task
+    function(path, *args, **kwargs)
+
+
+def save_figure(path, save, plot, args=(), kwargs=None) -> None:
+    """A figure task's function: ``save(plot(*args, **kwargs), path)`` (``save``, ``plot``: module-level)."""
+    save(plot(*args, **(kwargs or {})), path)
 
 
 def _lower_priority(increment: int = WORKER_NICE) -> None:
@@ -702,33 +730,41 @@ def _read_all(fd: int) -> bytes:
     return b"".join(chunks)
 
 
-def _run_worker(wake: int, result: int, job: int, claims: "_Claims", setters: list, held: list) -> None:
-    """A figure worker (`FigureWorkers`): `_worker`, then the end of the process with its exit code."""
+def _run_worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims", setters: list,
+                parents: tuple, held: list) -> None:
+    """A report worker (`ReportWorkers`): `_worker`, then the end of the process with its exit code;
+    ``parents`` are the parent's pipe ends it inherited, closed first."""
     code = 1
     try:
+        for fd in parents:
+            os.close(fd)
         if not held:  # (a stop that arrived during the fork ends the worker: the parent raises it)
-            code = _worker(wake, result, job, claims, setters)
-    except BaseException:  # noqa: BLE001 - any failure: the caller draws this worker's figures
+            code = _worker(modules, wake, result, job, claims, setters)
+    except BaseException:  # noqa: BLE001 - any failure: the caller runs this worker's tasks
         code = 1
     finally:
         os._exit(code)
 
 
-def _worker(wake: int, result: int, job: int, claims: "_Claims", setters: list) -> int:
-    """A figure worker's life: import, wait for the job, draw tasks; its exit code."""
+def _worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims", setters: list) -> int:
+    """A report worker's life: import, then take and run tasks until the parent closes the pipe; its exit code."""
     import importlib
     import pickle
 
     _child_setup(setters)
     _lower_priority()
-    for name in WORKER_MODULES:
+    for name in modules:
         importlib.import_module(name)
-    if not os.read(wake, 1):  # the parent closed the pipe: no figures for this run
-        return 0
-    (size,) = struct.unpack("<q", os.pread(job, 8, 0))
-    save, tasks = pickle.loads(os.pread(job, size, 8))
-    while (k := claims.take(from_front=True)) is not None:
-        path, function, args, kwargs = tasks[k]
-        save(function(*args, **kwargs), path)
+    tasks, offset = [], 0
+    while True:
+        k = claims.take(from_front=True)
+        if k is None:  # none left: wait for a batch (a byte) or the end (the pipe closed)
+            if not os.read(wake, 1):
+                return 0
+            continue
+        while k >= len(tasks):  # (the batch holding it is in the file: `submit` writes it first)
+            (size,) = _SIZE.unpack(os.pread(job, _SIZE.size, offset))
+            tasks += pickle.loads(os.pread(job, size, offset + _SIZE.size))
+            offset += _SIZE.size + size
+        run_task(tasks[k])
         os.write(result, _RESULT.pack(k))
-    return 0

@@ -181,7 +181,7 @@ def write_rib_dxf(path, section, label: str, seam_allowance_mm: float = 10.0) ->
 
 
 def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
-                       seam_allowance_m: float = 0.01, rib_templates: bool = True) -> list[str]:
+                       seam_allowance_m: float = 0.01, rib_templates: bool = True, writer=None) -> list[str]:
     """Write one bay's panels (DXF and SVG) and its two ribs' templates into ``folder``.
 
     Args:
@@ -192,18 +192,27 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         ribs: the indices of its root and tip ribs.
         seam_allowance_m: the seam allowance, metres (>= 0).
         rib_templates: False leaves the ribs out (a wing writes each shared rib once).
+        writer: ``writer(path, function, *args)`` writes each DXF file, as
+            ``function(path, *args)`` does (the default); the report's may hand
+            it to its `drawing.ReportWorkers` instead.
 
     Returns:
         ``(names, panels)``: the names of the files written and the `pattern.Panel` objects.
     """
     folder = Path(folder)
     allowance = seam_allowance_m * _MM
+    if writer is None:
+        def writer(path, function, *args):
+            function(path, *args)
     names = []
     panels = bay_panels(scene, parameters, bay=bay)
     for panel in panels:
         for suffix, write in (("dxf", write_panel_dxf), ("svg", write_panel_svg)):
             name = f"pattern_bay_{bay}_{panel.name}.{suffix}"
-            write(folder / name, panel, allowance)
+            if suffix == "dxf":
+                writer(folder / name, write, panel, allowance)
+            else:
+                write(folder / name, panel, allowance)
             names.append(name)
     if rib_templates and scene.bay.periodic:
         nodes = mounted_skin(scene, parameters)
@@ -212,7 +221,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
                 continue
             name = f"rib_{rib}.dxf"
             chord = (scene.bay.chord_root if row == 0 else scene.bay.chord_tip) * float(parameters.rib_chord_scale)
-            write_rib_dxf(folder / name, nodes[row][:, [0, 2]], f"rib {rib} template, chord {chord * _MM:.1f} mm",
-                          allowance)
+            writer(folder / name, write_rib_dxf, np.asarray(nodes[row][:, [0, 2]]),
+                   f"rib {rib} template, chord {chord * _MM:.1f} mm", allowance)
             names.append(name)
     return names, panels

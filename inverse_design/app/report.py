@@ -88,7 +88,7 @@ import numpy as np
 
 from forward_solver import Solution
 
-from .drawing import FigureSaver
+from .drawing import FigureSaver, run_task, save_figure
 from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
                      write_selig, write_stl)
 from .pattern import write_bay_patterns
@@ -120,7 +120,7 @@ PER_BAY_PLOTS = 8
 #: after the fork; in the folder's order (section, deviation, tensions, history) the child drew three
 #: and the parent waited for it: 0.94-0.96 s. Figures not named keep their place after these.
 _SAVE_ORDER = ("history.png", "tensions.png", "mid_bay_section.png", "deviation.png")
-#: The figures a `drawing.FigureWorkers` may build: their plotting functions call no JAX and take
+#: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
 #: The order of a single bay's figures in the summary's ``files``.
@@ -340,7 +340,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                  bounds: dict | None = None, inputs: dict | None = None,
                  timings: dict | None = None, magnification: float | None = None, aero=None,
                  rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None,
-                 patterns: bool = True, seam_allowance_mm: float = 10.0, figure_workers=None) -> dict:
+                 patterns: bool = True, seam_allowance_mm: float = 10.0, workers=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) and return its summary.
 
     Args:
@@ -366,11 +366,12 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
-        figure_workers: `drawing.FigureWorkers` forked before the design (the
+        workers: `drawing.ReportWorkers` forked before the design (the
             command's), to build and save a single bay's section, deviation,
-            tensions and history figures while this process writes the other
-            files; the figures they do not save are drawn here. Default none:
-            every figure is built here (`drawing.FigureSaver`).
+            tensions and history figures and to write its DXF patterns while
+            this process writes the other files; what they do not write is
+            written here. Default none: every file is written here (the
+            figures saved partly by `drawing.FigureSaver`).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -399,7 +400,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
     shaped = solution.parameters.rib_shape is not None
     has_history = design is not None and bool(design.history)
     with staged_folder(out) as staging:
-        # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the figure
+        # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
         # workers if there are any; every other is built here (where JAX may be called), then saved
         # on two cores while the other files are written (`drawing.FigureSaver`).
         specs = [("mid_bay_section.png", plot_section, (solution, target, scene),
@@ -415,17 +416,20 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                 solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
                 rib_limits), {}))
         specs.sort(key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER else len(_SAVE_ORDER))
-        tasks = []
-        if figure_workers is not None and not figure_workers.sent:
-            tasks = [(staging / name, function, tuple(_without_factors(a) for a in args), kwargs)
-                     for name, function, args, kwargs in specs if name in _PORTABLE]
-            if not figure_workers.draw(tasks, _save):
-                tasks = []
+        sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
+        if workers is not None and workers.submitted == 0:
+            portable = [(staging / name, save_figure, (_save, function, tuple(_without_factors(a) for a in args),
+                                                        kwargs), {})
+                        for name, function, args, kwargs in specs if name in _PORTABLE]
+            if workers.submit(portable):
+                sent += portable
+            else:
+                portable = []
         try:
             summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings,
                                 aero=aero, rib=rib, rib_limits=rib_limits, warnings=warnings)
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in specs
-                     if not any(name == task[0].name for task in tasks)]
+                     if not any(name == task[0].name for task in portable)]
             with FigureSaver(built, _save):
                 write_npz(staging / "equilibrium.npz", solution, target, scene, design)
                 write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
@@ -433,8 +437,15 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                 write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
                 files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
                 if _patterns_wanted(patterns, summary, skipped):
-                    names, panels = write_bay_patterns(staging, scene, solution.parameters,
-                                                       seam_allowance_m=seam_allowance_mm / 1000.0)
+                    dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
+                    names, panels = write_bay_patterns(
+                        staging, scene, solution.parameters, seam_allowance_m=seam_allowance_mm / 1000.0,
+                        writer=(lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None)
+                    if dxf and workers.submit(dxf):
+                        sent += dxf
+                    else:
+                        for task in dxf:
+                            run_task(task)
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
                 if shaped:
@@ -448,15 +459,15 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                     files.append("rib.dat")
                 if not has_history:
                     skipped["history.png"] = "a single equilibrium has no optimiser history"
-            if tasks:  # the workers' figures; any they did not save is drawn here
-                saved = figure_workers.finish()
-                for k, (path, function, args, kwargs) in enumerate(tasks):
-                    if k not in saved:
-                        _save(function(*args, **kwargs), path)
+            if sent:  # the workers' files; any they did not write is written here
+                done = workers.finish()
+                for k, task in enumerate(sent):
+                    if k not in done:
+                        run_task(task)
             files += [name for name, *_ in sorted(specs, key=lambda spec: _FOLDER_ORDER.index(spec[0]))]
         except BaseException:
-            if tasks:  # (no worker writes into the staging folder once it is removed)
-                figure_workers.close()
+            if sent:  # (no worker writes into the staging folder once it is removed)
+                workers.close()
             raise
         times = dict(summary["timings_s"])
         times["report"] = time.perf_counter() - start
