@@ -301,8 +301,8 @@ def _relax(x, geometry, rtol, with_forces=False, *, params, bound, max_chunks, p
     """`relax.relax_jit` from ``x`` on ``geometry``'s grid, or (``compile_only``) the task that compiles
     its program for those arguments (`ahead.compiling`): one function builds the arguments of both,
     so they meet."""
-    dtype = jnp.float64
-    args = (x, geometry, params, jnp.asarray(rtol, dtype), jnp.asarray(bound, dtype), MASS_SAFETY, physics,
+    # (NumPy scalars: the same float64 avals as JAX's, without an eager conversion compiled for them)
+    args = (x, geometry, params, np.asarray(rtol, np.float64), np.asarray(bound, np.float64), MASS_SAFETY, physics,
             RELAX_CHUNK, max_chunks)
     options = dict(half=_use_half(geometry, symmetric), precision=precision, with_forces=with_forces)
     if compile_only:

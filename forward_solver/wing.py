@@ -519,9 +519,14 @@ def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Param
 
 
 def _mounted(scene: Scene, parameters: Parameters):
-    """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly)."""
+    """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly).
+
+    The gradient is stopped on ``parameters`` before their arrays are made: under an eager
+    ``jax.jvp`` (the design's forward mode) they are then the concrete primal values, moved in one
+    transfer, not a converted tracer each (an eager operation compiled or fetched apiece)."""
     geometry = scene.bay.geometry()
-    return jax.lax.stop_gradient(fk.mounted_compiled(geometry, jax.lax.stop_gradient(scene.params(parameters))))
+    params = scene.params(jax.lax.stop_gradient(parameters))
+    return jax.lax.stop_gradient(fk.mounted_compiled(geometry, params))
 
 
 def _concrete_solution(solution: Solution) -> Solution:
@@ -567,7 +572,7 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
         mounted.append(rest)
         solutions.append(sol if traced else _concrete_solution(sol))
     if any(isinstance(x, jax.core.Tracer) for x in nodes):
-        stacked = jnp.stack([jnp.asarray(x, jnp.float64) for x in nodes])
+        stacked = _stack_nodes(nodes)
     else:
         stacked = np.stack([np.asarray(x, np.float64) for x in nodes])
     if any(isinstance(s.result, jax.core.Tracer) for s in solutions):
@@ -585,6 +590,13 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
                         bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
                         tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
                         solutions=solutions, scenes=list(scenes), cut_patterns=fields)
+
+
+@jax.jit
+def _stack_nodes(nodes):
+    """``(n_bays, ...)`` float64 stack of the bays' nodes: one program under an eager transformation
+    (the design's forward mode), not an eager conversion and stack of the primal and tangent apiece."""
+    return jnp.stack([jnp.asarray(x, jnp.float64) for x in nodes])
 
 
 def _batch(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,

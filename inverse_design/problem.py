@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -66,6 +67,17 @@ class WingConvergenceError(ConvergenceError):
 def _prepend(f, g):
     """``[f, *g]`` (one small program; two eager operations compiled apiece before)."""
     return jnp.concatenate([f[None], g])
+
+
+@partial(jax.jit, static_argnames=("k",))
+def _bay_nodes(nodes, k):
+    return nodes[k]
+
+
+def _of_bay(nodes, k: int):
+    """Bay ``k``'s nodes of the wing's stacked ``nodes``: under an eager transformation one program
+    (`_bay_nodes`), not an eager slice, squeeze and transpose of the primal and tangent apiece."""
+    return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
 def _value_and_jacobian(wrapped, v):
@@ -159,7 +171,7 @@ class DesignProblem:
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
         """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
-        return self._record("distances", [bay_distances(nodes[k], self.rows[k], self.etas, self.chords[k])
+        return self._record("distances", [bay_distances(_of_bay(nodes, k), self.rows[k], self.etas, self.chords[k])
                                           for k in range(len(self.bays))])
 
     def objective_value(self, distances):
@@ -168,7 +180,7 @@ class DesignProblem:
 
     def tensions(self, nodes, u) -> list:
         """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
-        return self._record("tensions", [cell_tensions(scene, nodes[k], self.variables.bay_parameters(u, k))
+        return self._record("tensions", [cell_tensions(scene, _of_bay(nodes, k), self.variables.bay_parameters(u, k))
                                          for k, scene in enumerate(self.scenes)])
 
     def _record(self, name: str, values: list) -> list:
