@@ -27,9 +27,10 @@ in its ``programs`` sub-folder (`forward_solver.programs`), so a second run
 loads them without tracing and lowering them again. It also compiles with
 XLA's faster-compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
 unless ``XLA_FLAGS`` chooses otherwise): about 40% less compile time, the
-same results; and its report saves the figures on a second core, a forked
-child drawing them while the other files are written
-(`inverse_design.app.drawing`, on for the command's own run only).
+same results; and its report's figures and DXF patterns are written by
+workers forked as it starts, which import matplotlib and ezdxf while the
+design runs (`inverse_design.app.drawing.ReportWorkers`; a wing's figures by
+a child forked after they are built), on for the command's own run only.
 """
 
 from __future__ import annotations

@@ -1,4 +1,9 @@
-"""Saving a report's figures on two cores: a forked child draws some while the parent writes the rest.
+"""Writing a report's files on several cores: forked processes draw figures while the parent writes the rest.
+
+Two ways. `ReportWorkers` are forked when the command starts and import the
+report's libraries while the design runs; they then write whole files
+(figures, DXF patterns) from picklable tasks (class docstring). `FigureSaver`,
+below, forks one child after the caller has built its figures.
 
 Saving a figure (``Figure.savefig``: the layout engine, the Agg rasteriser,
 the PNG encoder) is Python-bound work that holds Python's lock, so threads
