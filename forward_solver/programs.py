@@ -40,16 +40,19 @@ not stored.
 
 A store can also load ahead (`ProgramStore.prefetch`): the programs that
 the last run of the same kind (a ``profile`` the caller names, e.g. the
-command's grid, variables and method) used, in the order it used them, as
+command's grid, variables and method) asked for, in the order it asked, as
 `ProgramStore.remember` wrote them to ``recent-<profile>.json``, are
-loaded on a daemon thread while the caller goes on (deserialising an
+loaded on two daemon threads while the caller goes on (deserialising an
 executable runs without Python's lock); a call then takes its executable
 from there, waiting for it if it is being loaded. A listed program that a
 call needs first is loaded by the call, and a run of another code version
 (another `_environment_version`) prefetches nothing. The command's cached
-default case (2-core development machine, six alternating runs each): its
-first design evaluation ends 0.09 s sooner (1.80-1.94 s after the start
-against 1.91-2.00 s); the loads now wait for nothing but the relaxation's.
+default case (2-core development machine): its first design evaluation
+ended 0.09 s sooner with one thread (six alternating runs each: 1.80-1.94 s
+after the start against 1.91-2.00 s), but the relaxation's program, its
+largest and asked for second, was still loading when the solve needed it
+(5-110 ms of waiting); with the code version computed before the threads
+start and two threads, no call waits.
 
 Loading an executable runs code from the store's folder, as JAX's
 persistent cache does: both live in the user's own cache folder.
@@ -81,6 +84,8 @@ _STORE: "ProgramStore | None" = None
 _VERSION: str | None = None
 _LOCK = threading.Lock()
 _VERSION_LOCK = threading.Lock()
+#: Threads that load a profile's programs ahead (`ProgramStore.prefetch`).
+PREFETCH_THREADS = 2
 _WATCH = threading.local()  # per thread: whether a persistent-cache hit was seen while compiling
 _LISTENING = False
 
@@ -138,7 +143,7 @@ class ProgramStore:
 
     def __init__(self, path):
         self.path = Path(path)
-        #: The keys this process ran (loaded or compiled), in the order of their first use.
+        #: The keys this process asked for (loaded, or compiled and stored), in the order first asked.
         self.used: list[str] = []
         self._lock = threading.Lock()
         self._claimed: set[str] = set()  # keys a call or the prefetch thread has loaded or is loading
@@ -152,10 +157,8 @@ class ProgramStore:
         with self._lock:
             ahead = self._ahead.pop(key, None)
             self._claimed.add(key)
-        compiled = self._read(key) if ahead is None else ahead.result()
-        if compiled is not None:
-            self._use(key)
-        return compiled
+        self._use(key)  # (in the order the calls ask, which the next run's prefetch follows)
+        return self._read(key) if ahead is None else ahead.result()
 
     def _read(self, key: str):
         file = self.path / f"{key}.bin"
@@ -180,28 +183,37 @@ class ProgramStore:
     def _recent_file(self, profile: str) -> Path:
         return self.path / f"recent-{hashlib.sha256(profile.encode()).hexdigest()[:16]}.json"
 
-    def prefetch(self, profile: str) -> threading.Thread:
-        """Start loading, on a daemon thread, the programs that the last run of ``profile`` used
-        (`remember`), if it ran this code version; returns the thread (module docstring).
+    def prefetch(self, profile: str) -> list:
+        """Start loading, on `PREFETCH_THREADS` daemon threads, the programs that the last run of
+        ``profile`` used (`remember`), if it ran this code version; returns the threads (module
+        docstring).
 
         ``profile`` names a kind of run whose programs are alike (e.g. the command's grid,
-        variables and methods); any string."""
-        thread = threading.Thread(target=self._load_ahead, args=(profile,), name="program-store-prefetch",
-                                  daemon=True)
-        thread.start()
-        return thread
-
-    def _load_ahead(self, profile: str) -> None:
+        variables and methods); any string. The code version is computed here first (on a
+        thread, taking turns with the caller for Python's lock at each file read, it took
+        35-90 ms and held the loads back); two threads load the first two programs at once (the
+        default case asks for its largest, the relaxation, second)."""
+        version = _environment_version()
         try:
-            version = _environment_version()  # (the calls need it too: computed here first)
-            try:
-                recent = json.loads(self._recent_file(profile).read_text())
-                keys = [str(key) for key in recent["keys"]] if recent.get("version") == version else []
-            except (OSError, ValueError, KeyError, TypeError, AttributeError):
-                keys = []
-            self._remembered = (profile, version, tuple(keys))
-            for key in keys:
-                with self._lock:
+            recent = json.loads(self._recent_file(profile).read_text())
+            keys = [str(key) for key in recent["keys"]] if recent.get("version") == version else []
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            keys = []
+        self._remembered = (profile, version, tuple(keys))
+        pending = iter(keys)
+        threads = [threading.Thread(target=self._load_ahead, args=(pending,), name="program-store-prefetch",
+                                    daemon=True) for _ in range(min(PREFETCH_THREADS, len(keys)))]
+        for thread in threads:
+            thread.start()
+        return threads
+
+    def _load_ahead(self, pending) -> None:
+        try:
+            while True:
+                with self._lock:  # (the keys in order, each to one thread)
+                    key = next(pending, None)
+                    if key is None:
+                        return
                     if key in self._claimed:  # a call got there first
                         continue
                     self._claimed.add(key)
