@@ -725,6 +725,23 @@ def test_main_installs_its_signal_handlers_only_while_it_runs(tmp_path, capsys):
     assert "NACA" in capsys.readouterr().err
 
 
+def test_main_freezes_the_imported_objects_for_its_run_only(tmp_path, capsys, monkeypatch):
+    """The command moves what it imported out of the garbage collector's way while it runs
+    (`cli._freeze_imports`) and gives it back after, whatever the run's end (here bad input)."""
+    import gc
+
+    if gc.get_freeze_count():
+        pytest.skip("objects are frozen already in this process")
+    seen = []
+    run = cli.run
+    monkeypatch.setattr(cli, "run", lambda *a, **k: seen.append(gc.get_freeze_count()) or run(*a, **k))
+    assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
+    assert seen and seen[0] > 1000 and gc.get_freeze_count() == 0
+    assert "NACA" in capsys.readouterr().err
+    assert cli._freeze_imports() and not cli._freeze_imports()  # (frozen already: left to its owner)
+    gc.unfreeze()
+
+
 # ------------------------------------------------------------------ grid size
 def test_a_grid_too_large_for_the_machine_is_refused_before_the_run(run_cli, tmp_path):
     # A 10000 x 64 optimisation needs tens of GB and hours: refused with the estimate before any
