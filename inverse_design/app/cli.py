@@ -149,7 +149,7 @@ def use_compilation_cache(path: Path, profile: str | None = None) -> None:
     program store in its ``programs`` sub-folder (`forward_solver.programs`: its main programs
     load without being traced and lowered again; ``INFLATABLE_WING_PROGRAM_STORE=0`` leaves it off).
     With a ``profile`` (`program_profile`), the store starts loading the programs that the last run
-    of that profile used, on a second thread (`forward_solver.programs.ProgramStore.prefetch`)."""
+    of that profile used, on two threads (`forward_solver.programs.ProgramStore.prefetch`)."""
     import jax
 
     from forward_solver.programs import use_program_store
@@ -225,12 +225,14 @@ def _main(argv: list[str] | None, started: float) -> int:
             workers = ReportWorkers.start(WORKER_MODULES)
         if not args.no_compilation_cache:
             use_compilation_cache(compilation_cache_dir(), program_profile(args))
-    except KeyboardInterrupt as exc:
+    except BaseException as exc:  # (the workers and the frozen objects are given back whatever ends it)
         if workers is not None:
             workers.close()
         if frozen:
             gc.unfreeze()
-        return _interrupted(exc, args.out)
+        if isinstance(exc, KeyboardInterrupt):
+            return _interrupted(exc, args.out)
+        raise
     try:
         summary = run(args, sources, progress=progress, started=started, workers=workers)
         if not args.no_compilation_cache:
