@@ -143,10 +143,9 @@ class ProgramStore:
 
     def __init__(self, path):
         self.path = Path(path)
-        #: The keys this process asked for (loaded, or compiled and stored), in the order first asked.
+        #: The keys this process's calls asked for (`load`; a missing one is then compiled), in order.
         self.used: list[str] = []
         self._lock = threading.Lock()
-        self._claimed: set[str] = set()  # keys a call or the prefetch thread has loaded or is loading
         self._ahead: dict[str, Future] = {}  # key -> the prefetch thread's load, until a call takes it
         self._remembered: tuple | None = None  # (profile, version, keys) as `prefetch` read it
 
@@ -156,8 +155,8 @@ class ProgramStore:
         once it is ready."""
         with self._lock:
             ahead = self._ahead.pop(key, None)
-            self._claimed.add(key)
-        self._use(key)  # (in the order the calls ask, which the next run's prefetch follows)
+            if key not in self.used:  # (in the order the calls ask, which the next run's prefetch follows)
+                self.used.append(key)
         return self._read(key) if ahead is None else ahead.result()
 
     def _read(self, key: str):
@@ -174,11 +173,6 @@ class ProgramStore:
         except Exception:  # noqa: BLE001 - a damaged or foreign entry: compile again
             file.unlink(missing_ok=True)
             return None
-
-    def _use(self, key: str) -> None:
-        with self._lock:
-            if key not in self.used:
-                self.used.append(key)
 
     def _recent_file(self, profile: str) -> Path:
         return self.path / f"recent-{hashlib.sha256(profile.encode()).hexdigest()[:16]}.json"
@@ -214,9 +208,8 @@ class ProgramStore:
                     key = next(pending, None)
                     if key is None:
                         return
-                    if key in self._claimed:  # a call got there first
+                    if key in self.used:  # a call got there first
                         continue
-                    self._claimed.add(key)
                     future = self._ahead[key] = Future()
                 try:
                     future.set_result(self._read(key))
@@ -266,8 +259,6 @@ class ProgramStore:
                     self._write(key, compiled)
                 except OSError:  # a full or read-only disk: the run goes on without storing
                     pass
-                else:
-                    self._use(key)
                 break
         return compiled
 

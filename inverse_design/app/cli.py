@@ -210,7 +210,7 @@ def _main(argv: list[str] | None, started: float) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     progress = sys.stderr.isatty() and not (args.quiet or args.json)
-    workers, frozen = None, False
+    workers, frozen, profile = None, False, program_profile(args)
     try:
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
 
@@ -224,7 +224,7 @@ def _main(argv: list[str] | None, started: float) -> int:
         if getattr(args, "wing", None) is None:
             workers = ReportWorkers.start(WORKER_MODULES)
         if not args.no_compilation_cache:
-            use_compilation_cache(compilation_cache_dir(), program_profile(args))
+            use_compilation_cache(compilation_cache_dir(), profile)
     except BaseException as exc:  # (the workers and the frozen objects are given back whatever ends it)
         if workers is not None:
             workers.close()
@@ -236,7 +236,7 @@ def _main(argv: list[str] | None, started: float) -> int:
     try:
         summary = run(args, sources, progress=progress, started=started, workers=workers)
         if not args.no_compilation_cache:
-            _remember_programs(program_profile(args))
+            _remember_programs(profile)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         return _interrupted(exc, args.out)
     except (ConvergenceError, ValueError, OSError) as exc:

@@ -332,6 +332,61 @@ def _child_setup(setters: list) -> None:
         set_threads(1)
 
 
+def _wait_children(pids: set, exitcodes: dict, timeout: float) -> None:
+    """Wait at most ``timeout`` s for the children ``pids`` to end: each that ends leaves ``pids`` and
+    gets its exit code (`os.waitstatus_to_exitcode`) in ``exitcodes``."""
+    deadline = time.monotonic() + timeout
+    delay = 0.0005
+    while pids:
+        for pid in list(pids):
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                pids.discard(pid)
+                exitcodes[pid] = os.waitstatus_to_exitcode(status)
+        remaining = deadline - time.monotonic()
+        if not pids or remaining <= 0:
+            return
+        time.sleep(min(delay, remaining))
+        delay = min(2 * delay, 0.005)
+
+
+def _kill_children(pids: set, exitcodes: dict) -> None:
+    """Kill every child in ``pids`` still running and reap it (as `_wait_children` records). A stop
+    arriving meanwhile is raised once all are reaped (a SIGKILLed child is gone within milliseconds)."""
+    stop = None
+    for pid in list(pids):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:  # (exited already; still to be reaped)
+            pass
+        while pid in pids:
+            try:
+                _, status = os.waitpid(pid, 0)
+                pids.discard(pid)
+                exitcodes[pid] = os.waitstatus_to_exitcode(status)
+            except ChildProcessError:  # (reaped already: nothing left of it)
+                pids.discard(pid)
+            except KeyboardInterrupt as error:
+                stop = error
+    if stop is not None:
+        raise stop
+
+
+def _end_child(work, held: list) -> None:
+    """A forked child's whole life: ``work()`` unless a stop arrived during the fork (the parent
+    raises it), then the end of the process, status 0 if ``work`` returned and 1 if anything was
+    raised (the parent then writes the child's share itself). Never returns."""
+    code = 1
+    try:
+        if not held:
+            work()
+            code = 0
+    except BaseException:  # noqa: BLE001 - any failure: the parent does this child's work
+        code = 1
+    finally:
+        os._exit(code)
+
+
 def _restore_handlers(handlers: list) -> None:
     """Put ``[(signal, handler)]`` back, each even if a stop is raised while an earlier one is put back."""
     if handlers:
@@ -385,7 +440,7 @@ class FigureSaver:
         self._parallel = parallel_figures_enabled(len(self._items)) if parallel is None else parallel
         self._claims = None
         self._blas = []
-        self._alive = False
+        self._alive: set = set()  # the child while it runs (its pid)
         self.pid = None
         self.child_exitcode = None
         self.saved_by_child = []
@@ -424,7 +479,7 @@ class FigureSaver:
         """Fork the child (`_fork_process`) and record its pid before any stop can raise here."""
 
         def record(pid):
-            self.pid, self._alive = pid, True
+            self.pid, self._alive = pid, {pid}
 
         _fork_process(self._child, record)
 
@@ -454,58 +509,32 @@ class FigureSaver:
 
     def _wait(self, timeout: float) -> int | None:
         """The child's exit code (`os.waitstatus_to_exitcode`) once it ends, or None after ``timeout`` s."""
-        deadline = time.monotonic() + timeout
-        delay = 0.0005
-        while True:
-            pid, status = os.waitpid(self.pid, os.WNOHANG)
-            if pid:
-                self._alive = False
-                return os.waitstatus_to_exitcode(status)
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return None
-            time.sleep(min(delay, remaining))
-            delay = min(2 * delay, 0.005)
+        codes = {}
+        _wait_children(self._alive, codes, timeout)
+        return codes.get(self.pid)
 
     def _stop_child(self) -> None:
-        """Kill the child if it still runs and reap it; close the claims. A stop arriving meanwhile is
-        raised once the child is reaped (a SIGKILLed child is gone within milliseconds)."""
-        stop = None
-        if self._alive:
-            try:
-                os.kill(self.pid, signal.SIGKILL)
-            except ProcessLookupError:  # (exited already; still to be reaped)
-                pass
-            while self._alive:
-                try:
-                    _, status = os.waitpid(self.pid, 0)
-                    self._alive = False
-                    self.child_exitcode = os.waitstatus_to_exitcode(status)
-                except ChildProcessError:  # (reaped already: nothing left of it)
-                    self._alive = False
-                except KeyboardInterrupt as error:
-                    stop = error
-        if self._claims is not None:
-            self._claims.close()
-            self._claims = None
-        if stop is not None:
-            raise stop
+        """Kill the child if it still runs and reap it (`_kill_children`); close the claims."""
+        codes = {}
+        try:
+            _kill_children(self._alive, codes)
+        finally:
+            if self.pid in codes:
+                self.child_exitcode = codes[self.pid]
+            if self._claims is not None:
+                self._claims.close()
+                self._claims = None
 
     # ------------------------------------------------------------------ the child
     def _child(self, held: list) -> None:
         """Save figures from the front of the list until none is left, then end the process: never returns."""
-        code = 1
-        try:
-            try:
-                _child_setup(self._blas)
-                if not held:  # (a stop that arrived during the fork ends the child: the parent raises it)
-                    while (k := self._claims.take(from_front=True)) is not None:
-                        self._save(self._items[k][1], self._items[k][0])
-                    code = 0
-            except BaseException:  # noqa: BLE001 - any failure: the parent saves this child's figures
-                code = 1
-        finally:
-            os._exit(code)
+
+        def work():
+            _child_setup(self._blas)
+            while (k := self._claims.take(from_front=True)) is not None:
+                self._save(self._items[k][1], self._items[k][0])
+
+        _end_child(work, held)
 
 
 # ---------------------------------------------------------------------- workers forked before the design
@@ -513,8 +542,7 @@ class FigureSaver:
 MAX_WORKERS = 4
 #: How much lower than the command's the workers' scheduling priority is (``os.nice``).
 WORKER_NICE = 10
-_RESULT = struct.Struct("<q")
-_SIZE = struct.Struct("<q")
+_INT = struct.Struct("<q")  # a batch's length in the job file; a done task's index on a result pipe
 
 
 class ReportWorkers:
@@ -593,8 +621,9 @@ class ReportWorkers:
 
                 # (the child closes the parent's ends of its own and earlier workers' pipes: a wake-up
                 # pipe must end when the parent closes it, not live on in a sibling)
-                child = partial(_run_worker, tuple(modules), wake_read, result_write, job.fileno(), claims, setters,
-                                tuple(workers._wake + workers._results))
+                work = partial(_worker, tuple(modules), wake_read, result_write, job.fileno(), claims, setters,
+                               tuple(workers._wake + workers._results))
+                child = partial(_end_child, work)
                 _fork_process(child, record)
                 os.close(wake_read)
                 os.close(result_write)
@@ -618,8 +647,8 @@ class ReportWorkers:
                                     for path, function, args, kwargs in tasks], protocol=pickle.HIGHEST_PROTOCOL)
         except (pickle.PicklingError, TypeError, AttributeError):
             return False
-        os.pwrite(self._job.fileno(), _SIZE.pack(len(payload)) + payload, self._end)
-        self._end += _SIZE.size + len(payload)
+        os.pwrite(self._job.fileno(), _INT.pack(len(payload)) + payload, self._end)
+        self._end += _INT.size + len(payload)
         self._claims.extend(len(tasks))  # (the batch is in the file before any index of it can be taken)
         self.submitted += len(tasks)
         for fd in self._wake:
@@ -635,49 +664,20 @@ class ReportWorkers:
         for fd in self._wake:
             os.close(fd)
         self._wake = []
-        deadline = time.monotonic() + timeout
-        delay = 0.0005
-        while self._alive and time.monotonic() < deadline:
-            for pid in list(self._alive):
-                done, status = os.waitpid(pid, os.WNOHANG)
-                if done:
-                    self._alive.discard(pid)
-                    self.exitcodes[pid] = os.waitstatus_to_exitcode(status)
-            if self._alive:
-                time.sleep(delay)
-                delay = min(2 * delay, 0.005)
-        self._kill()
+        _wait_children(self._alive, self.exitcodes, timeout)
+        _kill_children(self._alive, self.exitcodes)
         done = set()
         for pid, fd in zip(self.pids, self._results):
             reported = _read_all(fd)
             if self.exitcodes.get(pid) == 0:
-                done.update(_RESULT.unpack_from(reported, k)[0] for k in range(0, len(reported), _RESULT.size))
+                done.update(_INT.unpack_from(reported, k)[0] for k in range(0, len(reported), _INT.size))
         self.close()
         return done
-
-    def _kill(self) -> None:
-        stop = None
-        for pid in list(self._alive):
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            while pid in self._alive:
-                try:
-                    _, status = os.waitpid(pid, 0)
-                    self.exitcodes[pid] = os.waitstatus_to_exitcode(status)
-                    self._alive.discard(pid)
-                except ChildProcessError:
-                    self._alive.discard(pid)
-                except KeyboardInterrupt as error:
-                    stop = error
-        if stop is not None:
-            raise stop
 
     def close(self) -> None:
         """Kill and reap every worker still running and close the pipes and files (twice is harmless)."""
         try:
-            self._kill()
+            _kill_children(self._alive, self.exitcodes)
         finally:
             for fd in self._wake + self._results:
                 try:
@@ -735,27 +735,16 @@ def _read_all(fd: int) -> bytes:
     return b"".join(chunks)
 
 
-def _run_worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims", setters: list,
-                parents: tuple, held: list) -> None:
-    """A report worker (`ReportWorkers`): `_worker`, then the end of the process with its exit code;
-    ``parents`` are the parent's pipe ends it inherited, closed first."""
-    code = 1
-    try:
-        for fd in parents:
-            os.close(fd)
-        if not held:  # (a stop that arrived during the fork ends the worker: the parent raises it)
-            code = _worker(modules, wake, result, job, claims, setters)
-    except BaseException:  # noqa: BLE001 - any failure: the caller runs this worker's tasks
-        code = 1
-    finally:
-        os._exit(code)
-
-
-def _worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims", setters: list) -> int:
-    """A report worker's life: import, then take and run tasks until the parent closes the pipe; its exit code."""
+def _worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims", setters: list,
+            parents: tuple) -> None:
+    """A report worker's work (`ReportWorkers`; `_end_child` ends it): close the parent's pipe ends it
+    inherited (``parents``), import ``modules``, then take and run tasks until the parent closes the
+    wake-up pipe."""
     import importlib
     import pickle
 
+    for fd in parents:
+        os.close(fd)
     _child_setup(setters)
     _lower_priority()
     for name in modules:
@@ -765,11 +754,11 @@ def _worker(modules: tuple, wake: int, result: int, job: int, claims: "_Claims",
         k = claims.take(from_front=True)
         if k is None:  # none left: wait for a batch (a byte) or the end (the pipe closed)
             if not os.read(wake, 1):
-                return 0
+                return
             continue
         while k >= len(tasks):  # (the batch holding it is in the file: `submit` writes it first)
-            (size,) = _SIZE.unpack(os.pread(job, _SIZE.size, offset))
-            tasks += pickle.loads(os.pread(job, size, offset + _SIZE.size))
-            offset += _SIZE.size + size
+            (size,) = _INT.unpack(os.pread(job, _INT.size, offset))
+            tasks += pickle.loads(os.pread(job, size, offset + _INT.size))
+            offset += _INT.size + size
         run_task(tasks[k])
-        os.write(result, _RESULT.pack(k))
+        os.write(result, _INT.pack(k))

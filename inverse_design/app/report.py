@@ -126,9 +126,6 @@ _SAVE_ORDER = ("history.png", "tensions.png", "mid_bay_section.png", "deviation.
 #: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
-#: The order of a single bay's figures in the summary's ``files``.
-_FOLDER_ORDER = ("mid_bay_section.png", "deviation.png", "tensions.png", "history.png", "aero.png",
-                 "rib_design.png")
 
 
 # ------------------------------------------------------------------ inputs
@@ -418,12 +415,13 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
             specs.append(("rib_design.png", plot_rib_design, (
                 solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
                 rib_limits), {}))
-        specs.sort(key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER else len(_SAVE_ORDER))
+        to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
+                         else len(_SAVE_ORDER))
         sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
         if workers is not None and workers.submitted == 0:
             portable = [(staging / name, save_figure, (_save, function, tuple(_without_factors(a) for a in args),
                                                         kwargs), {})
-                        for name, function, args, kwargs in specs if name in _PORTABLE]
+                        for name, function, args, kwargs in to_save if name in _PORTABLE]
             if workers.submit(portable):
                 sent += portable
             else:
@@ -431,8 +429,9 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         try:
             summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings,
                                 aero=aero, rib=rib, rib_limits=rib_limits, warnings=warnings)
-            built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in specs
-                     if not any(name == task[0].name for task in portable)]
+            handed = {path.name for path, *_ in portable}
+            built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
+                     if name not in handed]
             with FigureSaver(built, _save):
                 write_npz(staging / "equilibrium.npz", solution, target, scene, design)
                 write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
@@ -467,7 +466,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                 for k, task in enumerate(sent):
                     if k not in done:
                         run_task(task)
-            files += [name for name, *_ in sorted(specs, key=lambda spec: _FOLDER_ORDER.index(spec[0]))]
+            files += [name for name, *_ in specs]
         except BaseException:
             if sent:  # (no worker writes into the staging folder once it is removed)
                 workers.close()
