@@ -11,10 +11,21 @@ never removed (`check_output_folder` refuses a folder holding a file of a
 report's name that no report wrote). Temporary folders that a killed writer
 left behind are removed (or their moves finished) by the next
 `staged_folder` of the same destination (`remove_stale_partials`).
+
+A report records the size and SHA-256 of every file it wrote in its
+``summary.json`` (``checksums``: `file_checksums`). A file that changed since
+(a ``rib.dat`` edited by hand) is no longer the report's (`changed_files`):
+it is never removed, and a new report that would replace it is refused
+(``check_output_folder(..., replaces=...)`` up front, `staged_folder` at the
+latest); a summary without checksums (an older report's) is trusted as it is.
+A run holds `output_lock` on its output folder from start to end, so a second
+run into the same folder is refused at once instead of racing the first.
 """
 
 from __future__ import annotations
 
+import errno
+import hashlib
 import json
 import os
 import re
@@ -38,7 +49,10 @@ except ImportError:  # pragma: no cover - Windows: no flock, stale folders are l
 
 __all__ = [
     "REPORT_FILES",
+    "changed_files",
     "check_output_folder",
+    "file_checksums",
+    "output_lock",
     "deviation",
     "remove_stale_partials",
     "staged_folder",
@@ -257,13 +271,56 @@ def write_cut_pattern(path, scene, parameters) -> Path:
 REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|(bay_[0-9]+_)?cut_pattern\.csv|"
                           r"pattern_bay_[0-9]+_(upper|lower|panel)\.(dxf|svg)|rib_[0-9]+\.dxf|"
                           r"rib(_[0-9]+)?\.dat|(bay_[0-9]+_)?mid_bay_section\.png|"
-                          r"(deviation|tensions|history|aero|rib_design)\.png")
+                          r"(deviation|tensions|history|aero|rib_design|wing_overview)\.png")
 #: The summary of a report, whose ``files`` list the files that report wrote.
 SUMMARY = "summary.json"
+#: The summary's entry ``{name: {"bytes": size, "sha256": hex digest}}`` of the files it lists (`file_checksums`).
+CHECKSUMS = "checksums"
 #: Name (then 8 hex digits) of a staging folder inside an existing output folder.
 _INSIDE = ".report.partial-"
 #: The list of moves of a staging folder whose files are being moved into the output folder.
 _JOURNAL = ".moves.json"
+#: The lock file of a run into an existing output folder, inside it (`output_lock`).
+_LOCK_INSIDE = ".report.lock"
+#: Characters that the longest name made from the output folder's adds to it: ``.NAME.creating-`` and
+#: 8 hex digits beside it (`staged_folder`).
+_NAME_EXTRA = len("..creating-") + 8
+
+
+def file_checksums(folder, names) -> dict:
+    """``{name: {"bytes": size, "sha256": hex digest}}`` of the plain files ``names`` in ``folder``.
+
+    A report stores it in its ``summary.json`` (`CHECKSUMS`) for the files it
+    wrote, so that the next report into the folder can tell a file edited
+    since from its own (`changed_files`).
+    """
+    folder = Path(folder)
+    sums = {}
+    for name in names:
+        path = folder / name
+        if name == SUMMARY or path.is_symlink() or not path.is_file():
+            continue
+        digest = hashlib.sha256()
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                digest.update(block)
+        sums[name] = {"bytes": path.stat().st_size, "sha256": digest.hexdigest()}
+    return sums
+
+
+def _earlier_summary(out: Path) -> dict | None:
+    """The earlier report's summary in ``out`` if it is one of this package's (`written_files`), else None."""
+    path = out / SUMMARY
+    if path.is_symlink() or not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(data, dict) and isinstance(data.get("package"), dict)
+            and data["package"].get("name") == "inflatable-wing" and isinstance(data.get("files"), list)):
+        return None
+    return data
 
 
 def written_files(out_dir) -> set[str]:
@@ -272,19 +329,39 @@ def written_files(out_dir) -> set[str]:
     Empty if there is no ``summary.json``, or it is not one of this
     package's (not JSON, or no ``package.name`` "inflatable-wing" and
     ``files`` list naming itself). Only plain names in the folder count.
+    A listed file that changed since is still listed here (`changed_files`
+    tells them apart).
     """
-    path = Path(out_dir) / SUMMARY
-    if path.is_symlink() or not path.is_file():
-        return set()
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return set()
-    if not (isinstance(data, dict) and isinstance(data.get("package"), dict)
-            and data["package"].get("name") == "inflatable-wing" and isinstance(data.get("files"), list)):
+    data = _earlier_summary(Path(out_dir))
+    if data is None:
         return set()
     files = {f for f in data["files"] if isinstance(f, str) and f == os.path.basename(f) and f[:1] not in ("", ".")}
     return files if SUMMARY in files else set()
+
+
+def changed_files(out_dir) -> list[str]:
+    """The files of the earlier report in ``out_dir`` that changed since it wrote them.
+
+    A file listed in the earlier ``summary.json`` whose size or SHA-256
+    differs from the summary's ``checksums`` (`file_checksums`): someone
+    edited or replaced it, so it is no longer the report's to remove or
+    replace. A file the summary has no checksum for (a report written before
+    they were recorded) counts as unchanged; a file that is gone is not listed.
+    """
+    out = Path(os.path.abspath(os.fspath(out_dir)))
+    data = _earlier_summary(out) if out.is_dir() else None
+    sums = data.get(CHECKSUMS) if data is not None else None
+    if not isinstance(sums, dict):
+        return []
+    changed = []
+    for name in sorted(written_files(out)):
+        record = sums.get(name)
+        if not (isinstance(record, dict) and (out / name).is_file() and not (out / name).is_symlink()):
+            continue
+        now = file_checksums(out, [name]).get(name, {})
+        if (record.get("bytes"), record.get("sha256")) != (now.get("bytes"), now.get("sha256")):
+            changed.append(name)
+    return changed
 
 
 def _not_ours(out: Path, names, owned: set[str]) -> list[str]:
@@ -300,37 +377,170 @@ def _refuse(out: Path, clash: list[str]) -> ValueError:
                       f"move it away or choose another output folder")
 
 
-def check_output_folder(out_dir) -> Path:
+def _refuse_changed(out: Path, changed: list[str]) -> ValueError:
+    return ValueError(f"refusing to overwrite {out / changed[0]}"
+                      + (f" (and {len(changed) - 1} more: {', '.join(changed[1:])})" if len(changed) > 1 else "")
+                      + f": it changed since the earlier report wrote it (its size or SHA-256 differs from "
+                      f"the record in {SUMMARY}); move it away (or rename it) to keep it, or choose another "
+                      "output folder")
+
+
+def _is_dir(path: Path) -> bool:
+    """Whether ``path`` is a folder; False for a path the system cannot even look up (a name too long)."""
+    try:
+        return path.is_dir()
+    except OSError:
+        return False
+
+
+def _check_name(out_dir) -> Path:
+    """The absolute output path, after refusing an empty name and names too long for the file system."""
+    text = os.fspath(out_dir)
+    if (text.decode(errors="replace") if isinstance(text, bytes) else text) == "":
+        raise ValueError("the output folder is an empty name (an unset shell variable?), which would put the "
+                         "report's files in the current folder: give a folder name, or . for the current folder")
+    out = Path(os.path.abspath(text))
+    ancestor = out.parent
+    while not _is_dir(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    try:
+        limit = os.pathconf(ancestor, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):
+        limit = 255
+    missing = out.relative_to(ancestor).parts
+    for k, part in enumerate(missing):
+        size = len(os.fsencode(part)) + (_NAME_EXTRA if k == len(missing) - 1 else 0)
+        if size > limit:
+            shown = part if len(part) <= 40 else part[:37] + "..."
+            extra = (f" plus the {_NAME_EXTRA} characters of the temporary folder .NAME.creating-XXXXXXXX "
+                     "made beside it" if k == len(missing) - 1 else "")
+            raise ValueError(f"the output folder name {shown!r} is too long for this file system: "
+                             f"{len(os.fsencode(part))} bytes{extra}, more than the {limit} bytes a name may have "
+                             f"in {ancestor}; choose a shorter name")
+    return out
+
+
+def check_output_folder(out_dir, replaces=None) -> Path:
     """The absolute output path, after checking that `write_report` may write into it.
 
     The folder may hold other files (they are never touched); it must not
     hold a file of a report's name (`REPORT_FILES`) that no earlier report
     there wrote (`written_files`).
 
+    Args:
+        out_dir: the output folder.
+        replaces: None, or a predicate on a file name: whether the new report
+            may write a file of that name. An earlier report's file that
+            changed since (`changed_files`) and that the new report may write
+            is refused now, before the long work (without ``replaces``,
+            `staged_folder` refuses it when it would replace it).
+
     Raises:
-        ValueError: if ``out_dir`` is a file, or holds such a file, or is
+        ValueError: if ``out_dir`` is empty, or a name in it is too long for
+            the file system, or it is a file, or holds such a file, or is
             not a writable folder (or, when it does not exist, its nearest
             existing parent is not).
     """
-    out = Path(os.path.abspath(os.fspath(out_dir)))
-    if out.exists() or out.is_symlink():
-        if not out.is_dir():
-            raise ValueError(f"the output folder {out} exists and is not a folder; choose another path")
-        clash = _not_ours(out, [p.name for p in out.iterdir() if REPORT_FILES.fullmatch(p.name)],
-                          written_files(out))
-        if clash:
-            raise _refuse(out, clash)
-        parent = out
-    else:
-        parent = out.parent
-        while not parent.exists():
-            parent = parent.parent
+    out = _check_name(out_dir)
+    try:
+        if out.exists() or out.is_symlink():
+            if not out.is_dir():
+                raise ValueError(f"the output folder {out} exists and is not a folder; choose another path")
+            clash = _not_ours(out, [p.name for p in out.iterdir() if REPORT_FILES.fullmatch(p.name)],
+                              written_files(out))
+            if clash:
+                raise _refuse(out, clash)
+            if replaces is not None:
+                changed = [name for name in changed_files(out) if replaces(name)]
+                if changed:
+                    raise _refuse_changed(out, changed)
+            parent = out
+        else:
+            parent = out.parent
+            while not parent.exists():
+                parent = parent.parent
+    except OSError as exc:
+        raise ValueError(f"cannot use the output folder {out}: {exc.strerror or exc}; choose another path") from None
     try:  # a real probe: permission bits do not tell everything (read-only mounts, /proc)
         os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
     except OSError as exc:
         raise ValueError(f"cannot create the output folder {out}: {parent} is not a writable folder "
                          f"({exc.strerror or exc})") from None
     return out
+
+
+@contextmanager
+def output_lock(out_dir):
+    """Hold an exclusive lock on the output folder ``out_dir`` while the block runs (a whole run).
+
+    The lock is an ``fcntl.flock`` on a lock file: ``.report.lock`` inside an
+    existing folder, ``.NAME.lock`` beside a new one (in its nearest existing
+    parent, named after the missing part of the path); the file holds the
+    holder's process id and is removed when the block ends. A second run into
+    the same folder meanwhile is refused at once. Where a lock cannot be
+    taken (no ``fcntl``, a file system without locks, a folder that cannot
+    be written: `check_output_folder` says so) the block runs without one.
+
+    Raises:
+        ValueError: if another process holds the lock, naming it; or for
+            an empty or too long name (`check_output_folder`).
+    """
+    out = _check_name(out_dir)
+    if fcntl is None:
+        yield out
+        return
+    try:
+        if out.is_dir():
+            path = out / _LOCK_INSIDE
+        else:
+            ancestor = out.parent
+            while not _is_dir(ancestor) and ancestor != ancestor.parent:
+                ancestor = ancestor.parent
+            path = ancestor / ("." + ".".join(out.relative_to(ancestor).parts) + ".lock")
+        fd = _take_lock(path)
+    except OSError:  # (cannot create it here: the folder checks say why)
+        yield out
+        return
+    if isinstance(fd, str):
+        raise ValueError(f"another run is writing the output folder {out} ({fd} holds the lock {path}); wait "
+                         "for it to end, or choose another output folder")
+    try:
+        yield out
+    finally:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        os.close(fd)
+
+
+def _take_lock(path: Path):
+    """An open descriptor of the lock file ``path`` under an exclusive ``flock``; the holder (a string)
+    if another process holds it. Raises OSError where the file cannot be made or locks are not
+    available."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                os.close(fd)
+                raise
+            try:
+                holder = os.read(fd, 64).decode(errors="replace").strip()
+            except OSError:
+                holder = ""
+            os.close(fd)
+            return f"process {holder}" if holder.isdigit() else "another process"
+        try:  # still the file at ``path``? (its holder removes it as it releases the lock)
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.write(fd, str(os.getpid()).encode())
+            return fd
+        os.close(fd)
 
 
 def _partial_pattern(out: Path, inside: bool = False) -> re.Pattern:
@@ -440,7 +650,11 @@ def _commit(staging: Path, out: Path) -> None:
     clash = _not_ours(out, names, owned)
     if clash:
         raise _refuse(out, clash)
-    stale = sorted(n for n in owned - set(names) if (out / n).is_file() and not (out / n).is_symlink())
+    changed = changed_files(out)  # (edited since the earlier report: kept, never replaced)
+    replaced = [n for n in changed if n in names]
+    if replaced:
+        raise _refuse_changed(out, replaced)
+    stale = sorted(n for n in owned - set(names) - set(changed) if (out / n).is_file() and not (out / n).is_symlink())
     (staging / _JOURNAL).write_text(json.dumps({"files": names, "remove": stale}))
     _move_in(staging, out, names, stale)
     shutil.rmtree(staging, ignore_errors=True)
@@ -456,7 +670,9 @@ def staged_folder(out_dir):
     hex digits, inside it) has its files moved one by one, each replacing
     only its namesake of an earlier report; the earlier report's files that
     this one does not write (listed in its ``summary.json``, e.g. ``rib.dat``
-    of a rib-shape run) are removed, and ``summary.json`` comes last. Every
+    of a rib-shape run) are removed, unless they changed since
+    (`changed_files`: kept), and ``summary.json`` comes last; a changed file
+    that this report would replace is refused (ValueError, nothing moved). Every
     other file in ``out_dir`` is left as it is; ``out_dir`` itself is never
     removed. On any exception before that, KeyboardInterrupt included, the
     temporary folder is removed and ``out_dir`` is left as it was; a stop

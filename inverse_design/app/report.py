@@ -94,6 +94,7 @@ from forward_solver import Solution
 from .drawing import FigureSaver, run_task, save_figure
 from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
                      write_selig, write_stl)
+from .export import file_checksums
 from .pattern import write_bay_patterns
 from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
 from ..optimise import DesignResult
@@ -475,6 +476,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         times["report"] = time.perf_counter() - start
         times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
         summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
+        summary["checksums"] = file_checksums(staging, files)  # (`export.changed_files` compares them)
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
@@ -756,5 +758,6 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         times["report"] = time.perf_counter() - start
         times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
         summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
+        summary["checksums"] = file_checksums(staging, files)  # (`export.changed_files` compares them)
         (staging / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
     return summary
