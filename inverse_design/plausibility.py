@@ -17,6 +17,21 @@ rib spacing            0.05 to 0.5 m      stress test (chord 1 m)
 rib spacing / chord    0.05 to 0.5        stress test (chord 1 m)
 =====================  =================  ====================================
 
+Beside the physical ranges, `check_plausibility` flags the numerical and
+drawing choices that make a result doubtful (`LIMITS`): a design on fewer
+span nodes than the README's grid study found enough (17: on 9 span nodes
+the default design lands at 6.4 kPa and rib scale 0.945 against 1 kPa and
+1.0 on 17 or more, a spurious compression beside the ribs that the wrinkle
+constraint obeys; README, "Inverse design" under "Studies"); a seam allowance over
+50 mm (a typo for metres or centimetres more likely than a seam); more
+cut-pattern or rib-shape terms than a quarter of the contour nodes (each
+term then spans fewer than about four nodes: the grid cannot resolve it);
+a Reynolds number outside NeuralFoil's training data (its XFoil runs drew
+Re = 10^(5.5 + 1.5 N(0, 1)), NeuralFoil's
+``training/gen2_architecture/training_data/generate_xfoil_data.py``, and
+its input scaling ``(ln Re - 12.5) / 3.5``: two standard deviations are
+3e2 to 3e8).
+
 `check_plausibility` compares the starting values (and the bounds the
 optimiser may move them to) with `RANGES` and returns one line per value
 outside; by default it also issues each as a `PlausibilityWarning`
@@ -31,7 +46,7 @@ import math
 import warnings
 from typing import Mapping, Sequence
 
-__all__ = ["PlausibilityWarning", "RANGES", "check_plausibility"]
+__all__ = ["LIMITS", "PlausibilityWarning", "RANGES", "check_plausibility"]
 
 
 class PlausibilityWarning(UserWarning):
@@ -46,6 +61,16 @@ RANGES = {
     "prestrain": (-0.02, 0.05, ""),
     "rib_spacing": (0.05, 0.5, "m"),
     "rib_spacing_over_chord": (0.05, 0.5, ""),
+}
+
+#: The numerical and drawing limits of the module docstring: least span nodes of a design, largest seam
+#: allowance (mm), most terms of a cut pattern or rib shape per contour node, and the Reynolds numbers of
+#: NeuralFoil's training data.
+LIMITS = {
+    "n_span": 17,
+    "seam_allowance_mm": 50.0,
+    "terms_per_contour_node": 0.25,
+    "reynolds": (10**2.5, 10**8.5),
 }
 
 _COVERED = "outside the range the model is validated for"
@@ -73,7 +98,9 @@ def _value(quantity: str, value: float) -> str:
 
 
 def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | None = None, *,
-                       warn: bool = True) -> list[str]:
+                       grid: tuple[int, int] | None = None, design: bool = True,
+                       seam_allowance_mm: float | None = None, terms: Mapping | None = None,
+                       reynolds: float | None = None, warn: bool = True) -> list[str]:
     """Lines for every input outside the covered ranges (`RANGES`); none for the default case.
 
     Args:
@@ -87,6 +114,13 @@ def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | Non
         bounds: ``{name: (low, high)}`` of the optimised variables: a bound of
             the pressure or a prestrain outside its range is reported too (the
             design may land there).
+        grid: ``(n_span, n_contour)`` of the design's grid (None: not checked).
+        design: whether the grid is that of a design (its optimum depends on
+            the span nodes, `LIMITS`) rather than of one equilibrium.
+        seam_allowance_mm: the patterns' seam allowance, mm (None: not checked).
+        terms: ``{"cut_pattern" or "rib_shape": terms per direction or surface}``
+            of the fields designed (needs ``grid``).
+        reynolds: the chord Reynolds number of the aerodynamic comparison (None: none).
         warn: also issue each line as a `PlausibilityWarning`.
 
     Returns:
@@ -126,6 +160,24 @@ def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | Non
         check("rib_spacing", f"{where}rib spacing", spacing)
         if chord > 0:
             check("rib_spacing_over_chord", f"{where}rib spacing / chord", float(spacing) / float(chord))
+    if grid is not None and design and grid[0] < LIMITS["n_span"]:
+        lines.append(f"the design grid has {grid[0]} span nodes, fewer than the {LIMITS['n_span']} that the "
+                     "grid study found enough (on 9 the default design lands at 6.4 kPa and rib scale 0.945 "
+                     f"against 1 kPa and 1.0 on 17 or more; README, \"Inverse design\" under \"Studies\"): give --n-span "
+                     f"{LIMITS['n_span']} or more, or --refine")
+    if seam_allowance_mm is not None and seam_allowance_mm > LIMITS["seam_allowance_mm"]:
+        lines.append(f"seam allowance {seam_allowance_mm:g} mm is more than {LIMITS['seam_allowance_mm']:g} mm: "
+                     "the value is in millimetres; check it")
+    for name, count in dict(terms or {}).items():
+        if grid is not None and count > LIMITS["terms_per_contour_node"] * grid[1]:
+            lines.append(f"{name.replace('_', ' ')} of {count} terms on {grid[1]} contour nodes: more than a "
+                         f"quarter of the nodes ({LIMITS['terms_per_contour_node'] * grid[1]:g}), so each term "
+                         f"spans fewer than 4 nodes and the grid cannot resolve it; give --{name.replace('_', '-')}"
+                         f"-terms {int(LIMITS['terms_per_contour_node'] * grid[1])} or fewer, or more --n-contour")
+    low, high = LIMITS["reynolds"]
+    if reynolds is not None and not low <= reynolds <= high:
+        lines.append(f"Reynolds number {reynolds:.3g} lies outside NeuralFoil's training data ({low:.1g} to "
+                     f"{high:.1g}): its lift, drag and moment there are extrapolated; treat them as unvalidated")
     if warn:
         for line in lines:
             warnings.warn(line, PlausibilityWarning, stacklevel=2)

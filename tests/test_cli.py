@@ -95,7 +95,8 @@ def test_the_default_case_writes_a_complete_folder_and_says_where(default_run):
     assert set(summary["files"]) == FOLDER and summary["skipped"] == {}
     assert _leftovers(base) == []
     assert done.stdout.strip().splitlines()[-1].startswith(f"wrote {out.resolve()}")
-    assert done.stderr == ""  # stderr is not a terminal: no progress bar
+    # stderr is not a terminal: no progress bar (only the warning of the small test grid)
+    assert [line for line in done.stderr.splitlines() if "span nodes, fewer than" not in line] == []
 
 
 def test_the_summary_holds_inputs_results_errors_constraints_timings_version(default_run):
@@ -132,7 +133,8 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert constraints["values"]["min_tension_floor"] == 0.0
     assert constraints["values"]["max_tension"] > constraints["values"]["min_tension"]
     assert constraints["violated_at_start"] == {}  # the default start is taut
-    assert summary["warnings"] == []  # the default case lies inside the validated ranges
+    # the default case lies inside the validated ranges (the small test grid is below the design's 17 span nodes)
+    assert [w for w in summary["warnings"] if "span nodes, fewer than" not in w] == []
     timings = summary["timings_s"]
     assert {"setup", "optimisation", "report", "total"} <= set(timings)
     assert timings["total"] >= timings["optimisation"] + timings["report"] > 0
@@ -708,6 +710,7 @@ def test_every_stop_ends_the_run_with_its_code_and_writes_nothing(start_cli, run
         elif out.exists():
             shutil.rmtree(out)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    stderr = "".join(line for line in stderr.splitlines(True) if "span nodes, fewer than" not in line)
     assert process.returncode == (143 if signum == signal.SIGTERM else 130), stderr
     assert stdout == "" and len(stderr.splitlines()) == 1 and stderr.endswith("\n"), stderr
     assert stderr.startswith(f"optimise-pressure: {word}") and "after" not in stderr, stderr

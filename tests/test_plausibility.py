@@ -1,4 +1,6 @@
-"""Plausibility warnings (issue 19, item 7): inputs outside the ranges the model and its validation cover.
+"""Plausibility warnings: inputs outside the ranges the model and its validation cover, and numerical
+and drawing choices outside their limits (a coarse design grid, a seam allowance, field terms, the
+Reynolds number of the aerodynamic comparison).
 
 `check_plausibility` is pure Python (no solve); the command's use of it is
 checked in tests/test_cli.py (one bay) and tests/test_wing_cli.py (a wing).
@@ -9,7 +11,7 @@ import warnings
 import pytest
 
 from forward_solver import Fabric, Parameters
-from inverse_design.plausibility import RANGES, PlausibilityWarning, check_plausibility
+from inverse_design.plausibility import LIMITS, RANGES, PlausibilityWarning, check_plausibility
 
 DEFAULT = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
 DEFAULT_BOUNDS = {"pressure": (1e3, 1e5), "rib_thickness_scale": (0.7, 1.0)}
@@ -65,3 +67,49 @@ def test_the_issue_inputs_warn_and_warn_false_only_returns_the_lines():
     assert issubclass(PlausibilityWarning, UserWarning)
     assert set(RANGES) == {"pressure", "stiffness", "stiffness_ratio", "prestrain", "rib_spacing",
                            "rib_spacing_over_chord"}
+
+
+@pytest.mark.parametrize("keywords, expected", [
+    (dict(grid=(9, 32)), "the design grid has 9 span nodes, fewer than the 17 that the grid study found enough "
+                         "(on 9 the default design lands at 6.4 kPa and rib scale 0.945 against 1 kPa and 1.0 on "
+                         "17 or more"),
+    (dict(seam_allowance_mm=60.0), "seam allowance 60 mm is more than 50 mm: the value is in millimetres"),
+    (dict(grid=(17, 32), terms={"cut_pattern": 9}),
+     "cut pattern of 9 terms on 32 contour nodes: more than a quarter of the nodes (8)"),
+    (dict(grid=(17, 64), terms={"rib_shape": 17}), "give --rib-shape-terms 16 or fewer, or more --n-contour"),
+    (dict(reynolds=1e9), "Reynolds number 1e+09 lies outside NeuralFoil's training data (3e+02 to 3e+08)"),
+    (dict(reynolds=100.0), "Reynolds number 100 lies outside NeuralFoil's training data"),
+], ids=["coarse grid", "seam allowance", "cut pattern terms", "rib shape terms", "reynolds high", "reynolds low"])
+def test_numerical_and_drawing_choices_outside_their_limits_give_one_line(keywords, expected):
+    with pytest.warns(PlausibilityWarning):
+        lines = check_plausibility(Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, **keywords)
+    assert len(lines) == 1 and expected in lines[0], lines
+
+
+def test_the_limits_themselves_give_no_line():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_plausibility(Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, grid=(17, 64), seam_allowance_mm=50.0,
+                                  terms={"cut_pattern": 16, "rib_shape": 4}, reynolds=1e6) == []
+        # one equilibrium on a coarse grid is not a design: its optimum is not in question
+        assert check_plausibility(Fabric(), DEFAULT, BAY, grid=(5, 32), design=False) == []
+    low, high = LIMITS["reynolds"]
+    assert low == pytest.approx(316.2, rel=1e-3) and high == pytest.approx(3.162e8, rel=1e-3)
+
+
+def test_the_command_shows_and_records_the_new_lines(tmp_path, capsys):
+    from inverse_design.app import case as case_reader, command
+
+    args, sources = case_reader.parse_arguments(
+        ["--n-span", "9", "--n-contour", "32", "--seam-allowance", "80", "--variables", "pressure,cut_pattern",
+         "--cut-pattern-terms", "12", "--aero", "--reynolds", "5e9", "--out", str(tmp_path / "out")])
+    lines = command.plausibility(args, Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, sources)
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"optimise-pressure: warning: {line}" for line in lines]  # what the summary records
+    assert [line.split(" ")[:2] for line in lines] == [["the", "design"], ["seam", "allowance"], ["cut", "pattern"],
+                                                      ["Reynolds", "number"]]
+    # --refine reaches 17 span nodes from 9: the grid is then not in question; --no-patterns draws no seam.
+    args, sources = case_reader.parse_arguments(["--n-span", "9", "--refine", "--seam-allowance", "80",
+                                                 "--no-patterns", "--quiet"])
+    assert command.plausibility(args, Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, sources) == []
+    assert capsys.readouterr().err == ""

@@ -75,7 +75,8 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     bays = summary["bays"]
     assert [b["result"] for b in bays] == ["converged"] * 3
     assert summary["errors"]["after"]["rms"] < summary["errors"]["before"]["rms"]
-    assert summary["warnings"] == [] and summary["constraints"]["violated_at_start"] == {}
+    assert [w for w in summary["warnings"] if "span nodes, fewer than" not in w] == []  # (the test grid's)
+    assert summary["constraints"]["violated_at_start"] == {}
     patterns = {f"pattern_bay_{k}_{panel}.{kind}" for k in range(3) for panel in ("upper", "lower")
                 for kind in ("dxf", "svg")}
     assert set(summary["files"]) == {"summary.json", "wing.npz", "skin.obj", "skin.stl", "history.png",
@@ -119,7 +120,7 @@ def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, c
                        "validated for (0.05 to 0.5 m); check the value, or treat the result as unvalidated",
                        "optimise-pressure: warning: bay 1: rib spacing / chord 133.3 lies outside the range the "
                        "model is validated for (0.05 to 0.5); check the value, or treat the result as unvalidated"]
-    assert len(err) == 3  # then the interruption
+    assert len(err) == 4 and "span nodes, fewer than" in err[2]  # the test grid's, then the interruption
 
 
 def test_the_built_in_example_is_a_valid_wing_case():

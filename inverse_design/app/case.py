@@ -34,13 +34,15 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from pathlib import Path
 
 from .options import OPTION_SPECS, PROG, InputError, build_parser
 
-__all__ = ["EXAMPLE_CASE", "RIB_KEYS", "case_path", "design_inputs", "load_section", "parse_arguments",
-           "read_config", "read_ribs", "variable_names"]
+__all__ = ["EXAMPLE_CASE", "RIB_KEYS", "case_path", "check_equilibrium_method", "check_option_combinations",
+           "design_inputs", "ignored_options", "load_section", "parse_arguments", "read_config", "read_ribs",
+           "report_may_write", "variable_names"]
 
 #: Keys of a ``[[rib]]`` table: required, then optional.
 RIB_KEYS = (("section", "chord", "station"), ("target",))
@@ -154,7 +156,125 @@ def parse_arguments(argv: list[str] | None = None) -> tuple[argparse.Namespace, 
     config = read_config(given["config"]) if given.get("config") else {}
     merged = {**defaults, **config, **given}
     sources = {**{k: "config" for k in config}, **{k: "command line" for k in given}}
-    return argparse.Namespace(**merged), sources
+    args = argparse.Namespace(**merged)
+    check_option_combinations(args, sources)
+    return args, sources
+
+
+#: The fields a design can take that ``--evaluate`` (one equilibrium at the given values) has no values for.
+_DESIGNED_FIELDS = ("rib_shape", "cut_pattern")
+
+
+def _given(name: str, sources: dict) -> str:
+    """How an option was given, for a message: ``--min-tension`` or ``min-tension (case file)``."""
+    flag = name.replace("_", "-")
+    return f"--{flag}" if sources.get(name) != "config" else f"{flag} (case file)"
+
+
+def check_option_combinations(args: argparse.Namespace, sources: dict) -> None:
+    """Refuse options that contradict each other (exit 2, one line each; docs/errors.md).
+
+    * ``--no-tension-constraints`` with ``--min-tension`` or ``--max-tension``
+      given: the limit would be dropped.
+    * ``--evaluate`` with ``--refine``: one equilibrium has no design to refine.
+    * ``--evaluate`` with ``rib_shape`` or ``cut_pattern`` among ``--variables``:
+      it solves at the given values, and those fields have none to give (it
+      would solve the unshaped rib and the uniform cut).
+    * ``--method root`` on a single bay with variables other than the
+      pressure alone: root finding (brentq) solves for the pressure alone.
+
+    Raises:
+        InputError: naming both options and what to change.
+    """
+    if args.no_tension_constraints:
+        for name in ("min_tension", "max_tension"):
+            if name in sources:
+                raise InputError(f"{_given(name, sources)} {getattr(args, name):g} N/m contradicts "
+                                 f"{_given('no_tension_constraints', sources)}, which drops both tension limits: "
+                                 "give one or the other")
+    if args.evaluate and args.refine:
+        raise InputError(f"{_given('refine', sources)} polishes a design on a finer grid, and "
+                         f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: give one or "
+                         "the other")
+    names = variable_names(args.variables)
+    if args.evaluate and "variables" in sources:
+        fields = [n for n in names if n in _DESIGNED_FIELDS]
+        if fields:
+            raise InputError(f"{_given('evaluate', sources)} solves at the given values, and {', '.join(fields)} "
+                             f"of {_given('variables', sources)} has no value to give (it would solve the unshaped "
+                             "rib and the uniform cut): drop --evaluate to design it, or drop it from --variables")
+    if args.method == "root" and getattr(args, "wing", None) is None and names != ("pressure",):
+        raise InputError(f"{_given('method', sources)} root solves for the pressure alone (brentq on one scalar "
+                         f"condition at mid-bay, --root-condition), got --variables {','.join(names)}: give "
+                         "--variables pressure, or another --method")
+
+
+def ignored_options(args: argparse.Namespace, sources: dict) -> list[str]:
+    """Options given that the run does not use: one warning line each (docs/errors.md).
+
+    ``--variables`` with ``--evaluate`` (the equilibrium is solved at the
+    given values; its fields are refused, `check_option_combinations`).
+    """
+    lines = []
+    if args.evaluate and "variables" in sources:
+        lines.append(f"{_given('variables', sources)} {args.variables} is ignored with "
+                     f"{_given('evaluate', sources)}, which solves the equilibrium at the given values "
+                     "(--pressure, --prestrain-span, ...) and optimises nothing")
+    return lines
+
+
+def check_equilibrium_method(args: argparse.Namespace, strategy: str) -> None:
+    """Refuse an ``--equilibrium-method`` the design's forward solves cannot honour.
+
+    On the CPU every method is honoured, for one bay and a wing alike (each
+    bay solved in turn, `forward_solver.solve_bays`'s "loop"). On an
+    accelerator (``strategy`` "batch") the design relaxes every bay together
+    in one batch: relax alone (auto becomes relax). ``--evaluate`` solves one
+    equilibrium with the method asked for, anywhere.
+
+    Raises:
+        InputError: for newton or relax+newton in a design on the batch.
+    """
+    if strategy == "batch" and not args.evaluate and args.equilibrium_method not in ("auto", "relax"):
+        raise InputError(f"--equilibrium-method {args.equilibrium_method}: on this machine's accelerator the "
+                         "design relaxes its bays together in one batch, which runs relax alone: give "
+                         "--equilibrium-method relax or auto, or run on the CPU (JAX_PLATFORMS=cpu)")
+
+
+#: Names of `export.REPORT_FILES` that a kind of run never writes (`report_may_write`).
+_NEVER = {
+    "bay": r"wing\.npz|wing_overview\.png|bay_[0-9]+_.*|rib_[0-9]+\.dat",
+    "wing": r"equilibrium\.npz|cut_pattern\.csv|mid_bay_section\.png|deviation\.png|tensions\.png|aero\.png|"
+            r"rib\.dat|rib_design\.png",
+    "evaluate": r"history\.png|rib(_[0-9]+)?\.dat|rib_design\.png",
+    "unshaped": r"rib(_[0-9]+)?\.dat|rib_design\.png",
+    "no_aero": r"aero\.png",
+    "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
+}
+
+
+def report_may_write(args: argparse.Namespace):
+    """A predicate on a file name: whether the report of this run may write a file of that name.
+
+    Every report file name (`export.REPORT_FILES`) but those this kind of run
+    never writes (a wing's files in a single bay's run, ``history.png`` with
+    ``--evaluate``, ``rib.dat`` without a rib shape, the patterns with
+    ``--no-patterns``, ...). Used to refuse, before the long work, a file an
+    earlier report wrote and someone edited since, which this run would
+    replace (`export.check_output_folder`); the run keeps such a file that it
+    does not write, and says so.
+    """
+    never = [_NEVER["wing" if getattr(args, "wing", None) is not None else "bay"]]
+    if args.evaluate:
+        never.append(_NEVER["evaluate"])
+    if "rib_shape" not in variable_names(args.variables):
+        never.append(_NEVER["unshaped"])
+    if not args.aero:
+        never.append(_NEVER["no_aero"])
+    if args.no_patterns:
+        never.append(_NEVER["no_patterns"])
+    excluded = re.compile("|".join(f"(?:{n})" for n in never))
+    return lambda name: excluded.fullmatch(name) is None
 
 
 def load_section(spec: str, option: str):

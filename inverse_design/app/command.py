@@ -17,7 +17,7 @@ import threading
 import time
 
 from . import interrupts
-from .case import design_inputs, load_section
+from .case import check_equilibrium_method, design_inputs, ignored_options, load_section, report_may_write
 from .options import PROG, InputError
 from .resources import check_grid
 
@@ -74,7 +74,9 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     runs (`optimise_pressure` for one bay, `optimise_wing` for a wing; every
     method, ``--refine``, the solver options), and `report.write_report`
     writes the folder. A wing refuses the options of `NOT_FOR_A_WING` with
-    one line that says why.
+    one line that says why. The whole run holds the output folder's lock
+    (`export.output_lock`): a second run into the same ``--out`` meanwhile is
+    refused at once (ValueError, exit 2) instead of racing this one.
 
     ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
     start of `main`, so that it includes importing JAX. ``workers`` (a
@@ -85,6 +87,14 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         ValueError: bad input (`InputError` among them).
         forward_solver.ConvergenceError: a forward solve failed (nothing written).
     """
+    from .export import output_lock
+
+    with output_lock(args.out):
+        return _run(args, sources, progress=progress, started=started, workers=workers)
+
+
+def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started: float | None, workers) -> dict:
+    """`run`'s work, under the lock."""
     start = time.perf_counter() if started is None else started
     sources = dict(sources or {})
     wing_ribs = getattr(args, "wing", None)  # [[rib]] tables of a case file, or None: one bay
@@ -115,13 +125,14 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
                     common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
     from forward_solver import Bay, ConvergenceError, Fabric, Scene, Wing, solve_equilibrium
     from forward_solver.adjoint import GRADIENT_RTOL
-    from forward_solver.wing import check_rib_gaps
+    from forward_solver.wing import check_rib_gaps, default_strategy
 
     from ..optimise import optimise_pressure, optimise_wing, refine_design
     from .export import check_output_folder
     from .report import write_report
 
-    out = check_output_folder(args.out)  # before the long work, not after it
+    out = check_output_folder(args.out, replaces=report_may_write(args))  # before the long work, not after it
+    check_equilibrium_method(args, default_strategy())
     if workers is None:  # (the workers import them in their own processes)
         _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
@@ -139,7 +150,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         # Ribs too close for the grid are refused before any warning about the inputs is shown.
         check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
         notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
-                                                     for k in range(len(chords) - 1)], bounds)
+                                                     for k in range(len(chords) - 1)], bounds, sources)
         timings = {"setup": time.perf_counter() - start}
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
@@ -159,7 +170,8 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
         return Scene(bay, fabric)
 
     scene = scene_on(args.n_span)
-    notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds)
+    notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds,
+                         sources)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
                   rib=rib, rib_limits=rib_limits, warnings=notes, patterns=not args.no_patterns,
@@ -188,12 +200,28 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
 
 
-def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds) -> list[str]:
-    """`inverse_design.plausibility.check_plausibility`'s lines for the inputs, each shown on stderr as
-    one ``warning:`` line (unless ``--quiet``); the caller records them in the summary."""
-    from ..plausibility import check_plausibility
+def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds, sources: dict | None = None) -> list[str]:
+    """The run's warning lines, each shown on stderr as one ``warning:`` line (unless ``--quiet``);
+    the caller records them in the summary: `inverse_design.plausibility.check_plausibility`'s (the
+    inputs, the grid, the seam allowance, the terms of the designed fields, the Reynolds number),
+    the options given that the run ignores (`case.ignored_options`), and the earlier report's files
+    that changed since and that this run keeps (`export.changed_files`)."""
+    from ..plausibility import LIMITS, check_plausibility
+    from .case import variable_names
+    from .export import changed_files
 
-    lines = check_plausibility(fabric, parameters, bays, bounds, warn=False)
+    names = variable_names(args.variables)
+    terms = {name: getattr(args, f"{name}_terms") for name in ("cut_pattern", "rib_shape")
+             if name in names and not args.evaluate}
+    lines = check_plausibility(fabric, parameters, bays, bounds, grid=(args.n_span, args.n_contour),
+                               design=not (args.evaluate or args.refine and 2 * args.n_span - 1 >= LIMITS["n_span"]),
+                               seam_allowance_mm=None if args.no_patterns else args.seam_allowance,
+                               terms=terms, reynolds=args.reynolds if args.aero else None, warn=False)
+    lines += ignored_options(args, sources or {})
+    may_write = report_may_write(args)
+    lines += [f"{name} in {args.out} changed since the earlier report wrote it: kept as it is (this run "
+              f"writes no {name}), and no longer counted as a report file"
+              for name in changed_files(args.out) if not may_write(name)]
     if not args.quiet:
         for line in lines:
             print(f"{PROG}: warning: {line}", file=sys.stderr)

@@ -59,6 +59,15 @@ def _number(unit: str = "", positive: bool = False):
     return number
 
 
+def _folder(text):
+    """``--out``: any path but the empty one (an unset shell variable, which would mean the current folder)."""
+    if text == "":
+        raise argparse.ArgumentTypeError("the output folder is an empty name (an unset shell variable?), which "
+                                         "would put the report's files in the current folder: give a folder "
+                                         "name, or . for the current folder")
+    return text
+
+
 def _whole(text):
     try:
         return int(text)
@@ -210,8 +219,9 @@ OPTIONS = (
     ("optimiser", "--equilibrium-method", dict(default="auto", choices=("auto", "relax", "newton", "relax+newton"),
                                                help="equilibrium solver: auto tries relax+newton, then Newton from "
                                                "where it stopped, then Newton with load continuation, before "
-                                               "failing; or one method alone (default auto; a wing: auto or "
-                                               "relax, its bays relaxed together)")),
+                                               "failing; or one method alone, for every bay of a wing too "
+                                               "(default auto; a design on an accelerator relaxes its bays "
+                                               "together: auto or relax)")),
     ("aero", "--aero", dict(action="store_true",
                             help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
                             "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
@@ -225,7 +235,7 @@ OPTIONS = (
     ("output", "--config", dict(default=None, metavar="CASE.TOML",
                                 help="read options from a TOML file (keys: the long option names); "
                                 "command-line options override it")),
-    ("output", "--out", dict(default="optimise-pressure-out", metavar="DIR",
+    ("output", "--out", dict(type=_folder, default="optimise-pressure-out", metavar="DIR",
                              help="output folder (may be . or hold other files, which are never touched): "
                              "an earlier report's files in it are replaced (or removed) when the new "
                              "report is complete (default optimise-pressure-out)")),
@@ -299,8 +309,18 @@ grid size: a grid whose estimated peak memory exceeds half of the available memo
 or with more than {max_nodes:,} nodes, is refused before the run (exit 2, with the
 estimate); --allow-large-grid runs it anyway.
 
-exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input; 130 interrupted
-(Ctrl-C); 143 terminated (SIGTERM). Interrupted or terminated, nothing is written.
+A second run into a DIR that a run is writing is refused (exit 2); a file of an earlier
+report that was edited since (its size or SHA-256 differ from summary.json's record) is
+kept: a run that would replace it is refused (exit 2), any other says so and leaves it.
+
+exit codes: 0 done; 1 the run failed (the reason on stderr); 2 bad input (every refusal
+and its message: docs/errors.md); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+Interrupted or terminated, nothing is written.
+
+environment: JAX's compiled functions are kept between runs in $INFLATABLE_WING_CACHE,
+else $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/inflatable-wing/jax, else
+~/.cache/inflatable-wing/jax (--no-compilation-cache: not kept; deleting the folder
+clears it); the README lists every variable the command reads.
 """.format(max_nodes=MAX_NODES)
 
 
