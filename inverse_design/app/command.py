@@ -19,7 +19,7 @@ import time
 from . import interrupts
 from .case import check_equilibrium_method, design_inputs, ignored_options, load_section, report_may_write
 from .options import PROG, InputError
-from .resources import check_grid
+from .resources import check_flat_panels, check_grid
 
 __all__ = ["NOT_FOR_A_WING", "WORKER_MODULES", "plausibility", "run", "safe_point"]
 
@@ -151,6 +151,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
         notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
                                                      for k in range(len(chords) - 1)], bounds, sources)
+        if not args.no_patterns:  # (before the design: the report would fail after it)
+            check_flat_panels(wing.scenes(fabric, n_span=args.n_span, n_contour=args.n_contour), initial, wing=True)
         timings = {"setup": time.perf_counter() - start}
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
@@ -172,6 +174,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     scene = scene_on(args.n_span)
     notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds,
                          sources)
+    if not args.no_patterns:
+        check_flat_panels([scene], initial)
     inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
     report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
                   rib=rib, rib_limits=rib_limits, warnings=notes, patterns=not args.no_patterns,
