@@ -480,6 +480,8 @@ def output_lock(out_dir):
     the same folder meanwhile is refused at once. Where a lock cannot be
     taken (no ``fcntl``, a file system without locks, a folder that cannot
     be written: `check_output_folder` says so) the block runs without one.
+    A killed run (SIGKILL) leaves its lock file but not the lock: the next
+    run takes it, and removes the file when it ends.
 
     Raises:
         ValueError: if another process holds the lock, naming it; or for
