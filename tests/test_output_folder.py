@@ -196,3 +196,24 @@ def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path, capsys):
 def test_runs_into_different_folders_do_not_wait_for_each_other(tmp_path):
     with export.output_lock(tmp_path / "one"), export.output_lock(tmp_path / "two"):
         assert _hidden(tmp_path) == [".one.lock", ".two.lock"]
+
+
+def test_a_run_in_another_process_holds_the_folder_until_it_ends(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys\nfrom inverse_design.app.export import output_lock\n"
+         f"with output_lock({str(out)!r}):\n    print('locked', flush=True)\n    sys.stdin.read()\n"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    try:
+        assert holder.stdout.readline() == "locked\n"
+        code = cli.main(["--evaluate", *SMALL, "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == 2 and f"(process {holder.pid} holds the lock {tmp_path / '.out.lock'})" in err
+    finally:
+        holder.communicate("", timeout=120)
+    assert holder.returncode == 0 and _hidden(tmp_path) == []
+    with export.output_lock(out):  # free again
+        pass

@@ -488,38 +488,37 @@ def output_lock(out_dir):
             an empty or too long name (`check_output_folder`).
     """
     out = _check_name(out_dir)
-    if fcntl is None:
-        yield out
-        return
-    try:
-        if out.is_dir():
-            path = out / _LOCK_INSIDE
-        else:
-            ancestor = out.parent
-            while not _is_dir(ancestor) and ancestor != ancestor.parent:
-                ancestor = ancestor.parent
-            path = ancestor / ("." + ".".join(out.relative_to(ancestor).parts) + ".lock")
-        fd = _take_lock(path)
-    except OSError:  # (cannot create it here: the folder checks say why)
-        yield out
-        return
-    if isinstance(fd, str):
-        raise ValueError(f"another run is writing the output folder {out} ({fd} holds the lock {path}); wait "
-                         "for it to end, or choose another output folder")
+    if _is_dir(out):
+        path = out / _LOCK_INSIDE
+    else:
+        ancestor = out.parent
+        while not _is_dir(ancestor) and ancestor != ancestor.parent:
+            ancestor = ancestor.parent
+        path = ancestor / ("." + ".".join(out.relative_to(ancestor).parts) + ".lock")
+    fd, holder = None, ""
+    if fcntl is not None:
+        try:
+            fd, holder = _take_lock(path)
+        except OSError:  # (cannot create it there: the folder checks say why)
+            fd = None
+    if holder:
+        raise ValueError(f"another run is writing the output folder {out} ({holder} holds the lock {path}); "
+                         "wait for it to end, or choose another output folder")
     try:
         yield out
     finally:
-        try:
-            os.unlink(path)
-        except OSError:
-            pass
-        os.close(fd)
+        if fd is not None:
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
+            os.close(fd)
 
 
-def _take_lock(path: Path):
-    """An open descriptor of the lock file ``path`` under an exclusive ``flock``; the holder (a string)
-    if another process holds it. Raises OSError where the file cannot be made or locks are not
-    available."""
+def _take_lock(path: Path) -> tuple[int | None, str]:
+    """``(descriptor, "")``: an open descriptor of the lock file ``path`` under an exclusive ``flock``;
+    or ``(None, holder)`` if another process holds it. Raises OSError where the file cannot be made or
+    locks are not available."""
     while True:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
@@ -533,7 +532,7 @@ def _take_lock(path: Path):
             except OSError:
                 holder = ""
             os.close(fd)
-            return f"process {holder}" if holder.isdigit() else "another process"
+            return None, f"process {holder}" if holder.isdigit() else "another process"
         try:  # still the file at ``path``? (its holder removes it as it releases the lock)
             same = os.stat(path).st_ino == os.fstat(fd).st_ino
         except FileNotFoundError:
@@ -541,7 +540,7 @@ def _take_lock(path: Path):
         if same:
             os.ftruncate(fd, 0)
             os.write(fd, str(os.getpid()).encode())
-            return fd
+            return fd, ""
         os.close(fd)
 
 
