@@ -1,4 +1,4 @@
-"""The cut as a designed field against the uniform cut and the rib shape (issue 21, item 2).
+"""The cut as a designed field against the uniform cut and the rib shape.
 
 The default case (NACA 2412 ribs and target, chord 1 m, ribs 0.25 m apart,
 fabric 2e5 N/m, prestrain start 2% both ways, pressure 1-100 kPa,

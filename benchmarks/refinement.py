@@ -1,6 +1,6 @@
 """Grid refinement of the default wing bay: mid-bay bulge and thickness against grid.
 
-Default bay (issue 3): NACA 2412 ribs, chord 1 m, ribs 0.25 m apart, stiffness
+Default bay: NACA 2412 ribs, chord 1 m, ribs 0.25 m apart, stiffness
 2e5 N/m both ways, Poisson 0.25, prestrain 0.5% both ways, 20 kPa. For each
 nested grid it solves to a relative residual of 1e-10 (relaxation with grid
 sequencing and half-bay symmetry) and prints the mid-bay maximum outward

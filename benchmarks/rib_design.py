@@ -1,4 +1,4 @@
-"""Rib shape against pressure and thickness scale: how far the errors fall (issue 12, item 1).
+"""Rib shape against pressure and thickness scale: how far the errors fall.
 
 The default case (NACA 2412 ribs and target, chord 1 m, ribs 0.25 m apart,
 fabric 2e5 N/m, 2% prestrain, wrinkle-free skin, bay-average objective,

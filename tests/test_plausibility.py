@@ -1,4 +1,4 @@
-"""Plausibility warnings (issue 19, item 7): inputs outside the ranges the model and its validation cover.
+"""Plausibility warnings: inputs outside the ranges the model and its validation cover.
 
 `check_plausibility` is pure Python (no solve); the command's use of it is
 checked in tests/test_cli.py (one bay) and tests/test_wing_cli.py (a wing).
