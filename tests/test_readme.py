@@ -194,3 +194,16 @@ def test_the_performance_page_is_up_to_date():
 
     assert performance_doc.PAGE.read_text() == performance_doc.render(), (
         "docs/performance.md differs from benchmarks/results/*.json: run python benchmarks/performance_doc.py")
+
+
+def test_the_readme_is_short_and_the_repository_cites_no_issue_numbers():
+    # The README is for users (at most 400 lines; the detail lives in docs/), and what the repository
+    # says of itself cites the paper's equations and docs/, never a tracker the reader cannot see.
+    assert len(README.read_text().splitlines()) <= 400
+    pattern = re.compile(r"\b[Ii]ssues? #?\d")
+    pages = [README, *(ROOT / "docs").glob("*.md"), *(ROOT / "notebooks").glob("*.ipynb"),
+             *(ROOT / "notebooks").glob("*.md"), *(ROOT / "benchmarks").glob("*.py"),
+             *(ROOT / "benchmarks").glob("*.md"), *(ROOT / "tests").rglob("*.py"), *(ROOT / "tests").rglob("*.md")]
+    found = [f"{page.relative_to(ROOT)}:{n}" for page in pages
+             for n, line in enumerate(page.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not found, f"issue numbers in {', '.join(found)}: say what the code does and cite docs/ instead"
