@@ -25,17 +25,11 @@ to reach 1e-10 relative on 9x32, 17x64 and 17x128, for the pressure tangent's
 right-hand side and a random one, with block Jacobi and with the scalar
 Gershgorin (`forces.node_stiffness`) preconditioner.
 
-Measured (x86_64, 2 cores shared with other jobs, CPU only, JAX 0.10.2):
-on the CPU the batch does not pay. 9x32: vmap 117-132 eq/s for B = 1-4,
-falling to 65 at B = 32, against 110-153 for the loop; 17x64: vmap 18 eq/s
-at B = 1 falling to 8.7 at B = 32, against 22-29 for the loop (which also
-has grid sequencing and the half bay's head start: 1500 fine steps for the
-batch). A relaxation step is already vectorised over the nodes, so batching
-adds no parallelism on two cores, and under ``vmap`` the relaxation's mass
-refresh (a ``lax.cond``) becomes a select that evaluates the stiffness
-bound every step. Sharded over two forced host devices, 9x32 B = 8 ran at
-127 eq/s (against 107-112 unsharded in other runs). The compiled batch is
-for accelerators and for composing with ``jax.grad``; on this CPU, loop.
+A relaxation step is already vectorised over the nodes, so on a CPU
+batching adds little; the compiled batch is for accelerators and for
+composing with ``jax.grad``. Writes ``benchmarks/results/batched_equilibrium.json``
+(``batched_equilibrium_quick.json`` with ``--quick``; ``--krylov``:
+``krylov_products.json``) for ``benchmarks/performance_doc.py``.
 
 Usage: python benchmarks/batched_equilibrium.py [--quick] [--krylov]
 """
@@ -45,7 +39,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +49,8 @@ import numpy as np
 from jax.scipy.sparse.linalg import bicgstab
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.results import save_result  # noqa: E402
 from forward_solver import Bay, Fabric, Parameters, Scene, forces, solve_equilibrium
 from forward_solver.implicit import ImplicitAdjoint
 from forward_solver.krylov import KRYLOV_RTOL, jacobian_operator
@@ -153,16 +151,35 @@ def main() -> None:
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores; "
           f"JAX {jax.__version__}, devices {jax.devices()}")
     print(f"default bay, pressures 5-50 kPa, rtol {RTOL:g}; eq/s = batch size / wall time")
+    table = []
     for n_span, n_contour in grids:
         print(f"\n{n_span}x{n_contour}:\n  {'B':>3} {'vmap eq/s':>10} {'loop eq/s':>10} {'ratio':>7} "
               f"{'max steps':>9} {'compile s':>9}")
-        batched(default_scene(n_span, n_contour), sizes)
+        for size, warm, compile_s, steps, loop, sharded in batched(default_scene(n_span, n_contour), sizes):
+            table.append([f"{n_span}x{n_contour}", size, round(size / warm, 2), round(size / loop, 2),
+                          round(loop / warm, 2), steps, round(compile_s, 1), "yes" if sharded else "no"])
+    save_result("batched_equilibrium_quick" if args.quick else "batched_equilibrium",
+                title="Equilibria per second: one jit(vmap) batch against a loop of solves",
+                command="python benchmarks/batched_equilibrium.py" + (" --quick" if args.quick else ""),
+                columns=["grid", "batch size", "vmap, equilibria/s", "loop, equilibria/s", "loop time / vmap time",
+                         "max steps in the batch", "vmap compile, s", "sharded"],
+                rows=table,
+                notes=[f"Default bay, a batch of pressures spread over 5-50 kPa, rtol {RTOL:g}; vmap timed on a "
+                       "second call at 1% higher pressures, the loop after a warm-up solve; devices "
+                       f"{', '.join(str(d) for d in jax.devices())}."])
     if args.krylov:
         print(f"\nBiCGStab matrix-vector products to {KRYLOV_RTOL:g} relative (achieved residual):")
+        krylov = []
         for n_span, n_contour in [(9, 32), (17, 64), (17, 128)]:
             counts = krylov_products(n_span, n_contour)
             cells = "  ".join(f"{rhs}/{pre} {n} ({r:.1e})" for (rhs, pre), (n, r) in counts.items())
             print(f"  {n_span}x{n_contour}: {cells}", flush=True)
+            krylov += [[f"{n_span}x{n_contour}", rhs, pre, n, f"{r:.1e}"] for (rhs, pre), (n, r) in counts.items()]
+        save_result("krylov_products", title="Matrix-vector products of the matrix-free implicit derivative",
+                    command="python benchmarks/batched_equilibrium.py --quick --krylov",
+                    columns=["grid", "right-hand side", "preconditioner", "products", "achieved residual"],
+                    rows=krylov,
+                    notes=[f"BiCGStab (two products per iteration) to {KRYLOV_RTOL:g} relative on the default bay."])
 
 
 if __name__ == "__main__":

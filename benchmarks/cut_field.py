@@ -1,4 +1,4 @@
-"""The cut as a designed field against the uniform cut and the rib shape (issue 21, item 2).
+"""The cut as a designed field against the uniform cut and the rib shape.
 
 The default case (NACA 2412 ribs and target, chord 1 m, ribs 0.25 m apart,
 fabric 2e5 N/m, prestrain start 2% both ways, pressure 1-100 kPa,
@@ -45,21 +45,23 @@ and measured there by the design's own objective (`DesignProblem.measure`).
 Run:  PYTHONPATH=. python benchmarks/cut_field.py [--n-span 17 --n-contour 64 --cases a,b,c,d,e]
       PYTHONPATH=. python benchmarks/cut_field.py --wing [--cases U,V,S,P,R]
 
-Writes benchmarks/results/cut_field_<cases>.json and prints a Markdown table.
+Writes benchmarks/results/cut_field_<cases>_<grid>.json (``cut_field_wing_...`` with ``--wing``;
+``benchmarks/performance_doc.py`` puts them in docs/performance.md) and prints a Markdown table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks.results import save_result  # noqa: E402
 
 
 def main() -> None:
@@ -164,7 +166,21 @@ def main() -> None:
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
 
-    _save(rows, f"cut_field_{args.cases.replace(',', '')}_{args.n_span}x{args.n_contour}.json")
+    save_result(f"cut_field_{args.cases.replace(',', '')}_{args.n_span}x{args.n_contour}",
+                title=f"Cut-pattern designs of the default bay, cases {args.cases}", command=_command(args),
+                columns=["design", "success", "bay-average rms, chord", "bay-average max, chord", "mid-bay rms, chord",
+                         "mid-bay max, chord", "LE recession, mm", "bay-average rms on finer grids",
+                         "least / largest tension, N/m", "forward solves", "wall time, s"],
+                rows=[[r["case"], "yes" if r["success"] else "no", f"{r['average_rms']:.3e}", f"{r['average_max']:.3e}",
+                       f"{r['mid_bay_rms']:.3e}", f"{r['mid_bay_max']:.3e}", round(r["le_recession_mm"], 1),
+                       " / ".join(f"{f['average_rms']:.3e}" for f in r["finer"]),
+                       f"{r['min_tension']:.0f} / {r['max_tension']:.0f}", r["solves"], round(r["wall_s"], 1)]
+                      for r in rows],
+                notes=[f"The default case (NACA 2412, chord 1 m, ribs 0.25 m apart, prestrain start 2%, pressure "
+                       f"1-100 kPa, rib thickness scale 0.7-1, wrinkle-free, bay-average objective) on "
+                       f"{args.n_span}x{args.n_contour}, each design re-solved at its parameters on the finer grids; "
+                       "the LE recession is the chordwise shift of the mid-bay section's nose behind the "
+                       "target's; wall time includes compilation. The cases: the module docstring."])
     print("\n| design | success | bay-average rms | bay-average max | mid-bay rms | mid-bay max | LE recession mm | "
           "bay-average rms on finer grids | min/max tension N/m | solves | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -175,16 +191,18 @@ def main() -> None:
               f"{r['min_tension']:.0f} / {r['max_tension']:.0f} | {r['solves']} | {r['wall_s']:.0f} |")
 
 
-def _save(rows: list, name: str) -> None:
-    """Write ``rows`` with the machine to benchmarks/results/``name``."""
-    import jax
-
-    record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.platform(),
-              "processor": platform.processor(), "cpus": os.cpu_count(), "load": os.getloadavg(),
-              "jax": jax.__version__, "rows": rows}
-    out = ROOT / "benchmarks" / "results"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / name).write_text(json.dumps(record, indent=2, default=float) + "\n")
+def _command(args) -> str:
+    """The command line that reproduces this run."""
+    words = ["python benchmarks/cut_field.py"] + (["--wing"] if args.wing else [])
+    if args.cases != "a,b,c,d,e":
+        words.append(f"--cases {args.cases}")
+    if (args.n_span, args.n_contour) != (17, 64):
+        words.append(f"--n-span {args.n_span} --n-contour {args.n_contour}")
+    if args.max_iterations != 60:
+        words.append(f"--max-iterations {args.max_iterations}")
+    if args.no_finer:
+        words.append("--no-finer")
+    return " ".join(words)
 
 
 def wing_main(args) -> None:
@@ -280,7 +298,22 @@ def wing_main(args) -> None:
                                  "max_tension": float(np.max(measured["max_tension"]))})
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
-    _save(rows, f"cut_field_wing_{keys.replace(',', '')}_{args.n_span}x{args.n_contour}.json")
+    save_result(f"cut_field_wing_{keys.replace(',', '')}_{args.n_span}x{args.n_contour}",
+                title=f"Cut-pattern designs of the built-in 3-bay wing, cases {keys}", command=_command(args),
+                columns=["design", "result", "wing rms", "bay-average rms, root to tip", "mid-bay rms", "bay max",
+                         "LE recession, mm", "wing rms on finer grids", "least / largest tension, N/m",
+                         "wing solves", "wall time, s"],
+                rows=[[r["case"], "success" if r["success"] else "failure", f"{r['wing_rms']:.3e}",
+                       ", ".join(f"{v:.2e}" for v in r["bay_rms"]), ", ".join(f"{v:.2e}" for v in r["mid_bay_rms"]),
+                       ", ".join(f"{v:.2e}" for v in r["bay_max"]),
+                       ", ".join(f"{v:.1f}" for v in r["le_recession_mm"]),
+                       " / ".join(f"{f['wing_rms']:.3e}" for f in r["finer"]),
+                       f"{r['min_tension']:.1f} / {r['max_tension']:.0f}", r["solves"], round(r["wall_s"], 1)]
+                      for r in rows],
+                notes=[f"The built-in wing (inverse_design/cases/wing_taper.toml: three bays of NACA 2412, chords "
+                       f"1.0/0.85/0.7/0.6 m, ribs 0.25 m apart) on {args.n_span}x{args.n_contour} per bay, start "
+                       "10 kPa and 2% prestrains, average objective, the default method; errors are fractions of "
+                       "the local chord, bays root to tip; wall time includes compilation."])
     print("\n| design | result | wing rms | bay-average rms, root to tip | mid-bay rms | bay max | LE recession "
           "mm | wing rms on 33x64 / 17x128 | least / largest tension N/m | wing solves | s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")

@@ -14,6 +14,9 @@ passes a sanity check or not: its thickness and camber evaluate at 201
 cosine-spaced stations without an exception and its maximum thickness lies
 in (0, 0.5) chord.
 
+The outcome counts and the message classes are saved as
+``benchmarks/results/dat_database.json`` for ``benchmarks/performance_doc.py``.
+
 Usage: python benchmarks/dat_database.py FOLDER [--examples N] [--list CLASS_SUBSTRING]
 """
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 import time
 import warnings
 from collections import Counter, defaultdict
@@ -28,7 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from targets import load_airfoil
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.results import save_result  # noqa: E402
+from targets import load_airfoil  # noqa: E402
 
 
 def message_class(message: str, path: Path | None) -> str:
@@ -117,6 +123,15 @@ def main() -> None:
     table("Refusals by message class", refused)
     table("Warnings by message class", warned)
     table("Loaded but failing the sanity check", insane)
+    rows = [[key, outcome[key], ""] for key in ("loaded", "loaded with warning", "refused", "crashed")]
+    rows.append(["loaded, failing sanity", n_insane, ""])
+    for title, groups in (("refused", refused), ("warned", warned), ("failing sanity", insane)):
+        rows += [[f"{title}: {text}", len(names), ", ".join(names[: args.examples])]
+                 for text, names in sorted(groups.items(), key=lambda item: -len(item[1]))]
+    save_result("dat_database", title="Every .dat file of an airfoil database through load_airfoil",
+                command=f"python benchmarks/dat_database.py {args.folder}", columns=["outcome", "files", "e.g."],
+                rows=rows, notes=[f"{len(files)} files in {args.folder}; the module docstring says how to get "
+                                  "the UIUC database that AeroSandbox ships and what the sanity check is."])
 
 
 if __name__ == "__main__":

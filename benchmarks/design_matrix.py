@@ -1,4 +1,4 @@
-"""Robustness of `optimise_pressure` over a matrix of cases (issue 11, item 4).
+"""Robustness of `optimise_pressure` over a matrix of cases.
 
 Every combination of
 

@@ -90,7 +90,10 @@ error, log-log, one curve per method: the fastest time reaching each error,
 the other runs as faint markers). ``--quick`` runs coarse grids only (9x64,
 paper scheme on 9x32 with a 20k-step cap), 20 kPa, one repeat, with a coarse
 reference (5x32, 9x64, 17x128): its errors are indicative only; it checks
-that everything runs (about a minute, for CI).
+that everything runs (about a minute, for CI). The table and the three
+comparisons are also saved as ``benchmarks/results/runtime_vs_error.json``
+(``runtime_vs_error_quick.json`` with ``--quick``) for
+``benchmarks/performance_doc.py``.
 
 Usage::
 
@@ -117,6 +120,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.interpolate import CubicSpline  # noqa: E402
 
+import sys  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.results import save_result  # noqa: E402
 from forward_solver import Bay, Fabric, PressureRamp, Scene, simulate, solve_equilibrium  # noqa: E402
 from targets import naca  # noqa: E402
 
@@ -540,6 +547,48 @@ def plot(rows, path, title_extra):
     plt.close(fig)
 
 
+# ------------------------------------------------------------------ record
+def save_record(rows, comparison, targets, warm, references, quick):
+    """The table and the three comparisons as one result file (``benchmarks/results.py``)."""
+    def cell(value, spec):
+        return None if value is None else spec.format(value)
+
+    table = [[r["method"], r["pressure_kPa"], r["grid"], cell(r["rtol"], "{:.0e}"), r["result"], r["steps"],
+              cell(r["residual"], "{:.1e}"), cell(r["compile_s"], "{:.2f}"), cell(r["solve_s"], "{:.4f}"),
+              r["repeats"], cell(r["error_chord"], "{:.2e}")] for r in rows]
+    notes = [f"Default bay (NACA {AIRFOIL}, chord {CHORD:g} m, ribs {RIB_SPACING:g} m apart, prestrain "
+             f"{PRESTRAIN[0]:.1%} span, {PRESTRAIN[1]:.1%} chord); error: the largest normal distance of the mid-bay nodes from a reference "
+             "mid-bay curve Richardson-extrapolated from finer grids, in fractions of chord (the module "
+             "docstring defines every column); solve s: median of warm calls; compile s: first call "
+             "minus that median."]
+    for pressure, (_, info) in sorted(references.items()):
+        notes.append(f"Reference at {pressure / 1e3:g} kPa: observed order {info['order']:.2f}, Richardson "
+                     f"correction {info['correction']:.1e} chord, spline floor {info['spline_floor']:.1e} "
+                     "(errors near these are not resolved).")
+    c = comparison
+    notes.append(f"Paper's scheme against relaxation, {c['grid']}, rtol {c['rtol']:.0e}: paper "
+                 f"{c['paper_result']} after {c['paper_steps']} steps in {c['paper_s']:.3f} s, relaxation "
+                 f"{c['relax_s']:.4f} s ({c['ratio_kind']} {c['ratio']:.0f}x); largest node difference "
+                 f"{c['node_difference_chord']:.1e} chord.")
+    for target, best in targets.items():
+        notes.append(f"Fastest run to {target:.0e} chord mid-bay error at {DEFAULT_PRESSURE / 1e3:g} kPa: "
+                     + ("none in this run" if best is None else
+                        f"{best['method']} {best['grid']} rtol {best['rtol']:.0e}, error "
+                        f"{best['error_chord']:.2e} in {best['solve_s']:.4f} s"))
+    for w in warm:
+        notes.append(f"Warm start after +1% pressure, {w['method']}: {w['warm_steps']} steps, {w['warm_s']:.4f} s "
+                     f"against {w['cold_steps']} steps, {w['cold_s']:.4f} s cold "
+                     f"({w['cold_s'] / w['warm_s']:.1f}x).")
+    if quick:
+        notes.append("--quick: coarse grids, one repeat and a coarse reference: the errors are indicative only.")
+    return save_result("runtime_vs_error_quick" if quick else "runtime_vs_error",
+                       title="Solve time against mid-bay error" + (" (quick run)" if quick else ""),
+                       command="python benchmarks/runtime_vs_error.py" + (" --quick" if quick else ""),
+                       columns=["method", "pressure, kPa", "grid", "rtol", "result", "steps", "residual",
+                                "compile, s", "solve, s", "repeats", "mid-bay error, chord"],
+                       rows=table, notes=notes)
+
+
 # -------------------------------------------------------------------- main
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -590,7 +639,8 @@ def main(argv=None):
         writer.writerows(rows)
     png_path = args.out / "runtime_vs_error.png"
     plot(rows, png_path, " (--quick)" if args.quick else "")
-    log(f"\nwrote {csv_path} and {png_path}; total {time.perf_counter() - start:.0f} s on {machine}")
+    json_path = save_record(rows, comparison, targets, warm, references, args.quick)
+    log(f"\nwrote {csv_path}, {png_path} and {json_path}; total {time.perf_counter() - start:.0f} s on {machine}")
     return {"rows": rows, "comparison": comparison, "targets": targets, "warm": warm,
             "references": {p: info for p, (_, info) in references.items()}}
 

@@ -9,7 +9,9 @@ step already shortens itself for the damping terms (see
 Courant coefficient alone breaks the scheme and how damping changes the
 number of steps to rest.
 
-Writes ``benchmarks/results/stability_map.png`` and prints the table.
+Writes ``benchmarks/results/stability_map.png``, prints the table and saves it as
+``benchmarks/results/stability_map_<bay>.json`` (``benchmarks/performance_doc.py`` puts it in
+docs/performance.md).
 
 Usage: python benchmarks/stability_map.py [--bay panel|wing] [--aero 0.05] [--max-steps 60000]
 """
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -27,6 +30,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.results import save_result  # noqa: E402
 from forward_solver import Bay, Fabric, PressureRamp, Result, Scene, simulate  # noqa: E402
 from targets import naca  # noqa: E402
 
@@ -57,6 +62,7 @@ def main() -> None:
     print(f"{'courant':>8} {'eta':>6} {'result':>18} {'steps':>8} {'dt s':>10} {'wall s':>7}")
     codes = np.zeros((len(VISCOSITY), len(COURANT)), dtype=int)
     steps = np.zeros_like(codes)
+    table = []
     for a, viscosity in enumerate(VISCOSITY):
         scene = Scene(bay, Fabric(viscosity=viscosity), aerodynamic_damping=args.aero)
         for b, courant in enumerate(COURANT):
@@ -64,6 +70,8 @@ def main() -> None:
             sol = simulate(scene, PressureRamp(args.pressure, 0.002), 0.005, courant=courant,
                            rtol=args.rtol, max_steps=args.max_steps, throw=False)
             codes[a, b], steps[a, b] = int(sol.result), sol.steps
+            table.append([courant, viscosity, sol.result.name, sol.steps, f"{sol.extra['dt']:.2e}",
+                          round(time.perf_counter() - start, 2)])
             print(f"{courant:>8.2f} {viscosity:>6.1f} {sol.result.name:>18} {sol.steps:>8} "
                   f"{sol.extra['dt']:>10.2e} {time.perf_counter() - start:>7.2f}", flush=True)
 
@@ -91,6 +99,17 @@ def main() -> None:
     path = args.out / "stability_map.png"
     fig.savefig(path, dpi=130)
     print(f"wrote {path}")
+    command = f"python benchmarks/stability_map.py --bay {args.bay}"
+    for flag, value, default in (("--aero", args.aero, 0.05), ("--pressure", args.pressure, 2e4),
+                                 ("--max-steps", args.max_steps, 60_000), ("--rtol", args.rtol, 1e-6)):
+        command += "" if value == default else f" {flag} {value:g}"
+    save_result(f"stability_map_{args.bay}", title=f"Stability of the paper's explicit scheme, {args.bay} bay",
+                command=command,
+                columns=["Courant coefficient", "viscosity, N s/m", "result", "steps", "time step, s", "wall time, s"],
+                rows=table,
+                notes=[f"{args.bay} bay {bay.n_span}x{bay.n_contour}, {args.pressure:g} Pa ramped over 2 ms, "
+                       f"prestrain 0.5%, aerodynamic damping nu_n = {args.aero:g} s/m (eq. 11), run to rest at "
+                       f"rtol {args.rtol:g} or {args.max_steps} steps with simulate (eq. 14-17)."])
 
 
 if __name__ == "__main__":

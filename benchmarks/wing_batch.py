@@ -25,31 +25,17 @@ reported apart for the batch); the ratios are taken in the same run.
 wrinkle-free skin) and reports solves, wall time (compilation included),
 pressure and errors.
 
-Writes ``benchmarks/results/wing_batch.json`` (git-ignored) and prints a table.
-
-Measured 2026-11-23 (x86_64 AMD EPYC, 2 cores shared with other jobs, CPU
-only, JAX 0.10.2), jit loop / batch time: 9x32 1.05, 0.98, 0.58 and 17x64
-0.66, 0.68, 0.85 for 2, 4, 8 bays (eager loop / batch within 0.07 of
-those): on this CPU the batch never pays (a relaxation step is already
-vectorised over the nodes, and a vmapped loop runs every bay until the
-slowest stops). The 3-bay design at 17x64: pressure alone 7686 Pa in 4
-solves, 21 s, rms 8.62e-3 -> 7.12e-3, wrinkle floor active; with a rib
-shape per rib 2.98e-3 after 60 solves (139 s) at SLSQP's 50-iteration cap.
+Writes ``benchmarks/results/wing_batch.json`` (``wing_batch_quick.json`` with ``--quick``) and,
+with ``--design``, ``wing_batch_design.json``, and prints a table; ``benchmarks/performance_doc.py``
+puts them in docs/performance.md.
 
 ``--strategies`` times `forward_solver.solve_bays`'s two strategies on
 tapered wings of 3 and 8 bays at 17x64 (same wings and tolerance): "loop"
 (per-bay `solve_equilibrium`: grid sequencing, the default on a CPU) and
 "batch" (the one ``jit(vmap)`` relaxation, the default on an accelerator),
 cold (first call in the run, compilation included) and warm (median of
-``--repeats``); writes ``benchmarks/results/wing_strategies.json``.
-Measured 2026-11-23 (same machine, load average about 3 on the 2 cores,
-``--repeats 3``): 3 bays loop cold 9.94 s, warm 0.29 s; batch cold 3.38 s,
-warm 0.49 s; 8 bays loop 0.76 s cold (the per-bay code was compiled by the
-3-bay run: same grid), 0.75 s warm; batch cold 4.69 s (a new batch size
-recompiles), warm 1.74 s. Warm, the loop is 1.70x (3 bays) and 2.33x (8
-bays) faster than the batch, which is why "auto" picks the loop on a CPU;
-cold, the loop's first call compiles its grid levels (about 3x the batch's
-compile for 3 bays) but only once per grid shape, whatever the bay count.
+``--repeats``); writes ``benchmarks/results/wing_strategies.json``. On a CPU the loop is
+faster warm, which is why "auto" picks it there.
 
 ``--rib-shapes`` (with ``--design``) designs the same wing again with a
 rib shape per rib (``variables=("pressure", "rib_shape")``, 4 Bernstein
@@ -61,9 +47,6 @@ Usage: python benchmarks/wing_batch.py [--quick] [--repeats 3] [--design [--rib-
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -81,7 +64,8 @@ from targets import naca
 RTOL = 1e-10
 MAX_STEPS = 200_000
 PARAMETERS = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
-RESULTS = Path(__file__).resolve().parent / "results"
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.results import save_result  # noqa: E402
 
 
 def tapered_wing(n_bays: int) -> Wing:
@@ -179,7 +163,7 @@ def design_case(fabric, variables=("pressure",)) -> dict:
                                  "prestrain_chord": values["prestrain_chord"]},
                         bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
                         constraints=Constraints(), n_span=values["n_span"], n_contour=values["n_contour"],
-                        method="slsqp")  # the README's table is SLSQP's; design_solves.py compares methods
+                        method="slsqp")  # design_solves.py compares the methods
     wall = time.perf_counter() - t
     return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
             "grid": [values["n_span"], values["n_contour"]],
@@ -206,11 +190,16 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.strategies:
         rows = strategies(Fabric(), args.repeats)
-        record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "cpus": os.cpu_count(),
-                  "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "rtol": RTOL,
-                  "repeats": args.repeats, "strategies": rows}
-        RESULTS.mkdir(exist_ok=True)
-        (RESULTS / "wing_strategies.json").write_text(json.dumps(record, indent=2, default=str) + "\n")
+        save_result("wing_strategies", title="solve_bays: the loop of bays against the jit(vmap) batch",
+                    command=f"python benchmarks/wing_batch.py --strategies --repeats {args.repeats}",
+                    columns=["grid", "bays", "loop cold, s", "loop warm, s", "batch cold, s", "batch warm, s",
+                             "batch / loop warm"],
+                    rows=[["{}x{}".format(*r["grid"]), r["bays"], round(r["loop_cold_s"], 3), round(r["loop_warm_s"], 3),
+                           round(r["batch_cold_s"], 3), round(r["batch_warm_s"], 3),
+                           round(r["batch_over_loop_warm"], 2)] for r in rows],
+                    notes=[f"Tapered wings, every bay to a relative residual of {RTOL:g}; cold: the first call in "
+                           f"the run, compilation included; warm: median of {args.repeats}; devices "
+                           f"{', '.join(str(d) for d in jax.devices())}."])
         return 0
     grids = [(9, 32)] if args.quick else [(9, 32), (17, 64)]
     counts = [2, 4] if args.quick else [2, 4, 8]
@@ -239,11 +228,36 @@ def main(argv=None) -> int:
         designs.append(design_case(fabric))
         if args.rib_shapes:
             designs.append(design_case(fabric, ("pressure", "rib_shape")))
-    record = {"date": time.strftime("%Y-%m-%d"), "machine": platform.machine(), "cpus": os.cpu_count(),
-              "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "rtol": RTOL,
-              "parameters": PARAMETERS.as_floats().as_dict(), "repeats": repeats, "rows": rows, "designs": designs}
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "wing_batch.json").write_text(json.dumps(record, indent=2, default=str) + "\n")
+    if rows:
+        save_result("wing_batch_quick" if args.quick else "wing_batch",
+                    title="N bays: one jit(vmap) batch against a loop of bays" + (" (quick run)" if args.quick else ""),
+                    command="python benchmarks/wing_batch.py" + (" --quick" if args.quick else f" --repeats {repeats}"),
+                    columns=["grid", "bays", "batch, s", "jit loop, s", "eager loop, s", "jit loop / batch",
+                             "eager loop / batch", "steps: batch (slowest bay), jit loop (sum), eager loop (sum)"],
+                    rows=[["{}x{}".format(*r["grid"]), r["bays"], round(r["batch_s"], 3), round(r["jit_loop_s"], 3),
+                           round(r["eager_loop_s"], 3), round(r["jit_loop_over_batch"], 2),
+                           round(r["eager_loop_over_batch"], 2),
+                           f"{max(r['batch_steps'])}, {sum(r['jit_loop_steps'])}, {sum(r['eager_loop_steps'])}"]
+                          for r in rows],
+                    notes=[f"Tapered NACA 2412 wings, every bay to a relative residual of {RTOL:g}; median of "
+                           f"{repeats} calls after a compiling call; ratios above 1: the batch is faster. "
+                           "\"jit loop\" calls the same compiled relaxation once per bay, \"eager loop\" calls "
+                           f"solve_equilibrium per bay; devices {', '.join(str(d) for d in jax.devices())}."])
+    if designs:
+        save_result("wing_batch_design", title="The built-in 3-bay wing designed with SLSQP",
+                    command="python benchmarks/wing_batch.py --no-batch --design"
+                            + (" --rib-shapes" if args.rib_shapes else ""),
+                    columns=["variables", "result", "pressure, Pa", "wing solves", "wall time, s",
+                             "wing rms before -> after", "bay rms after, root to tip", "bay min tension, N/m"],
+                    rows=[[", ".join(d["variables"]), "success" if d["success"] else d["message"][:80],
+                           round(d["pressure_pa"]), d["solves"], round(d["wall_time_s"], 1),
+                           f"{d['rms_before']:.3e} -> {d['rms_after']:.3e}",
+                           ", ".join(f"{v:.2e}" for v in d["bay_rms_after"]),
+                           ", ".join(f"{v:.3g}" for v in d["bay_min_tension"])] for d in designs],
+                    notes=["inverse_design/cases/wing_taper.toml (chords 1.0/0.85/0.7/0.6 m, ribs 0.25 m apart, "
+                           "17x64 per bay, start 10 kPa, bounds 1-100 kPa, prestrain 2% fixed, wrinkle-free, "
+                           "average objective), method slsqp; wall time includes compilation; errors in fractions "
+                           "of the local chord."])
     print(f"{'grid':>6} {'bays':>4} {'batch s':>8} {'jit loop s':>10} {'eager loop s':>12} "
           f"{'jit/batch':>9} {'eager/batch':>11}  steps (batch max, jit loop sum, eager sum)")
     for r in rows:

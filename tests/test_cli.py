@@ -367,7 +367,7 @@ def _snapshot(folder: Path) -> dict:
 
 
 def test_out_dot_writes_beside_the_users_files_and_replaces_only_its_own(run_cli, tmp_path):
-    # Issue 19: --out . in a folder holding the case file, an airfoil and an earlier summary.json
+    # Once, --out . in a folder holding the case file, an airfoil and an earlier summary.json
     # deleted the case file and the airfoil (the folder was replaced whole).
     foreign = {"case.toml": b"n-span = 5\nn-contour = 32\n", "clarky.dat": bytes(range(256)),
                "notes.txt": b"keep me\n"}
@@ -613,7 +613,7 @@ def test_a_stop_inside_a_deferred_section_waits_for_its_end():
                                            (signal.SIGINT, "zip"), (signal.SIGTERM, "clean-up")])
 def test_a_stop_lost_in_a_gc_callback_still_ends_the_run_and_writes_nothing(tmp_path, capsys, monkeypatch,
                                                                            signum, where):
-    # Issue 19: a Ctrl-C or SIGTERM arriving while JAX's gc callback ran was lost; the run wrote its
+    # Once, a Ctrl-C or SIGTERM arriving while JAX's gc callback ran was lost; the run wrote its
     # folder and exited 0. Here the stop is sent from inside a gc callback at the start of the run
     # (before the solve) or while the report is being written (inside its staging folder).
     # "zip": it arrives while a member of the .npz file is being closed, which made zipfile raise

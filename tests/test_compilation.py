@@ -1,4 +1,4 @@
-"""New parameter values never recompile (issue 20, item 1), counted with `jax.monitoring`."""
+"""New parameter values never recompile, counted with `jax.monitoring`."""
 
 import os
 

@@ -1,4 +1,4 @@
-"""The cut as a designed field (issue 21, items 1 and 5): basis, cut lengths, derivatives, design, input.
+"""The cut as a designed field: basis, cut lengths, derivatives, design, input.
 
 The B-spline basis is checked against its defining properties (partition of
 unity, non-negative, end interpolation), the cut lengths against eq. (12)

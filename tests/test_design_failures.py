@@ -1,4 +1,4 @@
-"""Inverse design when a forward solve fails mid-way: a DesignResult that says so, no NaN (issue 7)."""
+"""Inverse design when a forward solve fails mid-way: a DesignResult that says so, no NaN."""
 
 import numpy as np
 import pytest

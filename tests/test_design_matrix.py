@@ -1,4 +1,4 @@
-"""Inverse design over a covering subset of the case matrix (issue 11, item 4).
+"""Inverse design over a covering subset of the case matrix.
 
 `benchmarks/design_matrix.py` runs every combination of grid (7x64, 9x64,
 17x128), objective (mid_bay, average, worst), design variables (pressure;

@@ -1,4 +1,4 @@
-"""Equilibrium and dynamics of the bay against closed forms and invariances (issue 3)."""
+"""Equilibrium and dynamics of the bay against closed forms and invariances (docs/validation.md)."""
 
 import jax
 import numpy as np
@@ -33,7 +33,7 @@ def small_reference(small_panel):
 
 def test_inflated_strip_matches_circular_arc():
     # Aspect ratio 8: the mid-section is far from the clamped ends, so plane strain holds.
-    # Tolerance 1% of the sag (issue 3); the grid gives ~0.1%.
+    # Tolerance 1% of the sag (docs/validation.md); the grid gives ~0.1%.
     width, length = 0.25, 2.0
     bay = Bay.flat_panel(width=width, length=length, n_span=17, n_contour=129)
     fabric = Fabric()
@@ -73,7 +73,7 @@ def test_equilibrium_does_not_depend_on_mass_or_damping(small_panel, small_refer
 
 @pytest.mark.parametrize("courant", [0.25, 0.9])
 def test_equilibrium_does_not_depend_on_the_time_step(small_panel, small_reference, courant):
-    # Issue 7 invariance: the Courant coefficient (eq. 16) sets the time step, 3.6x apart
+    # Invariance: the Courant coefficient (eq. 16) sets the time step, 3.6x apart
     # here, not the rest state. Same tolerance and reason as above.
     scene = Scene(small_panel, Fabric(viscosity=20.0), aerodynamic_damping=0.02)
     sol = simulate(scene, PressureRamp(PRESSURE, 0.005), PRESTRAIN, courant=courant, rtol=1e-9,

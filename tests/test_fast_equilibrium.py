@@ -1,4 +1,4 @@
-"""The fast equilibrium paths agree with each other and with the paper's scheme (issue 4)."""
+"""The fast equilibrium paths agree with each other and with the paper's scheme."""
 
 import numpy as np
 import pytest
@@ -35,7 +35,7 @@ def test_half_bay_equals_full_bay(wing_bay, wing_reference):
 
 def test_paper_scheme_reaches_the_same_wing_equilibrium():
     # The physical-mass scheme (eq. 14-17) run to rest lands on the relaxation equilibrium.
-    # Tolerance 1e-6 chord (issue 4). A coarse contour keeps its CFL step affordable: cosine
+    # Tolerance 1e-6 chord (docs/validation.md). A coarse contour keeps its CFL step affordable: cosine
     # spacing makes the leading-edge cells tiny and the viscous term shortens the step there
     # further, so light viscosity (in-plane modes) plus aerodynamic damping (the bulge) it is.
     bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32)
@@ -55,7 +55,7 @@ def test_every_method_reaches_the_same_shape(wing_bay, wing_reference, method):
 
 
 def test_warm_start_after_one_percent_pressure_change(wing_bay):
-    # Issue 4: a warm start takes at most a quarter of the steps of a cold start. With
+    # A warm start takes at most a quarter of the steps of a cold start. With
     # relax+newton it reuses the previous factorised Jacobian (chord Newton): a handful of
     # residual evaluations and triangular solves instead of a relaxation.
     scene = Scene(wing_bay, Fabric())
@@ -75,7 +75,7 @@ def test_warm_start_after_one_percent_pressure_change(wing_bay):
 
 
 def test_equilibrium_does_not_depend_on_the_starting_shape(wing_bay, wing_reference):
-    # Issue 7: a taut skin (no wrinkles here) has one equilibrium. Start from the mounted shape
+    # A taut skin (no wrinkles here) has one equilibrium. Start from the mounted shape
     # pushed in and out by smooth bumps of up to 1 cm on every free node; tolerance: both solves
     # stop at rtol 1e-11, so shapes agree to ~1e-9 chord.
     assert not wing_reference.wrinkled.any()

@@ -1,4 +1,4 @@
-"""method="gauss_newton" (issue 20, item 2): few wing solves, the same optimum as SLSQP, limits kept.
+"""method="gauss_newton": few wing solves, the same optimum as SLSQP, limits kept.
 
 One 2-bay tapered wing on 5x32 grids (chords 1.0 -> 0.8 -> 0.6 m, ribs 0.25 m
 apart, NACA 2412) is shared by every test, so its solves compile once.

@@ -1,4 +1,4 @@
-"""Messages that named the wrong cause (issue 19, item 6) and load_airfoil on a folder (item 9).
+"""Messages that named the wrong cause and load_airfoil on a folder.
 
 Each test reproduces the input that gave the misleading message and checks
 the message now names the real cause and what to change.

@@ -1,4 +1,4 @@
-"""Cut-ready patterns (issue 21, items 3-5): the flat panels and rib templates, read back with ezdxf.
+"""Cut-ready patterns: the flat panels and rib templates, read back with ezdxf.
 
 One small design point (NACA 2412, 5x32 grid: the equilibrium at a pressure
 and two prestrains, as ``--evaluate`` writes it; the report's pattern path is

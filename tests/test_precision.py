@@ -1,4 +1,4 @@
-"""float32: an opt-in precision of the explicit solvers, used only where it meets the tolerance (issue 7).
+"""float32: an opt-in precision of the explicit solvers, used only where it meets the tolerance.
 
 The rule (`forward_solver._precision`): the iteration runs in float32, the
 stop test and the returned `Solution` in float64; an ``rtol`` below the

@@ -1,4 +1,4 @@
-"""The program store (`forward_solver.programs`, issue 20, item 1): a stored program loads in a fresh
+"""The program store (`forward_solver.programs`): a stored program loads in a fresh
 process without being traced or lowered, gives what the jitted function gives, falls back to the
 jitted function under transformations and without a store, and never keeps what it must not."""
 

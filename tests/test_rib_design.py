@@ -1,4 +1,4 @@
-"""Rib-shape design (issue 12, item 1): variables, manufacturability limits, cut lengths, outputs.
+"""Rib-shape design: variables, manufacturability limits, cut lengths, outputs.
 
 The geometry checks use closed forms: the circle through three points
 (Menger curvature of points on a circle is exactly 1/R), equal Bernstein

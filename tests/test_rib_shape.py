@@ -1,4 +1,4 @@
-"""Rib shape as design variables (issue 12, item 1): the offset, the mounted rib, its derivatives.
+"""Rib shape as design variables: the offset, the mounted rib, its derivatives.
 
 The offset is checked against its closed form (Bernstein polynomials sum to
 one, so equal coefficients give ``a C(x)``), the mounted rib against the

@@ -1,4 +1,4 @@
-"""One forward entry for N >= 1 bays (issue 18, item 2): `solve_bays`, its two strategies and one adjoint.
+"""One forward entry for N >= 1 bays: `solve_bays`, its two strategies and one adjoint.
 
 A 3-bay NACA 2412 wing tapering 1.0 -> 0.8 -> 0.7 -> 0.6 m on 9x32 grids,
 with one rib shape per rib. The "loop" (per-bay `solve_equilibrium`: host

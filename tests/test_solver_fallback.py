@@ -1,4 +1,4 @@
-"""Issue 19, items 4 and 9: the equilibrium fallback chain, the early end of a hopeless
+"""The equilibrium fallback chain, the early end of a hopeless
 relaxation, the solver options of the command and the design loop, optax's stopping rule and a
 missing target."""
 

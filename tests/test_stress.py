@@ -1,4 +1,4 @@
-"""Property-based stress test over the parameter range engineers are likely to try (issue 7).
+"""Property-based stress test over the parameter range engineers are likely to try.
 
 Every random scene must either converge (finite nodes, residual at or below the
 tolerance) or return a documented failure code with a message; never NaN

@@ -1,4 +1,4 @@
-"""Sections with open and closed trailing edges in one bay or wing (issue 19, item 3).
+"""Sections with open and closed trailing edges in one bay or wing.
 
 Real `.dat` files (tests/data/uiuc, README there) mostly have an open
 trailing edge (a gap of 0.08-0.18% of chord here) and NACA codes a closed
@@ -95,8 +95,8 @@ def test_a_wing_mixing_naca_codes_and_real_files_solves(mode):
 
 
 def test_the_command_closes_a_mixed_wing_and_says_so(tmp_path, monkeypatch, capsys):
-    # The case file lives in its own folder with the .dat beside it, named relatively (item 6:
-    # resolved against the case file's folder), and the command runs from elsewhere.
+    # The case file lives in its own folder with the .dat beside it, named relatively
+    # (resolved against the case file's folder), and the command runs from elsewhere.
     folder = tmp_path / "case"
     folder.mkdir()
     shutil.copy(UIUC / "tasopt-b.dat", folder / "tasopt-b.dat")

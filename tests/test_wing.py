@@ -1,4 +1,4 @@
-"""A whole wing (issue 12, item 2, first part): tapered bays solved as one batch.
+"""A whole wing: tapered bays solved as one batch.
 
 Three bays of a NACA 2412 wing tapering from 1.0 m to 0.6 m on 9x32 grids.
 Each bay of the batched solve must be the equilibrium that the eager

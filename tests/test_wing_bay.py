@@ -31,7 +31,7 @@ def test_long_cylinder_obeys_laplace_law():
     # Circular ribs 20 radii apart: at mid-bay the skin is a cylinder. Hoop tension must be
     # p r (Laplace) and the radius must solve the hoop law of eq. (10):
     #   p r (1 - nu^2) = E22 (r (1 + pc) / R - 1) + nu E11 e11,
-    # with e11 the axial strain there. Tolerance 0.5% (issue 3); the 64-node polygon's
+    # with e11 the axial strain there. Tolerance 0.5% (docs/validation.md); the 64-node polygon's
     # apothem cos(pi/64) puts the discrete answer ~0.1-0.3% off the continuum.
     radius, pressure, ps, pc = 0.05, 5e4, 0.005, 0.005
     fabric = Fabric()

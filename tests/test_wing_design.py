@@ -1,4 +1,4 @@
-"""The wing design loop (issue 12, item 2): one pressure for every bay of a tapered wing.
+"""The wing design loop: one pressure for every bay of a tapered wing.
 
 One 3-bay wing on 9x32 grids is shared by the gradient, optimum and limit
 tests (its bays' solves compile once): chords 1.0 -> 0.8 -> 0.7 -> 0.6 m, stations 0.25 m apart, NACA
