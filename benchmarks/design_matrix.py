@@ -155,8 +155,7 @@ def write(out: Path, records: list[dict], command: str, grid_text: str, machine_
              *[f"failed: {line}" for line in failures]]
     payload = {"title": f"Design matrix: every documented variable set on four cases, by method ({grid_text})",
                "command": command, "machine": machine_text, "date": datetime.date.today().isoformat(),
-               "columns": COLUMNS, "rows": [[r[c] for c in COLUMNS] for r in records], "notes": notes,
-               "messages": [r["message"] for r in records]}
+               "columns": COLUMNS, "rows": [[r[c] for c in COLUMNS] for r in records], "notes": notes}
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp")
     tmp.write_text(json.dumps(payload, indent=1) + "\n")
@@ -177,7 +176,9 @@ def main(argv=None) -> int:
     methods = [m.strip() for m in options.methods.split(",") if m.strip()]
     grid = tuple(options.grid) if options.grid else None
     grid_text = "x".join(map(str, grid)) if grid else "17x64"
-    command = "PYTHONPATH=. python benchmarks/design_matrix.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    given = sys.argv[1:] if argv is None else argv
+    shown = [a for a, b in zip(given, [None, *given]) if a != "--out" and b != "--out"]  # (not the JSON's place)
+    command = " ".join(["PYTHONPATH=. python benchmarks/design_matrix.py", *shown])
     machine_text = machine()
     print(machine_text, flush=True)
     records = []

@@ -14,9 +14,11 @@ constraints and their derivatives in `problem.DesignProblem`):
   gauss_newton refuses. On the design matrix (every documented variable set
   on the default bay, the built-in wing, a NACA 0012 bay and a bay of a
   ``.dat`` section, 17x64: ``benchmarks/design_matrix.py``) gauss_newton
-  converges wherever SLSQP does, in fewer forward solves, and where SLSQP
-  fails (a cut pattern, a rib shape: the iteration cap, a tension floor
-  left broken).
+  converges on every cell, in as many forward solves as SLSQP or fewer (3
+  against 7 on the default case, at the same optimum), and where SLSQP
+  stops at its iteration cap (a cut pattern, a rib shape on the wing and
+  on a ``.dat`` section, the prestrains with a rib shape); where both
+  converge their rms errors agree within 0.1%.
 * ``"slsqp"``: `scipy.optimize.minimize` with SLSQP on the mean
   square distance (`objectives.mean_square`: for "worst" a smooth maximum
   over the rows), with the bounds, the tension limits
