@@ -6,11 +6,12 @@ Public names::
     objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits,
     optimise_wing, WingDesignResult (an alias of DesignResult)
 
-One design over a wing of N >= 1 bays: ``optimise_wing`` wraps scipy's SLSQP
-(default), ``least_squares`` and optax around the differentiable N-bay
-forward solve ``forward_solver.solve_bays``; ``optimise_pressure`` is its
-one-bay case (and adds ``brentq`` on one bay's mid-bay condition). The
-packages and the data flow: ``docs/architecture.md``.
+One design over a wing of N >= 1 bays: ``optimise_wing`` runs a
+Gauss-Newton trust-region SQP (the default, ``method="auto"``; SLSQP for the
+objective "worst"), scipy's SLSQP and ``least_squares``, or optax around the
+differentiable N-bay forward solve ``forward_solver.solve_bays``;
+``optimise_pressure`` is its one-bay case (and adds ``brentq`` on one bay's
+mid-bay condition). The packages and the data flow: ``docs/architecture.md``.
 """
 
 from .constraints import Constraints as Constraints

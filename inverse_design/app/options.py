@@ -191,8 +191,7 @@ OPTIONS = (
                                       "row from rib to rib, or the worst row (default average)")),
     ("optimiser", "--method", dict(default="auto", choices=("auto", "slsqp", "gauss_newton", "least_squares",
                                                             "root", "optax"),
-                                   help="optimiser: auto (gauss_newton for a wing of two or more bays unless "
-                                   "--objective worst, slsqp for one bay), "
+                                   help="optimiser: auto (gauss_newton; slsqp with --objective worst), "
                                    "slsqp (the tension limits as constraints), gauss_newton "
                                    "(trust-region SQP on the row distances with their Jacobian, the limits "
                                    "as constraints: few solves for many variables), "
