@@ -76,9 +76,9 @@ EXIT_TERMINATED = 143
 CONSOLE_WIDTH = 200
 
 
-def _say(line: str, stream=None) -> None:
-    """Print ``line`` on ``stream`` (default stderr), if the process has one (a closed stream is None)."""
-    stream = sys.stderr if stream is None else stream
+def _say(line: str, stdout: bool = False) -> None:
+    """Print ``line`` on stderr (``stdout``: on stdout), if the process has it (a closed one is None)."""
+    stream = sys.stdout if stdout else sys.stderr
     if stream is not None:
         print(line, file=stream)
 
@@ -162,12 +162,13 @@ def main(argv: list[str] | None = None) -> int:
     itself with that code (see `_exit_now`); otherwise it returns (the console script,
     `command`, then ends the process).
     """
-    global _CACHE_WARNED
+    global _CACHE_WARNED, _HOMELESS
     started = time.perf_counter()
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
     enable_fast_compilation()  # before the run's first JAX computation
     _CACHE_WARNED = False
+    config = _config_without_home()
     try:
         with warnings.catch_warnings(), threadpool_limits(limits=1, user_api="blas"):
             warnings.showwarning = _show_warning
@@ -180,6 +181,11 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_INTERRUPTED
     finally:
         interrupts.restore(previous)
+        if config is not None:
+            _HOMELESS = None
+            for variable in _CONFIG_VARIABLES:
+                os.environ.pop(variable, None)
+            config.cleanup()
         if flags is None:  # (read by XLA when its backend started: a caller's later children see theirs)
             os.environ.pop("XLA_FLAGS", None)
         else:
@@ -187,6 +193,28 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
+
+
+#: The home folder that does not exist, while the command runs with temporary configuration folders.
+_HOMELESS: Path | None = None
+#: Where matplotlib and ezdxf keep their configuration and caches: under the home folder by default.
+_CONFIG_VARIABLES = ("MPLCONFIGDIR", "XDG_CACHE_HOME")
+
+
+def _config_without_home():
+    """Temporary configuration folders for matplotlib and ezdxf (``MPLCONFIGDIR``, ``XDG_CACHE_HOME``,
+    for this process and its workers) when the home folder does not exist: they would create it.
+    Returns the `tempfile.TemporaryDirectory`, or None (a home folder, or those folders chosen)."""
+    global _HOMELESS
+    if any(os.environ.get(v) for v in _CONFIG_VARIABLES) or Path.home().is_dir():
+        return None
+    import tempfile
+
+    folder = tempfile.TemporaryDirectory(prefix="optimise-pressure-")
+    _HOMELESS = Path.home()
+    for variable in _CONFIG_VARIABLES:
+        os.environ[variable] = folder.name
+    return folder
 
 
 def command() -> None:
@@ -207,10 +235,11 @@ def compilation_cache_dir() -> Path:
 def _cache_problem(path: Path) -> str | None:
     """Why the compilation cache cannot be kept in ``path`` (None: it can; the folder is created,
     but never a home folder that does not exist)."""
-    explicit = any(os.environ.get(v) for v in ("INFLATABLE_WING_CACHE", "JAX_COMPILATION_CACHE_DIR",
-                                                 "XDG_CACHE_HOME"))
-    if not explicit and not Path.home().is_dir():
-        return f"the home folder {Path.home()} does not exist"
+    if not any(os.environ.get(v) for v in ("INFLATABLE_WING_CACHE", "JAX_COMPILATION_CACHE_DIR")):
+        if _HOMELESS is not None:
+            return f"the home folder {_HOMELESS} does not exist"
+        if not os.environ.get("XDG_CACHE_HOME") and not Path.home().is_dir():
+            return f"the home folder {Path.home()} does not exist"
     if path.exists() and not path.is_dir():
         return f"{path} is not a folder"
     try:
@@ -285,7 +314,7 @@ def _error(args, kind: str, text: str, after: str = "") -> None:
     """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
     _say(f"{PROG}: {kind}: {shorten(text)}{after}")
     if args is not None and args.json:
-        _say(json.dumps({"error": " ".join(str(text).split())}), sys.stdout)
+        _say(json.dumps({"error": " ".join(str(text).split())}), stdout=True)
 
 
 def _main(argv: list[str] | None, started: float) -> int:
@@ -347,9 +376,9 @@ def _main(argv: list[str] | None, started: float) -> int:
              f"in {summary['out']}")
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     if args.json:
-        _say(json.dumps(summary, indent=2), sys.stdout)
+        _say(json.dumps(summary, indent=2), stdout=True)
     elif not args.quiet:
-        _say("\n".join(describe(summary)), sys.stdout)
+        _say("\n".join(describe(summary)), stdout=True)
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
