@@ -219,7 +219,9 @@ def _config_without_home():
 
 def command() -> None:
     """The ``optimise-pressure`` console script: `main` on the command line's arguments, then the
-    process ends with its exit code (`_exit_now`)."""
+    process ends with its exit code (`_exit_now`: without the interpreter's teardown, so exit
+    functions that other code registered with ``atexit`` do not run; a caller that needs them, e.g.
+    a coverage or timing harness, calls `main` and exits itself)."""
     _exit_now(main())
 
 
