@@ -124,3 +124,20 @@ def test_the_command_carries_no_machinery_of_its_own(name):
     for module in ("cli", "command", "drawing", "report", "interrupts"):
         path = ROOT / "inverse_design" / "app" / f"{module}.py"
         assert name not in path.read_text(), path
+
+
+def write_policy(path):
+    Path(path).write_text(str(os.sched_getscheduler(0)))
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
+def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priority(tmp_path):
+    workers = drawing.ReportWorkers.start(count=1)
+    try:
+        assert workers.submit([(tmp_path / "started", write_text, ("x",), {}),
+                               (tmp_path / "policy", write_policy, (), {})])
+        _wait_for(tmp_path / "policy")
+        workers.finish()
+    finally:
+        workers.close()
+    assert int((tmp_path / "policy").read_text()) == os.sched_getscheduler(0) == os.SCHED_OTHER
