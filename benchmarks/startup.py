@@ -65,6 +65,7 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--cold-repeats", type=int, default=2)
     parser.add_argument("--wing-repeats", type=int, default=1)
+    parser.add_argument("--name", default="startup", help="the result's name in benchmarks/results")
     args = parser.parse_args(argv)
     trees = {"new": args.new.resolve(), args.base_label: args.base.resolve()}
     for tree in trees.values():
@@ -101,7 +102,7 @@ def main(argv=None) -> None:
         "notes": ["each run a fresh process, each checkout with its own compilation cache folder; medians"],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "startup.json").write_text(json.dumps(result, indent=2) + "\n")
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")
     for row in rows:
         print(row)
 
