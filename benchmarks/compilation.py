@@ -171,17 +171,14 @@ def _summary(label: str, wall: float, report: dict, top: int) -> dict:
 def default_case_runs(tmp: Path, top: int, repeats: int = 3) -> list[dict]:
     env = dict(os.environ, INFLATABLE_WING_CACHE=str(tmp / "cache"))
     # as the console script: the command's work, then the process ends without the interpreter's
-    # teardown (`cli.command`; the listener's report is written by its exit function)
-    code = "from inverse_design.app.cli import command\ncommand()\n"
+    # teardown or the exit functions (`cli.command`), so the listener's report is written first
+    code = "from inverse_design.app import cli\ncode = cli.main()\n_dump()\ncli._exit_now(code)\n"
     rows = []
     default_emitters = dict(env, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
-    no_store = dict(env, INFLATABLE_WING_PROGRAM_STORE="0")
     serial = dict(env, INFLATABLE_WING_SERIAL_FIGURES="1")
     # The cached variants alternate, `repeats` times each, for ratios taken in one run: with the
-    # program store and the forked figures (as the command runs), without the store (JAX's
-    # persistent cache alone), and with the figures saved serially.
-    cached = [("default, cached", [], env), ("default, cached, no program store", [], no_store),
-              ("default, cached, figures saved serially", [], serial)] * repeats
+    # report's workers (as the command runs), and with every file written in the command's process.
+    cached = [("default, cached", [], env), ("default, cached, figures saved serially", [], serial)] * repeats
     for label, extra, run_env in [("default, no cache", ["--no-compilation-cache"], env),
                                   ("default, empty cache", [], env), *cached,
                                   ("default, no cache, XLA's default emitters", ["--no-compilation-cache"],

@@ -68,12 +68,9 @@ def _run(task):
 
 def compiling(jitted, *args, **kwargs):
     """A task that compiles ``jitted`` for ``args`` (``jitted.lower(...).compile()``: the program a
-    call with arguments of the same shapes, types and static values then takes), or, for a
-    `programs.stored` program while a program store is in use, loads or compiles its executable."""
+    call with arguments of the same shapes, types and static values then takes)."""
     def task():
-        prepare = getattr(jitted, "prepare", None)
-        if prepare is None or prepare(*args, **kwargs) is None:
-            jitted.lower(*args, **kwargs).compile()
+        jitted.lower(*args, **kwargs).compile()
     return task
 
 

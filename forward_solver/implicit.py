@@ -49,7 +49,6 @@ from jax.scipy.sparse.linalg import bicgstab
 from . import forces as fk
 from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
-from .programs import stored
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -75,7 +74,7 @@ def held_at_mounted(x, geometry: fk.Geometry, params: fk.Params):
     return free * x + (1.0 - free) * mounted
 
 
-@stored(static_argnames=("physics",))
+@partial(jax.jit, static_argnames=("physics",))
 def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
     """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
 
@@ -92,7 +91,7 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Param
     return -dr, (1.0 - geometry.free[..., None]) * dnodes
 
 
-@stored(static_argnames=("physics",))
+@partial(jax.jit, static_argnames=("physics",))
 def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
     """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
     program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
@@ -105,7 +104,7 @@ def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params
 def batched_rhs_task(geometry: fk.Geometry, params: fk.Params, physics: fk.Physics, n_tangents: int):
     """``(key, task)`` for `ahead.Ahead.submit`: compile `_batched_rhs` for ``n_tangents`` tangents at
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
-    batched, float64 and strongly typed; from the program store when one is in use), and trace the
+    batched, float64 and strongly typed), and trace the
     one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""
     from .ahead import compiling, signature
 

@@ -19,7 +19,6 @@ from .implicit import batched_rhs_task, expected_tangents
 from .loop import LoopOutput
 from .newton import chord_newton, newton, warm_up
 from .parameters import Parameters, as_parameters
-from .programs import stored
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, static_forces
@@ -454,7 +453,7 @@ def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_
     return _prolonged(x0, xc_full, xc0, geometry.free, physics.periodic), steps + chunks * RELAX_CHUNK, levels
 
 
-@stored(static_argnames=("periodic",))
+@partial(jax.jit, static_argnames=("periodic",))
 def _prolonged(x0, xc, xc0, free, periodic: bool):
     """The fine grid's start: its mounted shape ``x0`` plus the coarse solution's displacement
     ``xc - xc0`` interpolated (`_prolong`) on the free nodes (one program: twenty eager

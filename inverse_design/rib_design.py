@@ -41,7 +41,6 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver import forces as fk
 from forward_solver.cut_field import local_prestrain
-from forward_solver.programs import stored
 from forward_solver.rib_shape import rib_offsets
 
 from .constraints import Violation
@@ -202,7 +201,7 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
     return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
 
 
-@stored(static_argnames=("physics",))
+@partial(jax.jit, static_argnames=("physics",))
 def _cut_reference(geometry, params, physics):
     """``(span_length, contour_length, local span prestrain, local chord prestrain)`` of `forces.prepare`
     and `cut_field.local_prestrain`: one compiled program (eagerly, some thirty operations compiled

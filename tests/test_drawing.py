@@ -1,421 +1,143 @@
-"""The report's figures saved on a forked child (`inverse_design.app.drawing.FigureSaver`).
+"""The report's worker processes (`inverse_design.app.drawing.ReportWorkers`): every task is done once,
+by a worker or by the caller, and nothing of the pool outlives it."""
 
-The same files as saved in one process, whatever the child does (fails, is
-killed, hangs past the deadline), no child left running or unreaped, and
-the serial path wherever the fork is turned off. Small figures, no solves.
-"""
-
+import multiprocessing
 import os
-import signal
+import subprocess
 import sys
-import threading
 import time
-import warnings
+from pathlib import Path
 
-import numpy as np
 import pytest
 
 from inverse_design.app import drawing
-from inverse_design.app.drawing import FigureSaver
 
-needs_fork = pytest.mark.skipif(not (sys.platform.startswith("linux") and hasattr(os, "fork")),
-                                reason="the forked saving is for Linux")
-N_FIGURES = 4
+ROOT = Path(__file__).resolve().parents[1]
 
 
-def _figures(n: int = N_FIGURES) -> list:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    figures = []
-    for k in range(n):
-        fig = Figure(figsize=(2.4, 1.6), layout="constrained")
-        FigureCanvasAgg(fig)
-        ax = fig.add_subplot()
-        x = np.linspace(0.0, 1.0, 60)
-        ax.plot(x, np.sin(6.0 * (k + 1) * x), color=f"C{k}")
-        ax.set_title(f"figure {k}")
-        figures.append(fig)
-    return figures
+def write_text(path, text, delay=0.0):
+    """A task: ``text`` into ``path`` (after ``delay`` seconds), with the writing process's id."""
+    time.sleep(delay)
+    Path(path).write_text(f"{text} {os.getpid()}")
 
 
-def _save(fig, path) -> None:
-    fig.savefig(path, dpi=72)
+def write_slowly(path, started, delay):
+    """A task that says it has begun (the file ``started``), then writes ``path`` after ``delay`` s."""
+    Path(started).write_text("")
+    write_text(path, "slow", delay)
 
 
-def _items(folder, n: int = N_FIGURES) -> list:
-    folder.mkdir(exist_ok=True)
-    return [(folder / f"figure_{k}.png", fig) for k, fig in enumerate(_figures(n))]
+def fail(path, started):
+    Path(started).write_text("")
+    raise RuntimeError("this task fails")
 
 
-def _contents(folder) -> dict:
-    return {path.name: path.read_bytes() for path in sorted(folder.iterdir())}
+def _wait_for(path, timeout=120.0):
+    deadline = time.monotonic() + timeout
+    while not Path(path).exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
 
 
-@pytest.fixture
-def expected(tmp_path) -> dict:
-    """The files saved one after another in this process."""
-    for path, fig in _items(tmp_path / "serial"):
-        _save(fig, path)
-    return _contents(tmp_path / "serial")
+def _tasks(tmp_path, n, delay=0.0):
+    return [(tmp_path / f"file_{k}.txt", write_text, (f"task {k}", delay), {}) for k in range(n)]
 
 
-def _assert_gone(pid: int) -> None:
-    """Neither running nor a zombie: not a child of this process any more."""
-    with pytest.raises(ChildProcessError):
-        os.waitpid(pid, os.WNOHANG)
-
-
-def _in_child_only(action):
-    """A save function that does ``action(fig, path)`` in the child, and saves normally in this process."""
-    parent = os.getpid()
-
-    def save(fig, path):
-        if os.getpid() != parent:
-            action(fig, path)
-        _save(fig, path)
-
-    return save
-
-
-def _wait_for(condition, seconds: float = 20.0) -> None:
-    end = time.monotonic() + seconds
-    while not condition():
-        assert time.monotonic() < end, "timed out"
-        time.sleep(0.01)
-
-
-@needs_fork
-def test_the_child_draws_while_the_block_runs_and_the_files_are_those_saved_serially(tmp_path, expected):
-    folder = tmp_path / "parallel"
-    with FigureSaver(_items(folder), _save, parallel=True) as saver:
-        assert saver.pid is not None and saver.pid != os.getpid()
-        _wait_for(lambda: (folder / "figure_0.png").exists())  # drawn by the child: this process is here
-    assert saver.child_exitcode == 0
-    assert folder / "figure_0.png" in saver.saved_by_child
-    assert _contents(folder) == expected  # (Agg's PNG output is deterministic: byte for byte)
-    _assert_gone(saver.pid)
-
-
-@needs_fork
-@pytest.mark.parametrize("failure", ["raises", "killed", "exits 0 without saving"])
-def test_a_failed_childs_figures_are_saved_again_by_the_parent(tmp_path, expected, failure):
-    def fail(fig, path):
-        path.write_bytes(b"half a figure")  # a file the parent must not trust
-        if failure == "raises":
-            raise OSError("disk full")
-        if failure == "killed":
-            os.kill(os.getpid(), signal.SIGKILL)
-        os.unlink(path)
-        os._exit(0)
-
-    folder = tmp_path / "parallel"
-    with FigureSaver(_items(folder), _in_child_only(fail), parallel=True) as saver:
-        time.sleep(0.3)  # (the child takes its first figure before this process takes any)
-    assert saver.child_exitcode == {"raises": 1, "killed": -signal.SIGKILL, "exits 0 without saving": 0}[failure]
-    assert saver.saved_by_child == []
-    assert _contents(folder) == expected
-    _assert_gone(saver.pid)
-
-
-@needs_fork
-@pytest.mark.parametrize("error", [ValueError, KeyboardInterrupt])
-def test_an_exception_in_the_block_kills_and_reaps_the_child_and_propagates(tmp_path, error):
-    start = time.monotonic()
-    with pytest.raises(error):
-        with FigureSaver(_items(tmp_path), _in_child_only(lambda fig, path: time.sleep(120)),
-                         parallel=True) as saver:
-            _wait_for(lambda: saver.pid is not None and os.path.exists(f"/proc/{saver.pid}"))
-            raise error("the caller's other work failed")
-    assert time.monotonic() - start < 30
-    assert saver.child_exitcode == -signal.SIGKILL
-    _assert_gone(saver.pid)
-    assert not os.path.exists(f"/proc/{saver.pid}")
-
-
-@needs_fork
-def test_a_child_past_the_deadline_is_killed_and_its_figures_saved_by_the_parent(tmp_path, expected, monkeypatch):
-    monkeypatch.setattr(drawing, "CHILD_TIMEOUT_S", 0.5)
-    folder = tmp_path / "parallel"
-    start = time.monotonic()
-    with FigureSaver(_items(folder), _in_child_only(lambda fig, path: time.sleep(120)), parallel=True) as saver:
-        time.sleep(0.3)  # (the child takes its first figure, and hangs there)
-    assert time.monotonic() - start < 30
-    assert saver.child_exitcode == -signal.SIGKILL and saver.saved_by_child == []
-    assert _contents(folder) == expected
-    _assert_gone(saver.pid)
-
-
-@pytest.mark.parametrize("switch", ["environment", "function", "not linux", "one core", "one figure"])
-def test_a_switch_or_a_machine_without_the_fork_saves_every_figure_in_this_process(tmp_path, expected, monkeypatch,
-                                                                                   switch):
-    def no_fork():
-        raise AssertionError("forked")
-
-    monkeypatch.setattr(os, "fork", no_fork)
-    monkeypatch.setattr(drawing, "_cores", lambda: 2)
-    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
-    monkeypatch.setattr(drawing, "_ENABLED", True)
-    n = 1 if switch == "one figure" else N_FIGURES
-    if switch == "environment":
-        monkeypatch.setenv(drawing.SERIAL_VARIABLE, "1")
-    elif switch == "function":
-        assert drawing.set_parallel_figures(False) is True
-    elif switch == "not linux":
-        monkeypatch.setattr(sys, "platform", "darwin")
-    elif switch == "one core":
-        monkeypatch.setattr(drawing, "_cores", lambda: 1)
-    assert not drawing.parallel_figures_enabled(n)
-    items = _items(tmp_path / "out", n)
-    with FigureSaver(items, _save) as saver:
-        assert saver.pid is None
-        assert not any(path.exists() for path, _ in items)  # (saved on leaving the block)
-    assert saver.child_exitcode is None and saver.saved_by_child == []
-    assert _contents(tmp_path / "out") == {name: expected[name] for name in sorted(expected)[:n]}
-
-
-@needs_fork
-def test_the_fork_is_the_commands_choice_on_linux_with_two_cores(monkeypatch):
-    """Off for a library caller (its OpenBLAS threads are left alone), on while the command runs."""
-    from inverse_design.app import cli
-
-    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
-    monkeypatch.setattr(drawing, "_cores", lambda: 2)
-    assert not drawing.parallel_figures_enabled(N_FIGURES)
-    seen = []
-    monkeypatch.setattr(cli, "_main", lambda argv, started: seen.append(drawing.parallel_figures_enabled(N_FIGURES)) or 0)
-    assert cli.main([]) == 0 and seen == [True]
-    assert not drawing.parallel_figures_enabled(N_FIGURES)  # given back
-    monkeypatch.setattr(drawing, "_ENABLED", True)
-    assert drawing.parallel_figures_enabled(N_FIGURES)
-    monkeypatch.setenv(drawing.SERIAL_VARIABLE, "0")
-    assert drawing.parallel_figures_enabled(N_FIGURES)
-    assert drawing.set_parallel_figures(False) is True and drawing.set_parallel_figures(True) is False
-
-
-@needs_fork
-def test_the_fork_does_not_warn_about_jax(tmp_path):
-    import jax
-
-    jax.devices()  # (JAX's backend started: its at-fork hook warns from now on)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        pid = os.fork()
-        if pid == 0:
-            os._exit(0)
-        os.waitpid(pid, 0)
-    if not any("os.fork() was called" in str(w.message) for w in caught):
-        pytest.skip("this JAX does not warn about a fork: nothing to silence")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        with FigureSaver(_items(tmp_path), _save, parallel=True) as saver:
-            assert saver.pid is not None
-    assert [str(w.message) for w in caught if "fork" in str(w.message)] == []
-
-
-class _Stop(Exception):
-    pass
-
-
-@needs_fork
-@pytest.mark.skipif(threading.current_thread() is not threading.main_thread(),
-                    reason="signal handlers are the main thread's")
-def test_a_stop_arriving_during_the_fork_is_raised_after_it_and_the_child_reaped(tmp_path, monkeypatch):
-    # Python raises a handler's exception at the first bytecode after os.fork() returns: before the
-    # child's pid were stored, it could be neither killed nor reaped.
-    forked = []
-    real_fork = os.fork
-
-    def fork_meeting_a_stop():
-        pid = real_fork()
-        if pid:
-            forked.append(pid)
-            signal.raise_signal(signal.SIGTERM)  # (its handler runs at the next bytecode)
-        return pid
-
-    def stop(signum, frame):
-        raise _Stop()
-
-    previous = signal.signal(signal.SIGTERM, stop)
+def test_workers_write_the_files_and_the_caller_those_no_worker_took(tmp_path):
+    """One worker held up by its first task: the caller writes the rest itself, from the last, and
+    every file is written once."""
+    workers = drawing.ReportWorkers.start(count=1)
     try:
-        monkeypatch.setattr(os, "fork", fork_meeting_a_stop)
-        with pytest.raises(_Stop):
-            with FigureSaver(_items(tmp_path), _save, parallel=True):
-                pytest.fail("the stop was not raised")
-        assert signal.getsignal(signal.SIGTERM) is stop  # (the handler is put back)
+        started = tmp_path.parent / f"{tmp_path.name}.started"
+        slow = [(tmp_path / "slow.txt", write_slowly, (started, 2.0), {})]
+        assert workers.submit(slow) and workers.submit(_tasks(tmp_path, 3))
+        _wait_for(started)  # (the worker has taken the slow task)
+        done = workers.finish()
     finally:
-        signal.signal(signal.SIGTERM, previous)
-    assert len(forked) == 1
-    _assert_gone(forked[0])
-
-
-@needs_fork
-def test_an_openblas_that_a_fork_can_hang_is_set_to_one_thread_before_the_fork(tmp_path):
-    # OpenBLAS before 0.3.31 (scipy's wheels: 0.3.30) restarts its thread pool after a fork in a way that
-    # can spin forever; one thread never restarts it.
-    import scipy.linalg  # noqa: F401 - (loads scipy's OpenBLAS, as the report's patterns do)
-
-    libraries = drawing._openblas_libraries()
-    if not libraries:
-        pytest.skip("no OpenBLAS loaded")
-    assert all(version is not None and get is not None for _, version, get, _ in libraries)
-    with FigureSaver(_items(tmp_path), _save, parallel=True) as saver:
-        assert saver.pid is not None
-    for path, version, get, _ in drawing._openblas_libraries():
-        if version < drawing._OPENBLAS_FORK_SAFE:
-            assert get() == 1, path
-
-
-def test_an_openblas_that_cannot_be_read_makes_the_figures_save_serially(tmp_path, expected, monkeypatch):
-    def no_fork():
-        raise AssertionError("forked")
-
-    monkeypatch.setattr(os, "fork", no_fork)
-    monkeypatch.setattr(drawing, "_openblas_libraries", lambda: [("libopenblas_unknown.so", None, None, None)])
-    with FigureSaver(_items(tmp_path / "out"), _save, parallel=True) as saver:
-        pass
-    assert saver.pid is None
-    assert _contents(tmp_path / "out") == expected
-
-
-# ---------------------------------------------------------------------- workers forked before the design
-_WORKERS = r"""
-import json, os, sys, time
-import numpy as np
-from inverse_design.app import drawing
-
-mode, folder = sys.argv[1], sys.argv[2]
-PARENT = os.getpid()
-
-
-def plot(k):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(2.4, 1.6), layout="constrained")
-    FigureCanvasAgg(fig)
-    x = np.linspace(0.0, 1.0, 60)
-    fig.add_subplot().plot(x, np.sin(6.0 * (k + 1) * x), color=f"C{k}")
-    return fig
-
-
-def save(fig, path):
-    path = str(path)
-    if os.getpid() != PARENT and path.endswith("figure_1.png"):
-        if mode == "fail":
-            raise RuntimeError("a worker's figure failed")
-        if mode == "hang":
-            time.sleep(60)
-    fig.savefig(path, dpi=72)
-
-
-def write_text(path, text):
-    with open(path, "w") as f:
-        f.write(text)
-
-
-drawing.set_parallel_figures(True)
-workers = drawing.ReportWorkers.start(("matplotlib.figure",), count=2)
-out = {"started": workers is not None, "modules": "matplotlib" in sys.modules}
-if workers is not None:
-    pids = list(workers.pids)
-    os.makedirs(os.path.join(folder, "workers"))
-    os.makedirs(os.path.join(folder, "serial"))
-    tasks = [(os.path.join(folder, "workers", f"figure_{k}.png"), drawing.save_figure, (save, plot, (k,)), {})
-             for k in range(4)]
-    texts = [(os.path.join(folder, "workers", f"note_{k}.txt"), write_text, (f"note {k}",), {}) for k in range(2)]
-    t = time.monotonic()
-    if mode == "unused":
         workers.close()
-        saved = set()
-        assert not workers.submit(tasks)  # (closed: nothing handed over)
-    else:
-        assert workers.submit(tasks) and workers.submit(texts)  # two batches, numbered in order
-        saved = workers.finish(timeout=3.0 if mode == "hang" else 60.0)
-    out["seconds"] = time.monotonic() - t
-    for k, task in enumerate(tasks + texts):
-        if k not in saved:
-            drawing.run_task(task)
-    for k in range(4):
-        save(plot(k), os.path.join(folder, "serial", f"figure_{k}.png"))
-    out["notes"] = [open(path).read() for path, *_ in texts]
-    workers.close()  # (twice: harmless)
-    gone = []
-    for pid in pids:
-        try:
-            os.waitpid(pid, os.WNOHANG)
-            gone.append(False)
-        except ChildProcessError:
-            gone.append(True)
+    assert done == {0, 1, 2, 3}
+    writers = {p.name: p.read_text().split()[-1] for p in tmp_path.iterdir()}
+    assert set(writers) == {"slow.txt", "file_0.txt", "file_1.txt", "file_2.txt"}
+    assert writers["slow.txt"] != str(os.getpid())  # the worker's
+    assert {writers[f"file_{k}.txt"] for k in range(3)} == {str(os.getpid())}  # the caller's
+    assert not multiprocessing.active_children()
 
-    def read(sub):
-        return [open(os.path.join(folder, sub, f"figure_{k}.png"), "rb").read() for k in range(4)]
 
-    out.update(saved=sorted(saved), gone=gone, same=read("workers") == read("serial"),
-               exitcodes=sorted(workers.exitcodes.values()))
-print(json.dumps(out))
+def test_a_failed_task_is_left_to_the_caller_and_an_unpicklable_one_is_refused(tmp_path):
+    workers = drawing.ReportWorkers.start(count=1)
+    try:
+        assert workers.submit([(tmp_path / "x", fail, (tmp_path / "started",), {})])
+        assert not workers.submit([(tmp_path / "y", lambda path: None, (), {})])  # (does not pickle)
+        _wait_for(tmp_path / "started")  # (the worker took it, and failed)
+        assert workers.finish() == set()
+    finally:
+        workers.close()
+    assert not workers.submit(_tasks(tmp_path, 1))  # closed: the caller writes it
+    assert not multiprocessing.active_children()
+
+
+def test_closing_stops_workers_busy_or_idle(tmp_path):
+    workers = drawing.ReportWorkers.start(count=2)
+    workers.submit(_tasks(tmp_path, 2, delay=30.0))
+    time.sleep(1.0)
+    started = time.perf_counter()
+    workers.close()
+    workers.close()  # (twice is harmless)
+    assert time.perf_counter() - started < 10.0
+    assert not multiprocessing.active_children()
+
+
+def test_no_workers_when_switched_off_or_on_one_core(monkeypatch):
+    monkeypatch.setenv(drawing.SERIAL_VARIABLE, "1")
+    assert drawing.ReportWorkers.start() is None
+    monkeypatch.delenv(drawing.SERIAL_VARIABLE)
+    monkeypatch.setattr(drawing, "_cores", lambda: 1)
+    assert drawing.ReportWorkers.start() is None
+
+
+_EXIT_AT_ONCE = r"""
+import os, sys
+from inverse_design.app import drawing
+from tests.test_drawing import write_text
+
+workers = drawing.ReportWorkers.start(count=1)
+workers.submit([(sys.argv[1], write_text, ("x",), {})])
+print(sorted(workers.finish()))
+sys.stdout.flush()
+os._exit(0)  # as the command ends: no exit functions
 """
 
 
-def _run_workers(mode, tmp_path) -> dict:
-    import json
-    import subprocess
-
-    env = {k: v for k, v in os.environ.items() if k != drawing.SERIAL_VARIABLE}
-    done = subprocess.run([sys.executable, "-c", _WORKERS, mode, str(tmp_path)], capture_output=True, text=True,
-                          timeout=120, env=env)
-    assert done.returncode == 0, done.stderr
-    out = json.loads(done.stdout.strip().splitlines()[-1])
-    if not out["started"]:
-        pytest.skip("no figure workers on this machine (one core, or an OpenBLAS a fork could hang)")
-    return out
+def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path):
+    """The command ends with ``os._exit``: the pool's semaphores must be released before (else the
+    resource tracker reports them as leaked on stderr)."""
+    ran = subprocess.run([sys.executable, "-c", _EXIT_AT_ONCE, str(tmp_path / "x.txt")], cwd=ROOT,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=120)
+    time.sleep(0.5)
+    assert ran.returncode == 0 and ran.stdout.strip() == "[0]", ran.stderr
+    assert "leaked" not in ran.stderr and ran.stderr.strip() == "", ran.stderr
+    assert (tmp_path / "x.txt").exists()
 
 
-@needs_fork
-def test_workers_forked_first_draw_every_figure_as_this_process_would(tmp_path):
-    """Forked before matplotlib was imported, the workers import it, take the tasks of two batches and
-    save the same bytes."""
-    out = _run_workers("ok", tmp_path)
-    assert not out["modules"]  # (the parent imported matplotlib only to compare, after the workers)
-    assert out["saved"] == [0, 1, 2, 3, 4, 5] and out["same"] and all(out["gone"]) and out["exitcodes"] == [0, 0]
-    assert out["notes"] == ["note 0", "note 1"]
+@pytest.mark.parametrize("name", ["ctypes", "/proc", "_run_exitfuncs", "gc.freeze", "os.fork"])
+def test_the_command_carries_no_machinery_of_its_own(name):
+    """The command's start, its workers and its end are the standard library's (docs/architecture.md)."""
+    for module in ("cli", "command", "drawing", "report", "interrupts"):
+        path = ROOT / "inverse_design" / "app" / f"{module}.py"
+        assert name not in path.read_text(), path
 
 
-@needs_fork
-def test_a_failed_workers_figures_are_drawn_by_the_caller(tmp_path):
-    """The worker whose figure raised exits 1: none of its tasks counts as done, the caller runs them."""
-    out = _run_workers("fail", tmp_path)
-    assert 1 not in out["saved"] and len(out["saved"]) < 6 and out["same"] and all(out["gone"])
-    assert out["notes"] == ["note 0", "note 1"]
-    assert out["exitcodes"] == [0, 1]
+def write_policy(path):
+    Path(path).write_text(str(os.sched_getscheduler(0)))
 
 
-@needs_fork
-def test_a_hanging_worker_is_killed_at_the_deadline_and_its_figures_drawn_by_the_caller(tmp_path):
-    out = _run_workers("hang", tmp_path)
-    assert 1 not in out["saved"] and out["same"] and all(out["gone"]) and out["notes"] == ["note 0", "note 1"]
-    assert -signal.SIGKILL in out["exitcodes"] and out["seconds"] < 10.0
-
-
-@needs_fork
-def test_unused_workers_are_killed_and_reaped_at_once(tmp_path):
-    out = _run_workers("unused", tmp_path)
-    assert out["saved"] == [] and out["same"] and all(out["gone"]) and out["seconds"] < 1.0
-
-
-def test_no_workers_while_another_thread_runs_or_the_fork_is_off(monkeypatch):
-    """A second thread at the fork could hold a lock the workers need: then, and with the fork off,
-    `ReportWorkers.start` gives None and the report writes every file itself."""
-    monkeypatch.setattr(drawing, "_ENABLED", False)
-    assert drawing.ReportWorkers.start(count=2) is None
-    monkeypatch.setattr(drawing, "_ENABLED", True)
-    monkeypatch.setattr(drawing, "_cores", lambda: 2)
-    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
-    release = threading.Event()
-    thread = threading.Thread(target=release.wait)
-    thread.start()
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
+def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priority(tmp_path):
+    workers = drawing.ReportWorkers.start(count=1)
     try:
-        assert drawing.ReportWorkers.start(count=2) is None
+        assert workers.submit([(tmp_path / "started", write_text, ("x",), {}),
+                               (tmp_path / "policy", write_policy, (), {})])
+        _wait_for(tmp_path / "policy")
+        workers.finish()
     finally:
-        release.set()
-        thread.join()
+        workers.close()
+    assert int((tmp_path / "policy").read_text()) == os.sched_getscheduler(0) == os.SCHED_OTHER

@@ -22,42 +22,74 @@ process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
 ``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
 else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing, and keeps the solver's main programs
-in its ``programs`` sub-folder (`forward_solver.programs`), so a second run
-loads them without tracing and lowering them again. It also compiles with
-XLA's faster-compiling CPU loop emitters (`forward_solver.xla.enable_fast_compilation`,
-unless ``XLA_FLAGS`` chooses otherwise): about 40% less compile time, the
-same results; and its report's figures and DXF patterns are written by
-workers forked as it starts, which import matplotlib and ezdxf while the
-design runs (`inverse_design.app.drawing.ReportWorkers`; a wing's figures by
-a child forked after they are built), on for the command's own run only.
+second run of a grid compiles nothing. A cache folder that cannot be used (a
+file, a folder it cannot write, a home folder that does not exist: the
+command never creates a user's home) or whose entries JAX cannot read gets
+one ``warning:`` line, and the run goes on without the cache. It also
+compiles with XLA's faster-compiling CPU loop emitters
+(`forward_solver.xla.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
+otherwise): about 40% less compile time, the same results; and a single
+bay's figures and DXF patterns are written by worker processes started as
+it starts, which import matplotlib and ezdxf while the design runs
+(`inverse_design.app.drawing.ReportWorkers`). BLAS runs on one thread for
+the command's run (``threadpoolctl``): its solves (the flat panels' banded
+Cholesky, the sparse factors) are too small to gain from threads, and on a
+busy 2-core machine OpenBLAS's waiting threads made the panels of the
+default case take 29 s instead of 0.1 s.
+
+Every Python warning of the run (an `targets.AirfoilWarning` among them) is
+shown as one ``optimise-pressure: warning: ...`` line. An error line is kept
+to what a terminal shows (`CONSOLE_WIDTH`): its first clause and its last
+(the fix); the whole text is in the summary's ``results.message`` where a
+report is written, and on stdout as ``{"error": ...}`` under ``--json``. A
+JAX platform that the machine does not have (``JAX_PLATFORMS=cuda`` on a
+machine without one) is bad input: one line, exit 2.
 """
 
 from __future__ import annotations
 
-import atexit
-import gc
 import json
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
+
+from threadpoolctl import threadpool_limits
 
 from forward_solver.xla import enable_fast_compilation
 
 from . import interrupts
 from .case import parse_arguments
 from .console import describe
-from .drawing import ReportWorkers, set_parallel_figures
+from .drawing import ReportWorkers
 from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import WORKER_MODULES, run
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
+__all__ = ["CONSOLE_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
 #: Exit codes of a run stopped by Ctrl-C (SIGINT) or SIGTERM: 128 + the signal number, as a shell reports it.
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
+#: Most characters of a message in an error line (module docstring).
+CONSOLE_WIDTH = 200
+
+
+def _say(line: str, stdout: bool = False) -> None:
+    """Print ``line`` on stderr (``stdout``: on stdout), if the process has it (a closed one is None)."""
+    stream = sys.stdout if stdout else sys.stderr
+    if stream is not None:
+        print(line, file=stream)
+
+
+def _flush_streams() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if stream is not None:
+                stream.flush()
+        except (OSError, ValueError):  # (a closed pipe: nothing more can be said)
+            pass
 
 
 def _exit_now(code: int) -> None:
@@ -66,24 +98,56 @@ def _exit_now(code: int) -> None:
     An interruption can abandon an XLA compilation that goes on in a thread
     of JAX's own; the interpreter's normal shutdown then destroys the CPU
     client under it and the process dies of SIGSEGV instead of exiting with
-    ``code`` (seen with JAX 0.10.2, Ctrl-C and SIGTERM alike). The output
-    folder's staging has been cleaned up by then (the exception unwound it).
+    ``code`` (seen with JAX 0.10.2, Ctrl-C and SIGTERM alike). At the end of
+    a run it also skips the interpreter's teardown of JAX, SciPy and
+    matplotlib (0.5 s on the 2-core development machine). Every file of the
+    run is closed and its workers have ended by then.
     """
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
+    _flush_streams()
     os._exit(code)
 
 
-def _finish(code: int) -> None:
-    """End the command's process with ``code`` once its work is done: the exit functions run
-    (``atexit``), then `_exit_now` skips the interpreter's teardown of its modules and of XLA's
-    client (0.5 s of every run with JAX, SciPy and matplotlib loaded, on the 2-core development
-    machine: 8% of the default case). Every file of the run is closed by then."""
-    atexit._run_exitfuncs()
-    _exit_now(code)
+def shorten(text: str, width: int = CONSOLE_WIDTH) -> str:
+    """``text`` on one line of at most about ``width`` characters: whole if it fits, else its first
+    clause and its last (a message's reason and its fix), joined by " ... ", or its start."""
+    text = " ".join(str(text).split())
+    if len(text) <= width:
+        return text
+    clauses = text.split("; ")
+    if len(clauses) > 1 and len(clauses[0]) + len(clauses[-1]) + 5 <= width:
+        return f"{clauses[0]}; ... {clauses[-1]}"
+    return text[:width - 4].rstrip() + " ..."
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the command: one ``warning:`` line (module docstring)."""
+    text = str(message)
+    if "persistent compilation cache" in text or "compilation_cache" in text:
+        _cache_failed(text)
+        return
+    _say(f"{PROG}: warning: {shorten(text)}")
+
+
+_CACHE_WARNED = False
+
+
+def _cache_failed(text: str) -> None:
+    """JAX could not read or write an entry of the compilation cache: one line, once, and the cache off."""
+    global _CACHE_WARNED
+    if not _CACHE_WARNED:
+        _CACHE_WARNED = True
+        folder = _cache_in_use()
+        _say(f"{PROG}: warning: the compilation cache in {folder} could not be used "
+             f"({shorten(text.splitlines()[0], 100)}): running without it; delete the folder to rebuild it")
+    import jax
+
+    jax.config.update("jax_enable_compilation_cache", False)
+
+
+def _cache_in_use() -> str:
+    import jax
+
+    return str(jax.config.jax_compilation_cache_dir)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -93,27 +157,35 @@ def main(argv: list[str] | None = None) -> int:
     (the staging folder is removed): exit code 143, or 130 for Ctrl-C. Both
     are recorded too (`interrupts.install`), so that one lost inside a
     callback is raised again at the next safe point. The previous handlers
-    are restored on return. Run as the command
-    (``argv`` None), an interrupted or terminated run ends the process
+    (and Python's warning display) are restored on return. Run as the
+    command (``argv`` None), an interrupted or terminated run ends the process
     itself with that code (see `_exit_now`); otherwise it returns (the console script,
     `command`, then ends the process).
     """
+    global _CACHE_WARNED, _HOMELESS
     started = time.perf_counter()
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
     enable_fast_compilation()  # before the run's first JAX computation
-    figures = set_parallel_figures(True)  # the report's figures on a second core (`drawing`)
+    _CACHE_WARNED = False
+    config = _config_without_home()
     try:
-        code = _main(argv, started)
+        with warnings.catch_warnings(), threadpool_limits(limits=1, user_api="blas"):
+            warnings.showwarning = _show_warning
+            code = _main(argv, started)
     except Terminated:  # before the run (importing JAX) or after its folder was written
-        print(f"{PROG}: terminated", file=sys.stderr)
+        _say(f"{PROG}: terminated")
         code = EXIT_TERMINATED
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
+        _say(f"{PROG}: interrupted")
         code = EXIT_INTERRUPTED
     finally:
         interrupts.restore(previous)
-        set_parallel_figures(figures)
+        if config is not None:
+            _HOMELESS = None
+            for variable in _CONFIG_VARIABLES:
+                os.environ.pop(variable, None)
+            config.cleanup()
         if flags is None:  # (read by XLA when its backend started: a caller's later children see theirs)
             os.environ.pop("XLA_FLAGS", None)
         else:
@@ -123,10 +195,34 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+#: The home folder that does not exist, while the command runs with temporary configuration folders.
+_HOMELESS: Path | None = None
+#: Where matplotlib and ezdxf keep their configuration and caches: under the home folder by default.
+_CONFIG_VARIABLES = ("MPLCONFIGDIR", "XDG_CACHE_HOME")
+
+
+def _config_without_home():
+    """Temporary configuration folders for matplotlib and ezdxf (``MPLCONFIGDIR``, ``XDG_CACHE_HOME``,
+    for this process and its workers) when the home folder does not exist: they would create it.
+    Returns the `tempfile.TemporaryDirectory`, or None (a home folder, or those folders chosen)."""
+    global _HOMELESS
+    if any(os.environ.get(v) for v in _CONFIG_VARIABLES) or Path.home().is_dir():
+        return None
+    import tempfile
+
+    folder = tempfile.TemporaryDirectory(prefix="optimise-pressure-")
+    _HOMELESS = Path.home()
+    for variable in _CONFIG_VARIABLES:
+        os.environ[variable] = folder.name
+    return folder
+
+
 def command() -> None:
     """The ``optimise-pressure`` console script: `main` on the command line's arguments, then the
-    process ends with its exit code (`_finish`)."""
-    _finish(main())
+    process ends with its exit code (`_exit_now`: without the interpreter's teardown, so exit
+    functions that other code registered with ``atexit`` do not run; a caller that needs them, e.g.
+    a coverage or timing harness, calls `main` and exits itself)."""
+    _exit_now(main())
 
 
 def compilation_cache_dir() -> Path:
@@ -138,105 +234,120 @@ def compilation_cache_dir() -> Path:
     return Path(base) / "inflatable-wing" / "jax"
 
 
-#: Environment variable that, set to "0", keeps the command from using the program store (JAX's
-#: persistent cache alone), e.g. to measure what the store saves.
-PROGRAM_STORE_VARIABLE = "INFLATABLE_WING_PROGRAM_STORE"
+def _cache_problem(path: Path) -> str | None:
+    """Why the compilation cache cannot be kept in ``path`` (None: it can; the folder is created,
+    but never a home folder that does not exist)."""
+    if not any(os.environ.get(v) for v in ("INFLATABLE_WING_CACHE", "JAX_COMPILATION_CACHE_DIR")):
+        if _HOMELESS is not None:
+            return f"the home folder {_HOMELESS} does not exist"
+        if not os.environ.get("XDG_CACHE_HOME") and not Path.home().is_dir():
+            return f"the home folder {Path.home()} does not exist"
+    if path.exists() and not path.is_dir():
+        return f"{path} is not a folder"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"{path} cannot be created ({exc.strerror or exc})"
+    if not os.access(path, os.W_OK | os.X_OK):
+        return f"{path} is not writable"
+    return None
 
 
-def use_compilation_cache(path: Path, profile: str | None = None) -> None:
+def use_compilation_cache(path: Path) -> bool:
     """Turn on JAX's persistent compilation cache in ``path`` for this process (every entry kept:
-    the solver's functions compile in 0.3-6 s each and load in milliseconds), and the solver's
-    program store in its ``programs`` sub-folder (`forward_solver.programs`: its main programs
-    load without being traced and lowered again; ``INFLATABLE_WING_PROGRAM_STORE=0`` leaves it off).
-    With a ``profile`` (`program_profile`), the store starts loading the programs that the last run
-    of that profile used, on two threads (`forward_solver.programs.ProgramStore.prefetch`)."""
+    the solver's functions compile in 0.3-6 s each and load in milliseconds), unless the folder
+    cannot be used (`_cache_problem`: then one ``warning:`` line, and the run goes without).
+    Returns whether the cache is on."""
+    problem = _cache_problem(path)
+    if problem is not None:
+        _say(f"{PROG}: warning: {problem}: running without the compilation cache (set INFLATABLE_WING_CACHE "
+             "to a folder you can write, or give --no-compilation-cache)")
+        return False
     import jax
 
-    from forward_solver.programs import use_program_store
-
+    jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    if os.environ.get(PROGRAM_STORE_VARIABLE, "").strip() != "0":
-        use_program_store(Path(path) / "programs")
-        if profile is not None:
-            from forward_solver.programs import program_store
-
-            program_store().prefetch(profile)
-
-
-def program_profile(args) -> str:
-    """The kind of run whose compiled programs are alike (the grid, the number of bays, the
-    variables, the methods and the objective), as the program store's profile: a run loads ahead
-    what the last run of its profile used (`use_compilation_cache`)."""
-    wing = getattr(args, "wing", None)
-    return json.dumps({"grid": [args.n_span, args.n_contour], "bays": 1 if wing is None else len(wing) - 1,
-                       "variables": args.variables, "method": args.method, "equilibrium": args.equilibrium_method,
-                       "objective": args.objective, "evaluate": args.evaluate, "refine": args.refine,
-                       "aero": args.aero}, sort_keys=True)
-
-
-def _freeze_imports() -> bool:
-    """Move every object the garbage collector tracks now to its permanent generation (``gc.freeze``)
-    for the run, unless something else froze objects already; returns whether it did (then the
-    caller unfreezes them after the run)."""
-    if gc.get_freeze_count():
-        return False
-    gc.freeze()
     return True
 
 
-def _remember_programs(profile: str) -> None:
-    """The program store's list of this run's programs, for the next run of ``profile`` to load ahead."""
-    from forward_solver.programs import program_store
+def check_platform() -> None:
+    """Start JAX's backend; `InputError` naming the platform asked for (``JAX_PLATFORMS``) and those
+    present if it cannot start (JAX itself ends in a bare AssertionError)."""
+    import jax
 
-    store = program_store()
-    if store is not None:
-        store.remember(profile)
+    try:
+        jax.devices()
+    except (RuntimeError, AssertionError, ValueError) as exc:
+        asked = os.environ.get("JAX_PLATFORMS") or str(jax.config.jax_platforms or "")
+        present = ", ".join(_platforms_present())
+        if asked:
+            raise InputError(f"JAX_PLATFORMS={asked} asks for a platform this machine does not have (present: "
+                             f"{present}): unset JAX_PLATFORMS, or set it to one of those (e.g. JAX_PLATFORMS=cpu)"
+                             ) from None
+        raise InputError(f"JAX could not start a platform ({shorten(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 120)}): "
+                         f"set JAX_PLATFORMS to one of: {present}") from None
+
+
+def _platforms_present() -> list[str]:
+    """The platforms JAX could start here: the CPU, and each installed plugin (``jax_plugins``)."""
+    import pkgutil
+
+    names = ["cpu"]
+    try:
+        import jax_plugins
+
+        names += [module.name.removeprefix("xla_").rstrip("0123456789") or module.name
+                  for module in pkgutil.iter_modules(jax_plugins.__path__)]
+    except ImportError:
+        pass
+    return list(dict.fromkeys(names))
 
 
 def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
     """The one-line message and exit code of a run stopped by Ctrl-C or SIGTERM."""
     terminated = isinstance(exc, Terminated)
-    print(f"{PROG}: {'terminated' if terminated else 'interrupted'}; nothing was written to {out}",
-          file=sys.stderr)
+    _say(f"{PROG}: {'terminated' if terminated else 'interrupted'}; nothing was written to {out}")
     return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _error(args, kind: str, text: str, after: str = "") -> None:
+    """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
+    _say(f"{PROG}: {kind}: {shorten(text)}{after}")
+    if args is not None and args.json:
+        _say(json.dumps({"error": " ".join(str(text).split())}), stdout=True)
 
 
 def _main(argv: list[str] | None, started: float) -> int:
     try:
         args, sources = parse_arguments(argv)
     except InputError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        _error(None, "error", str(exc))
         return 2
-    progress = sys.stderr.isatty() and not (args.quiet or args.json)
-    workers, frozen, profile = None, False, program_profile(args)
+    progress = sys.stderr is not None and sys.stderr.isatty() and not (args.quiet or args.json)
+    workers = None
     try:
-        from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
-
-        # Everything imported so far lives as long as the process: out of the garbage collector's
-        # way, a full collection during the run no longer walks it (one took 0.09 s of the cached
-        # default case), and the workers forked next share those pages untouched (`_freeze_imports`).
-        frozen = _freeze_imports()
-        # A single bay's figures and DXF patterns: workers forked now, before any other thread (the
-        # store's below) or JAX's backend starts, import matplotlib and ezdxf while the design runs
-        # (`drawing.ReportWorkers`).
+        # A single bay's figures and DXF patterns: workers started now import matplotlib and ezdxf while
+        # the design runs (`drawing.ReportWorkers`).
         if getattr(args, "wing", None) is None:
             workers = ReportWorkers.start(WORKER_MODULES)
+        from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
+
+        check_platform()
         if not args.no_compilation_cache:
-            use_compilation_cache(compilation_cache_dir(), profile)
-    except BaseException as exc:  # (the workers and the frozen objects are given back whatever ends it)
+            use_compilation_cache(compilation_cache_dir())
+    except BaseException as exc:  # (the workers are stopped whatever ends it)
         if workers is not None:
             workers.close()
-        if frozen:
-            gc.unfreeze()
         if isinstance(exc, KeyboardInterrupt):
             return _interrupted(exc, args.out)
+        if isinstance(exc, InputError):
+            _error(args, "error", str(exc))
+            return 2
         raise
     try:
         summary = run(args, sources, progress=progress, started=started, workers=workers)
-        if not args.no_compilation_cache:
-            _remember_programs(profile)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         return _interrupted(exc, args.out)
     except (ConvergenceError, ValueError, OSError) as exc:
@@ -248,36 +359,35 @@ def _main(argv: list[str] | None, started: float) -> int:
         except KeyboardInterrupt as stop:
             return _interrupted(stop, args.out)
         if isinstance(exc, ConvergenceError):  # a forward solve failed: the reason, exit 1
-            print(f"{PROG}: failed: {exc}; nothing was written to {args.out}", file=sys.stderr)
+            _error(args, "failed", str(exc), f"; nothing was written to {args.out}")
             return 1
         if isinstance(exc, ValueError):  # bad input: one line, no traceback
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
+            _error(args, "error", str(exc))
             return 2
         # input files are read (and checked) before: this is the output
-        print(f"{PROG}: failed: could not write {args.out}: {exc}", file=sys.stderr)
+        _error(args, "failed", f"could not write {args.out}: {exc}")
         return 1
     finally:
-        if workers is not None:  # (unused, or left running by an error: killed and reaped)
+        if workers is not None:  # (unused, or left running by an error: stopped)
             workers.close()
-        if frozen:
-            gc.unfreeze()
     try:
         interrupts.check()  # a stop that arrived while the files were put in place
     except KeyboardInterrupt as exc:
         terminated = isinstance(exc, Terminated)
-        print(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
-              f"in {summary['out']}", file=sys.stderr)
+        _say(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
+             f"in {summary['out']}")
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     if args.json:
-        print(json.dumps(summary, indent=2))
+        _say(json.dumps(summary, indent=2), stdout=True)
     elif not args.quiet:
-        print("\n".join(describe(summary)))
+        _say("\n".join(describe(summary)), stdout=True)
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
         patterns = "" if args.no_patterns else "; no cut pattern was written"
-        print(f"{PROG}: failed: {why}: {summary['results']['message']} "
-              f"(the results are in {summary['out']}{patterns})", file=sys.stderr)
+        message = str(summary["results"]["message"])
+        whole = "" if shorten(message) == " ".join(message.split()) else "; the whole message is in summary.json"
+        _say(f"{PROG}: failed: {why}: {shorten(message)} (the results are in {summary['out']}{patterns}{whole})")
         return 1
     return 0
 

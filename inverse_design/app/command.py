@@ -43,9 +43,9 @@ def safe_point(entry=None) -> None:
 #: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
 #: What the report's workers (`drawing.ReportWorkers`) import while the design runs: the libraries of
-#: the figures and of the DXF patterns they write.
+#: the figures and of the DXF patterns they write, and the modules their tasks name.
 WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
-                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern")
+                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern", "inverse_design.app.report")
 
 
 def _import_report_modules() -> None:

@@ -62,15 +62,11 @@ are replaced, nothing else in the folder is touched. The pattern files are
 plain names in the folder (not a ``patterns/`` subfolder): the staging and
 ownership rules (`export.written_files`) own plain files only.
 
-The figures are built first and then saved while the other files are
-written, on Linux with more than one core partly by a forked child process
-(`drawing.FigureSaver`: matplotlib's drawing holds Python's lock, so a
-thread would not overlap it): the same files, the report 1.65 -> 1.1 s on
-the default case (2 cores). The command goes further for a single bay: its
-`drawing.ReportWorkers`, forked when it starts, write the four figures and
-the DXF patterns (``workers``), so its own process imports neither
-matplotlib nor ezdxf (report 0.8 s). ``INFLATABLE_WING_SERIAL_FIGURES=1`` (or
-`drawing.set_parallel_figures`) writes them all in the calling process.
+The command hands a single bay's four figures and DXF patterns to its
+`drawing.ReportWorkers` (worker processes started when it starts, which
+import matplotlib and ezdxf while the design runs), so its own process
+imports neither; what they do not write, and every file of a library
+caller's report, is written in the calling process.
 
 A design that failed (``success`` false) gets no pattern files (the panels of
 a design that breaks its limits or did not converge are not to be cut);
@@ -91,7 +87,7 @@ import numpy as np
 
 from forward_solver import Solution
 
-from .drawing import FigureSaver, run_task, save_figure
+from .drawing import run_task, save_figure, saved_after
 from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
                      write_selig, write_stl)
 from .export import file_checksums
@@ -116,13 +112,9 @@ _PNG_COMPRESSION = 3
 #: A wing of at most this many bays also gets one mid-bay section plot per bay (more: only
 #: ``wing_overview.png``, which shows every bay; a plot per bay took 0.3 s each and 15 s of a 40-bay report).
 PER_BAY_PLOTS = 8
-#: The order in which a single bay's figures are handed to `drawing.FigureSaver` (its child takes them
-#: from the front while the parent writes the other files, then the parent takes them from the back).
-#: Saving each on the 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s,
-#: mid-bay section 0.28 s, deviation 0.24 s; the parent's other files 0.22-0.24 s. In this order the
-#: child draws history and tensions, the parent deviation and section, and both finish 0.76-0.78 s
-#: after the fork; in the folder's order (section, deviation, tensions, history) the child drew three
-#: and the parent waited for it: 0.94-0.96 s. Figures not named keep their place after these.
+#: The order in which a single bay's figures are handed to the workers, the slowest first (saving each
+#: on the 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay
+#: section 0.28 s, deviation 0.24 s). Figures not named keep their place after these.
 _SAVE_ORDER = ("history.png", "tensions.png", "mid_bay_section.png", "deviation.png")
 #: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
@@ -367,12 +359,11 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
-        workers: `drawing.ReportWorkers` forked before the design (the
+        workers: `drawing.ReportWorkers` started before the design (the
             command's), to build and save a single bay's section, deviation,
             tensions and history figures and to write its DXF patterns while
             this process writes the other files; what they do not write is
-            written here. Default none: every file is written here (the
-            figures saved partly by `drawing.FigureSaver`).
+            written here. Default none: every file is written here.
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -403,7 +394,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
     with staged_folder(out) as staging:
         # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
         # workers if there are any; every other is built here (where JAX may be called), then saved
-        # on two cores while the other files are written (`drawing.FigureSaver`).
+        # after the other files are written (`drawing.saved_after`).
         specs = [("mid_bay_section.png", plot_section, (solution, target, scene),
                   dict(magnification=magnification, start_rib=start_rib if shaped else None)),
                  ("deviation.png", plot_deviation, (solution, target, scene), {}),
@@ -433,7 +424,7 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
-            with FigureSaver(built, _save):
+            with saved_after(built, _save):
                 write_npz(staging / "equilibrium.npz", solution, target, scene, design)
                 write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
                 write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
@@ -684,8 +675,8 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         params = result.parameters
         shared = _shared_names(result)
         deviation = wing_deviation(result)
-        # Every figure is built first (here, where JAX may be called), then saved on two cores while the
-        # other files are written (`drawing.FigureSaver`).
+        # Every figure is built first (here, where JAX may be called), then saved after the other
+        # files are written (`drawing.saved_after`).
         figures = [("wing_overview.png", plot_wing_overview(result, deviation))]
         for k, bay in enumerate(sol.bays if len(sol.bays) <= PER_BAY_PLOTS else ()):
             target = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip,
@@ -696,7 +687,7 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
         bay_figures = [name for name, _ in figures]  # (the overview and the sections, listed before the ribs)
         if result.history:
             figures.append(("history.png", plot_history(_SharedHistory(result), bounds)))
-        with FigureSaver([(staging / name, fig) for name, fig in figures], _save):
+        with saved_after([(staging / name, fig) for name, fig in figures], _save):
             save_npz(
                 staging / "wing.npz", dict(
                     nodes=np.stack([s.nodes for s in solutions]),

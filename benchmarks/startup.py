@@ -1,0 +1,111 @@
+"""The command's wall time against another checkout of the package, in one run, alternating.
+
+Each run is a fresh ``python -m inverse_design.app.cli --quiet --out DIR``
+process with ``PYTHONPATH`` at one checkout (this one, ``--base`` the
+other) and its own compilation cache folder (``INFLATABLE_WING_CACHE``), so
+the two never share programs. Both checkouts are byte-compiled first.
+Cases: the default case with a warm cache (after one run that fills it;
+median of ``--repeats`` alternating runs each), the default case without the
+cache (``--no-compilation-cache``; ``--cold-repeats`` each), and the 40-cell
+wing (``--config inverse_design/cases/wing_40_cells.toml``, ``--wing-repeats``
+each; the first with a cache that holds the default case's programs only). Writes ``benchmarks/results/startup.json``.
+
+Run:  python -m benchmarks.startup --base /path/to/other/checkout [--repeats 5]
+
+Absolute times depend on the machine and its load (recorded with them);
+the ratios are what compare.
+"""
+
+from __future__ import annotations
+
+import argparse
+import compileall
+import datetime
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+WING = "inverse_design/cases/wing_40_cells.toml"
+
+
+def _run(tree: Path, cache: Path, work: Path, extra: list[str]) -> float:
+    out = Path(tempfile.mkdtemp(dir=work))
+    env = dict(os.environ, PYTHONPATH=str(tree), INFLATABLE_WING_CACHE=str(cache))
+    started = time.perf_counter()
+    ran = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", "--quiet", "--out", str(out / "o"), *extra],
+                         cwd=tree, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - started
+    if ran.returncode != 0:
+        raise RuntimeError(f"{tree}: exit {ran.returncode}: {ran.stderr[-2000:]}")
+    return wall
+
+
+def _alternate(trees: dict, caches: dict, work: Path, extra: list[str], repeats: int) -> dict:
+    times = {label: [] for label in trees}
+    for _ in range(repeats):
+        for label, tree in trees.items():
+            times[label].append(_run(tree, caches[label], work, extra))
+            print(label, extra, f"{times[label][-1]:.2f} s", flush=True)
+    return times
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--base", required=True, type=Path, help="the other checkout (e.g. a git worktree)")
+    parser.add_argument("--new", type=Path, default=ROOT, help="this checkout (default the repository)")
+    parser.add_argument("--base-label", default="base")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--cold-repeats", type=int, default=2)
+    parser.add_argument("--wing-repeats", type=int, default=1)
+    parser.add_argument("--name", default="startup", help="the result's name in benchmarks/results")
+    args = parser.parse_args(argv)
+    trees = {"new": args.new.resolve(), args.base_label: args.base.resolve()}
+    for tree in trees.values():
+        for package in ("forward_solver", "inverse_design", "targets"):
+            compileall.compile_dir(tree / package, quiet=1)
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        caches = {label: work / f"cache-{label}" for label in trees}
+        rows = []
+        cases = [("default case, cached", [], args.repeats),
+                 ("default case, cold (--no-compilation-cache)", ["--no-compilation-cache"], args.cold_repeats),
+                 ("40-cell wing, its first run with that cache", ["--config", WING], args.wing_repeats)]
+        for label in trees:  # (fills each cache with the default case's programs)
+            _run(trees[label], caches[label], work, [])
+        for name, extra, repeats in cases:
+            if repeats < 1:
+                continue
+            times = _alternate(trees, caches, work, extra, repeats)
+            new, base = statistics.median(times["new"]), statistics.median(times[args.base_label])
+            rows.append([name, repeats, round(new, 2), round(base, 2), round(new / base, 3),
+                         " ".join(f"{t:.2f}" for t in times["new"]),
+                         " ".join(f"{t:.2f}" for t in times[args.base_label])])
+    result = {
+        "title": f"Start-up: the command against {args.base_label}, alternating runs",
+        "command": f"python -m benchmarks.startup --base {args.base} --base-label {args.base_label} "
+                   f"--repeats {args.repeats} --cold-repeats {args.cold_repeats} --wing-repeats {args.wing_repeats}",
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}; load average "
+                   f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
+        "date": datetime.date.today().isoformat(),
+        "columns": ["case", "runs each", "new median s", f"{args.base_label} median s", "ratio new/base",
+                    "new runs s", f"{args.base_label} runs s"],
+        "rows": rows,
+        "notes": ["each run a fresh process, each checkout with its own compilation cache folder; medians"],
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")
+    for row in rows:
+        print(row)
+
+
+if __name__ == "__main__":
+    main()
