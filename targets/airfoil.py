@@ -666,6 +666,32 @@ class Airfoil:
         """The leading edge, the minimum-x point of the smooth contour, as (x, z)."""
         return self._contour.points(np.array(self._contour.le_parameter))
 
+    @property
+    def leading_edge_parameter(self) -> float:
+        """Where the leading edge (minimum x) lies along the smooth contour, as a fraction of its length
+        (the parameter of :meth:`contour_points`): the upper surface runs before it, the lower after."""
+        return self._contour.le_parameter / self._contour.length
+
+    def contour_points(self, t: ArrayLike) -> np.ndarray:
+        """Points of the smooth contour at fractions ``t`` of its length from the first node.
+
+        Args:
+            t: Fractions in [0, 1] (0: the first node, the upper trailing
+                edge; 1: the last node), any shape; the cumulative chord
+                length of the nodes parametrises the spline, so ``t`` is
+                close to the arc-length fraction.
+
+        Returns:
+            ``(..., 2)`` points (x, z), chord units.
+
+        Raises:
+            ValueError: If a fraction lies outside [0, 1] or is not finite.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        if not np.all(np.isfinite(t) & (t >= 0.0) & (t <= 1.0)):
+            raise ValueError("contour fractions t must lie in [0, 1]")
+        return self._contour.points(t * self._contour.length)
+
     @cached_property
     def leading_edge_radius(self) -> float:
         """Radius of curvature (chord units) of the smooth contour at the leading edge.
