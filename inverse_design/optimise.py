@@ -526,7 +526,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"], fabric,
                                                              tension_scale(parameters, problem.chord), shapes, fields)
         rib_active, rib_violated, rib_values, per_rib, rib_broken = rib_report(geometries, parameters, shapes)
-        crossed, crossings = rib_crossings(ribs, parameters, shapes) if "rib_shape" in design.names else ({}, [])
+        crossed, crossings = rib_crossings(ribs, parameters, shapes)
         rib_violated, rib_broken = {**rib_violated, **crossed}, rib_broken + crossings
         if violated or rib_violated:
             success = False
