@@ -239,10 +239,12 @@ def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tu
             z = np.asarray(_section_z(x, np.asarray(resampled.z, np.float64), camber,
                                       float(parameters.rib_thickness_scale), jnp.asarray(shape, jnp.float64)))
         crossings = self_crossings(x, z)
-        if not crossings:
-            continue
         upper = np.arange(1, x.size // 2)
         depth = max(0.0, -float(np.min(z[upper] - z[x.size - 1 - upper])))
+        start = np.asarray(resampled.z, np.float64)
+        if not crossings or (self_crossings(x, start)
+                             and depth <= max(0.0, -float(np.min(start[upper] - start[x.size - 1 - upper])))):
+            continue  # (a thin tail that the points already pinch, unshaped, is the section's own)
         where[rib] = depth
         at = "" if len(sections) == 1 or (rib_shapes is None and len(set(map(id, sections))) == 1) else f" {rib}"
         first = crossings[0]

@@ -290,8 +290,13 @@ def crossing_error(x: np.ndarray, z: np.ndarray, where=None, noun: str = "points
             f"lies above the lower one everywhere ahead of the trailing edge")
 
 
-def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarray, np.ndarray]:
+def _validated_contour(x: ArrayLike, z: ArrayLike, what: str, crossing: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Checks a Selig-ordered, chord-normalised contour and returns float64 copies.
+
+    ``crossing``: also refuse a contour that crosses or pinches itself (:func:`crossing_error`); off for
+    the nodes derived from a section already accepted (a resampling, a trailing-edge blend), whose
+    polygon may pinch where the section's own thickness is below their spacing (a thin tail on a
+    coarse grid, the blend of a closed trailing edge).
 
     Raises:
         ValueError: With a sentence naming what to change.
@@ -345,7 +350,7 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
             f"{what} is not chord-normalised: its leading edge is at x = {x[i_le]:.6g}, expected 0 "
             f"within {LEADING_EDGE_BOUND:g}; shift the coordinates so the leading edge is at x = 0"
         )
-    crossed = crossing_error(x, z)
+    crossed = crossing_error(x, z) if crossing else None
     if crossed is not None:
         raise ValueError(f"{what}: {crossed}")
     # Shoelace area of the polygon closed by the trailing-edge base.
@@ -626,7 +631,7 @@ class Airfoil:
     ) -> Airfoil:
         """An airfoil whose nodes were sampled from an existing smooth contour."""
         airfoil = cls.__new__(cls)
-        x, z = _validated_contour(x, z, f"airfoil {name!r}")
+        x, z = _validated_contour(x, z, f"airfoil {name!r}", crossing=False)
         airfoil._set(x, z, name, contour)
         return airfoil
 
@@ -927,7 +932,10 @@ class Airfoil:
             x[nodes] += weight * (moved[0] - end[0])
             z[nodes] += weight * (moved[1] - end[1])
         (x[0], z[0]), (x[-1], z[-1]) = new_first, new_last
-        return Airfoil(x, z, name=self.name)
+        # (the blend may pinch the polygon to zero thickness where the section is thinner than the gap
+        # change, within the blend: the accepted section's own trailing edge, closed)
+        x, z = _validated_contour(x, z, f"airfoil {self.name!r}", crossing=False)
+        return Airfoil._on_contour(x, z, self.name, _SmoothContour(x, z))
 
     def with_closed_trailing_edge(self, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
         """The section with its trailing edge closed (see :meth:`with_trailing_edge`, gap 0)."""

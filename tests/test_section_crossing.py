@@ -106,7 +106,7 @@ def test_every_real_file_is_still_read(name):
     assert self_crossings(airfoil.x, airfoil.z) == []
     # its closed-trailing-edge form (zero thickness at the trailing edge) and a resampling are accepted
     closed = airfoil.with_closed_trailing_edge()
-    assert closed.closed_te and closed.resample(129).n_points == 129
+    assert closed.closed_te and closed.resample(129).n_points == 129 and closed.resample(33).n_points == 33
 
 
 @pytest.mark.parametrize("code", ["0001", "0006", "2412", "23012", "4440"])
