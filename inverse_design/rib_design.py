@@ -22,6 +22,11 @@ solve). `rib_report` measures them at a design, with active and violated
 limits named as the tension limits are; on a wing each rib is measured
 against its own starting section, and named by its index.
 
+Whatever the limits (there may be none), `rib_crossings` checks every
+designed rib for a crossing or a pinch to zero thickness inside the chord:
+such a rib cannot be made, and a design with one is a failure with the
+depth (``rib_crossing``).
+
 `cut_lengths` gives the fabric's cut pattern: the cut (reference) length of
 every grid edge, paper eq. (12) ``h = nominal / (1 + prestrain)``, summed
 along the contour (each span row's perimeter strip) and along the span (each
