@@ -27,6 +27,16 @@ extreme, or the smooth aggregate the optimiser saw, lies within
 beyond it by more than `VIOLATION_TOLERANCE` (both fractions of the tension
 scale ``p * chord / 2``), reported per bay as a `Violation`; a violated
 design is not a success.
+
+The tolerance is judged at the design's own pressure: ``p`` is the pressure
+of the design being reported (`tension_scale` of its parameters), not the
+pressure the optimiser started from (which only scales the optimiser's own
+rows), so a design at 1 kPa on a 1 m chord is allowed 0.5 N/m, not the
+5 N/m of a 10 kPa start. A floor at or above zero (the default 0: a
+wrinkle-free skin) is broken by any cell whose fibre tension is negative,
+whatever the tolerance: a design reported wrinkle-free has no wrinkled cell
+(`forward_solver.Solution.wrinkled`, tension below zero) in its own tension
+map.
 """
 
 from __future__ import annotations
@@ -43,7 +53,8 @@ from forward_solver import Parameters
 from forward_solver import forces as fk
 
 __all__ = ["Constraints", "Violation", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS",
-           "cell_tensions", "cell_constraints", "constraint_functions", "penalty_residuals", "constraint_report", "tension_scale",
+           "cell_tensions", "cell_constraints", "floor_threshold", "constraint_functions", "penalty_residuals",
+           "constraint_report", "tension_scale",
            "UNMET_ADVICE"]
 
 #: A constraint is reported active when within this fraction of its scale of
@@ -132,6 +143,17 @@ def cell_tensions(scene, nodes, parameters: Parameters):
 def tension_scale(parameters: Parameters, chord: float) -> float:
     """A natural tension, N/m: the hoop tension ``p * chord / 2`` of the pressure."""
     return 0.5 * abs(float(parameters.pressure)) * chord
+
+
+def floor_threshold(floor: float, scale: float) -> float:
+    """The least fibre tension (N/m) that still meets the floor ``floor`` (N/m) at tension scale ``scale``
+    (N/m, the design's own ``p c / 2``).
+
+    ``floor - VIOLATION_TOLERANCE * scale``, but never below zero for a floor at or above zero: a
+    wrinkled cell (negative tension) never meets a wrinkle-free floor (module docstring).
+    """
+    threshold = floor - VIOLATION_TOLERANCE * scale
+    return max(threshold, 0.0) if floor >= 0.0 else threshold
 
 
 def _ks_max(t, rho):
@@ -248,7 +270,8 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
         parameters: the design's shared `Parameters`.
         tensions: per bay, its unclamped cell tensions, N/m (`cell_tensions`).
         fabric: the `Fabric` (default ceiling).
-        scale: the tension scale, N/m.
+        scale: the tension scale, N/m: the design's own (`tension_scale` of ``parameters``; module
+            docstring), which the tolerances are fractions of.
         rib_shapes: the design's per-rib shapes, if any (their bounds).
         cut_patterns: the design's per-bay cut fields, if any (their bounds).
 
@@ -257,7 +280,8 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
         ``"pressure>=lower"``, ``"min_tension"``, ``"max_tension"`` at their
         limit (module docstring); ``{name: Violation}`` of each tension limit
         broken by more than `VIOLATION_TOLERANCE` in some bay (N/m beyond
-        it); the measured minimum and maximum tension over all bays (N/m)
+        it; a floor at or above zero by any negative tension, `floor_threshold`);
+        the measured minimum and maximum tension over all bays (N/m)
         with each limit; and one sentence per broken limit and bay.
     """
     active = []
@@ -287,7 +311,7 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
     for k, t in enumerate(tensions):
         low, high = float(np.min(t)), float(np.max(t))
         at, its = ("", "the") if one else (f" in bay {k}", "its")
-        if floor is not None and floor - low > VIOLATION_TOLERANCE * scale:
+        if floor is not None and low < floor_threshold(floor, scale):
             where.setdefault("min_tension", {})[k] = floor - low
             messages.append(f"min_tension violated{at}: {its} smallest fibre tension is {low:.4g} N/m, "
                             f"{floor - low:.4g} N/m below the floor {floor:.4g} N/m (the skin wrinkles)")

@@ -86,11 +86,11 @@ from forward_solver.solution import Result
 from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
-from .constraints import UNMET_ADVICE, Constraints, constraint_report
+from .constraints import UNMET_ADVICE, Constraints, constraint_report, tension_scale
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
 from .objectives import check_objective, same_section
 from .problem import DesignProblem, WingConvergenceError, check_solver_options
-from .rib_design import RibGeometry, RibLimits, rib_report
+from .rib_design import RibGeometry, RibLimits, rib_crossings, rib_report
 from .variables import VARIABLES, DesignVariables, concrete_rows
 
 __all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult",
@@ -508,7 +508,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         start_fields = concrete_rows(design.cut_patterns_at(u0))
         violated_at_start = {
             **constraint_report(constraints, design, start_parameters, before["tensions"], fabric,
-                                problem.tension_scale, start_shapes, start_fields)[1],
+                                tension_scale(start_parameters, problem.chord), start_shapes, start_fields)[1],
             **rib_report(geometries, start_parameters, start_shapes)[1]}
         try:
             if method == "root":
@@ -536,9 +536,11 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             success = False
             message = f"{message}; the shape errors at the result are not finite"
         shapes, fields = concrete_rows(design.rib_shapes_at(u)), concrete_rows(design.cut_patterns_at(u))
-        active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"],
-                                                             fabric, problem.tension_scale, shapes, fields)
+        active, violated, report, broken = constraint_report(constraints, design, parameters, after["tensions"], fabric,
+                                                             tension_scale(parameters, problem.chord), shapes, fields)
         rib_active, rib_violated, rib_values, per_rib, rib_broken = rib_report(geometries, parameters, shapes)
+        crossed, crossings = rib_crossings(ribs, parameters, shapes)
+        rib_violated, rib_broken = {**rib_violated, **crossed}, rib_broken + crossings
         if violated or rib_violated:
             success = False
             message = f"{message}; {'; '.join(rib_broken + broken)}{UNMET_ADVICE}"

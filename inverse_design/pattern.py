@@ -37,6 +37,15 @@ along ``+x`` and the span (the warp, from the root rib ``i = 0``) along
 `offset_outline` gives the cut line: the sewing outline offset outward by
 the seam allowance (a miter offset of the closed polygon, sharp convex
 corners rounded).
+
+`rib_template` gives a rib's template: the outline of the rib itself, the
+designed section (`forward_solver.rib_shape`: thickness scale about the
+camber line, the rib shape's offset, the chord scale, at the rib's chord)
+evaluated on the section's smooth contour, not the grid's polygon, at
+points chosen so that no chord of the outline strays more than
+`RIB_CHORDAL_ERROR` from the curve (adaptive bisection); and the skin's
+attachment points, the grid's contour nodes on that rib (`mounted_skin`),
+which lie on the outline.
 """
 
 from __future__ import annotations
@@ -45,13 +54,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Panel", "bay_panels", "develop", "mounted_skin", "offset_outline", "panel_outline"]
+__all__ = ["Panel", "RIB_CHORDAL_ERROR", "bay_panels", "develop", "mounted_skin", "offset_outline", "panel_outline",
+           "rib_outline", "rib_template"]
 
 #: Largest edge-length error accepted by `develop`, as a fraction of the edge's cut length.
 LAYOUT_TOLERANCE = 1e-9
 #: m: an exact layout whose largest edge error is below this has reached float64's rounding (edges of
 #: centimetres to metres, sums of hundreds of them); a step that does not improve it ends the layout.
 _ROUNDING_FLOOR = 1e-12
+
+
+#: m: the largest distance of a rib template's outline (a polygon) from the designed section between its
+#: points, its chordal error: far below a cutter's kerf, and below what a drawn line can show.
+RIB_CHORDAL_ERROR = 5e-5
+#: Fractions at which each interval of the outline is tested against its chord (the largest deviation of a
+#: smooth arc from its chord lies near the middle).
+_PROBES = np.array([0.25, 0.5, 0.75])
+#: Cap on the halvings of an outline interval (2^-40 of the first spacing: far below float spacing).
+_MAX_HALVINGS = 40
 
 
 @dataclass(frozen=True)
@@ -363,3 +383,94 @@ def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:
         panels.append(Panel(bay=bay, name=name, columns=columns, flat=flat, contour_cut=contour_cut,
                             span_cut=span_cut, leading_edge=le, length_error=error))
     return panels
+
+
+def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale: float = 1.0, shape=None,
+                chordal_error: float = RIB_CHORDAL_ERROR) -> np.ndarray:
+    """The designed rib's outline, metres, sampled finely enough for ``chordal_error``.
+
+    The rib is mounted as `forces.nominal_nodes` mounts the grid's nodes, but
+    on the smooth contour of ``section`` (`targets.Airfoil.contour_points`):
+    ``x = x0 c s_c``, ``z = (camber(x0) + s_t (z0 - camber(x0)) + dz(x0)) c``,
+    with ``dz`` the rib shape's outward offset (`forward_solver.rib_shape`;
+    upper surface before the leading edge, lower after). Points are added by
+    halving every interval whose chord lies more than ``chordal_error`` from
+    the curve at a quarter, half or three quarters of it, until none does.
+
+    Args:
+        section: the rib's starting section (`targets.Airfoil`, chord-normalised).
+        chord: the rib's chord, m (> 0).
+        thickness_scale: the rib thickness scale.
+        chord_scale: the rib chord scale.
+        shape: ``(2 K,)`` rib-shape coefficients, or None.
+        chordal_error: m (> 0).
+
+    Returns:
+        ``(n, 2)`` x-z in metres, Selig order (trailing edge, upper surface,
+        leading edge, lower surface, trailing edge; a closed trailing edge's
+        point once).
+    """
+    from forward_solver.rib_shape import bernstein_basis, class_function
+
+    if not chordal_error > 0:
+        raise ValueError(f"chordal_error must be a positive length in metres, got {chordal_error!r}")
+    coefficients = None if shape is None else np.asarray(shape, np.float64).reshape(-1)
+    t_le = section.leading_edge_parameter
+
+    def mounted(t: np.ndarray) -> np.ndarray:
+        x0, z0 = section.contour_points(t).T
+        station = np.clip(x0, 0.0, 1.0)
+        camber = np.asarray(section.camber(station))  # as `forward_solver.bay` takes it at the nodes
+        z = camber + thickness_scale * (z0 - camber)
+        if coefficients is not None and coefficients.size:
+            k = coefficients.size // 2
+            basis = np.asarray(class_function(station))[:, None] * np.asarray(bernstein_basis(station, k))
+            upper = t <= t_le
+            z = z + np.where(upper, basis @ coefficients[:k], -(basis @ coefficients[k:]))
+        return np.column_stack([x0 * chord_scale, z]) * chord
+
+    t = np.unique(np.concatenate([np.linspace(0.0, 1.0, 65), [t_le]]))
+    points = mounted(t)
+    for _ in range(_MAX_HALVINGS):
+        a, b = t[:-1], t[1:]
+        probes = a[:, None] + (b - a)[:, None] * _PROBES
+        at = mounted(probes.reshape(-1)).reshape(probes.shape + (2,))
+        start, end = points[:-1, None, :], points[1:, None, :]
+        along = end - start
+        length = np.linalg.norm(along, axis=-1)
+        offset = at - start
+        deviation = np.abs(along[..., 0] * offset[..., 1] - along[..., 1] * offset[..., 0]) / np.where(
+            length > 0, length, 1.0)
+        split = np.max(deviation, axis=1) > chordal_error
+        if not split.any():
+            break
+        middle = 0.5 * (a[split] + b[split])
+        t = np.concatenate([t, middle])
+        points = np.concatenate([points, mounted(middle)])
+        order = np.argsort(t)
+        t, points = t[order], points[order]
+    if section.closed_te:
+        points = points[:-1]  # the last point is the first
+    return points
+
+
+def rib_template(scene, parameters, row: int) -> tuple[np.ndarray, np.ndarray]:
+    """A rib's template: its outline (`rib_outline`) and the skin's attachment nodes on it.
+
+    Args:
+        scene: the bay's `forward_solver.Scene` (a bay built with `Bay.from_airfoil`).
+        parameters: the bay's design `Parameters` (rib scales and shapes).
+        row: 0 for the root rib, -1 for the tip rib.
+
+    Returns:
+        ``(outline, nodes)``: ``(n, 2)`` and ``(n_contour, 2)`` x-z, metres.
+    """
+    bay = scene.bay
+    tip = row != 0
+    section = (bay.tip_airfoil or bay.airfoil) if tip else bay.airfoil
+    chord = bay.chord_tip if tip else bay.chord_root
+    shape = parameters.rib_shapes[1 if tip else 0]
+    outline = rib_outline(section, chord, float(parameters.rib_thickness_scale), float(parameters.rib_chord_scale),
+                          None if shape is None else np.asarray(shape, np.float64))
+    nodes = np.asarray(mounted_skin(scene, parameters)[row][:, [0, 2]])
+    return outline, nodes

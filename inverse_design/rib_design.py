@@ -22,6 +22,11 @@ solve). `rib_report` measures them at a design, with active and violated
 limits named as the tension limits are; on a wing each rib is measured
 against its own starting section, and named by its index.
 
+Whatever the limits (there may be none), `rib_crossings` checks every
+designed rib for a crossing or a pinch to zero thickness inside the chord:
+such a rib cannot be made, and a design with one is a failure with the
+depth (``rib_crossing``).
+
 `cut_lengths` gives the fabric's cut pattern: the cut (reference) length of
 every grid edge, paper eq. (12) ``h = nominal / (1 + prestrain)``, summed
 along the contour (each span row's perimeter strip) and along the span (each
@@ -43,9 +48,11 @@ from forward_solver import forces as fk
 from forward_solver.cut_field import local_prestrain
 from forward_solver.rib_shape import rib_offsets
 
+from targets.airfoil import self_crossings
+
 from .constraints import Violation
 
-__all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "cut_lengths"]
+__all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "rib_crossings", "cut_lengths"]
 
 #: Points of the designed section the limits are evaluated on.
 RIB_POINTS = 201
@@ -199,6 +206,58 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
                 if name == "rib_min_radius":
                     values["rib_start_radius"] = measured["rib_start_radius"]
     return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
+
+
+def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tuple[dict, list[str]]:
+    """Designed ribs that cross or pinch themselves, whatever the rib limits (none may be set).
+
+    Each rib's designed section (`RibGeometry.section_z`: thickness scale and
+    shape applied to its starting section, at `RIB_POINTS` points) is
+    searched for a crossing or a pinch to zero thickness inside the chord
+    (`targets.airfoil.self_crossings`). Such a rib cannot be made, so a design
+    that has one is a failure, with the amount: the largest negative
+    thickness (lower surface above the upper one at the same x), chord.
+
+    Args:
+        sections: each rib's starting section (`targets.Airfoil`), root to
+            tip; a section object given twice (one shape shared) is checked once.
+        parameters: the design's shared `Parameters` (its thickness scale,
+            and its ``rib_shape`` when shared).
+        rib_shapes: ``(n_ribs, 2 K)`` per-rib shapes, or None (shared).
+
+    Returns:
+        ``({"rib_crossing": Violation} or {}, messages)``: the amount per
+        crossed rib, chord (0 for a pinch), and one sentence per crossed rib
+        saying where (x/c) and what to change.
+    """
+    where, messages, seen = {}, [], set()
+    for rib, section in enumerate(sections):
+        shape = parameters.rib_shape if rib_shapes is None else np.asarray(rib_shapes)[rib]
+        if shape is None or (rib_shapes is None and id(section) in seen):
+            continue
+        seen.add(id(section))
+        resampled = section.resample(RIB_POINTS)
+        x = np.asarray(resampled.x, np.float64)
+        camber = np.asarray(section.camber(np.clip(x, 0.0, 1.0)), np.float64)
+        with jax.enable_x64(True):
+            z = np.asarray(_section_z(x, np.asarray(resampled.z, np.float64), camber,
+                                      float(parameters.rib_thickness_scale), jnp.asarray(shape, jnp.float64)))
+        crossings = self_crossings(x, z)
+        upper = np.arange(1, x.size // 2)
+        depth = max(0.0, -float(np.min(z[upper] - z[x.size - 1 - upper])))
+        start = np.asarray(resampled.z, np.float64)
+        if not crossings or (self_crossings(x, start)
+                             and depth <= max(0.0, -float(np.min(start[upper] - start[x.size - 1 - upper])))):
+            continue  # (a thin tail that the points already pinch, unshaped, is the section's own)
+        where[rib] = depth
+        at = "" if len(sections) == 1 or (rib_shapes is None and len(set(map(id, sections))) == 1) else f" {rib}"
+        first = crossings[0]
+        messages.append(
+            f"the designed rib{at} {'pinches to zero thickness' if first.touching else 'crosses itself'} at "
+            f"x/c = {first.x:.4g} (its lower surface up to {depth:.3g} chord above the upper one"
+            f"{f', at {len(crossings)} places' if len(crossings) > 1 else ''}): such a rib cannot be made; keep "
+            f"the rib limits on (min_thickness) or narrow the rib_shape bounds")
+    return ({"rib_crossing": Violation(where)} if where else {}), messages
 
 
 @partial(jax.jit, static_argnames=("physics",))

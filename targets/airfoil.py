@@ -73,6 +73,14 @@ ZERO_AREA = 1e-9
 """Enclosed area (chord^2) at or below which a contour has zero thickness: a 0.01%-thick
 section encloses about 7e-5."""
 
+ZERO_THICKNESS = 1e-9
+"""Distance (chord) below which two parts of a contour that do not cross count as touching (zero
+thickness): rounding-level, far below any section's thickness away from its trailing edge."""
+
+TRAILING_EDGE_ZONE = 1e-5
+"""Distance (chord) from the trailing edge (plus half its gap) within which a contour's surfaces may meet:
+the thickness of a section vanishes there."""
+
 ORDER_TOLERANCE = 0.02
 """Chord fraction by which x must turn back to count as a turn of the contour (see
 :func:`x_turns`): far above the small reversals beside a rounded nose or trailing edge."""
@@ -145,8 +153,150 @@ def order_error(x: np.ndarray, where=None) -> str | None:
             f"edge, lower surface, trailing edge (Selig), as the file's source lists them")
 
 
-def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarray, np.ndarray]:
+class Crossing(NamedTuple):
+    """Where a contour crosses or touches itself (see :func:`self_crossings`).
+
+    Attributes:
+        x, z: The meeting point, chord units.
+        first, second: The segments that meet, each by the index of its
+            first point (segment ``i`` joins points ``i`` and ``i + 1``;
+            ``n - 1`` is an open trailing edge's base, from the last point to
+            the first); ``first < second``.
+        touching: True when the two only touch (the section's thickness
+            drops to zero there), False when they cross.
+    """
+
+    x: float
+    z: float
+    first: int
+    second: int
+    touching: bool
+
+
+def _point_segment(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance from points ``q`` to segments ``a b`` (rows), and the closest points."""
+    ab = b - a
+    length2 = np.sum(ab * ab, axis=1)
+    t = np.clip(np.sum((q - a) * ab, axis=1) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
+    foot = a + t[:, None] * ab
+    return np.linalg.norm(q - foot, axis=1), foot
+
+
+def self_crossings(x: ArrayLike, z: ArrayLike) -> list[Crossing]:
+    """Every point inside the chord where the polygon through the nodes (closed by its trailing-edge base)
+    crosses or touches itself, ordered by x.
+
+    Two segments cross when each one's end points lie strictly on opposite
+    sides of the other's line (exact orientation products); they touch when
+    they come closer than :data:`ZERO_THICKNESS` without crossing (a pinch
+    to zero thickness). Segments that share a node (neighbours along the
+    contour) meet there by construction and are not counted, nor are the two
+    trailing-edge segments (they share the trailing edge, or its base joins
+    them) or a meeting within :data:`TRAILING_EDGE_ZONE` of the trailing
+    edge: a section's thickness may vanish there. Candidate pairs are the
+    segments whose x- and z-extents overlap (a sweep over x), so a section's
+    few thousand nodes cost a few milliseconds.
+
+    Args:
+        x, z: Node coordinates, chord units, shape ``(n,)``, contour order
+            (first and last point at the trailing edge).
+
+    Returns:
+        The :class:`Crossing` points, empty for a section that neither
+        crosses nor pinches itself.
+    """
+    p = np.column_stack([np.asarray(x, np.float64), np.asarray(z, np.float64)])
+    n = p.shape[0]
+    end = np.roll(p, -1, axis=0)
+    index = np.flatnonzero(np.any(p != end, axis=1))  # without a closed trailing edge's zero-length base
+    a, b = p[index], end[index]
+    m = index.size
+    lo = np.minimum(a, b) - 0.5 * ZERO_THICKNESS
+    hi = np.maximum(a, b) + 0.5 * ZERO_THICKNESS
+    order = np.argsort(lo[:, 0], kind="stable")
+    reach = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    count = np.maximum(reach - np.arange(m) - 1, 0)
+    first = np.repeat(np.arange(m), count)
+    second = first + 1 + np.arange(first.size) - np.repeat(np.cumsum(count) - count, count)
+    i, j = order[first], order[second]
+    gap = np.abs(i - j)
+    ends = {0, n - 2}
+    near = (gap == 1) | (gap == m - 1) | np.isin(index[i], list(ends)) & np.isin(index[j], list(ends))
+    keep = (lo[i, 1] <= hi[j, 1]) & (lo[j, 1] <= hi[i, 1]) & ~near
+    i, j = i[keep], j[keep]
+
+    def orientation(o, u, v):
+        return (u[:, 0] - o[:, 0]) * (v[:, 1] - o[:, 1]) - (u[:, 1] - o[:, 1]) * (v[:, 0] - o[:, 0])
+
+    o1, o2 = orientation(a[i], b[i], a[j]), orientation(a[i], b[i], b[j])
+    o3, o4 = orientation(a[j], b[j], a[i]), orientation(a[j], b[j], b[i])
+    cross = (o1 * o2 < 0.0) & (o3 * o4 < 0.0)
+    t = o1 / np.where(cross, o1 - o2, 1.0)  # where along segment j the lines meet
+    at = a[j] + t[:, None] * (b[j] - a[j])
+    # Otherwise the closest approach: at an end point of one of the two segments.
+    candidates = [_point_segment(a[i], a[j], b[j]), _point_segment(b[i], a[j], b[j]),
+                  _point_segment(a[j], a[i], b[i]), _point_segment(b[j], a[i], b[i])]
+    distance = np.stack([c[0] for c in candidates])
+    nearest = np.argmin(distance, axis=0)
+    ends_at = np.stack([a[i], b[i], a[j], b[j]])
+    feet = np.stack([c[1] for c in candidates])
+    rows = np.arange(i.size)
+    closest = 0.5 * (ends_at[nearest, rows] + feet[nearest, rows])
+    touch = ~cross & (distance[nearest, rows] <= ZERO_THICKNESS)
+    point = np.where(cross[:, None], at, closest)
+    trailing_edge = 0.5 * (p[0] + p[-1])
+    inside = np.linalg.norm(point - trailing_edge, axis=1) > TRAILING_EDGE_ZONE + 0.5 * np.linalg.norm(p[0] - p[-1])
+    meet = (cross | touch) & inside
+    crossings = [Crossing(float(point[k, 0]), float(point[k, 1]), int(min(index[i[k]], index[j[k]])),
+                          int(max(index[i[k]], index[j[k]])), bool(touch[k])) for k in np.flatnonzero(meet)]
+    distinct: list[Crossing] = []  # one entry per place (a shared node meets four segments)
+    for c in sorted(crossings, key=lambda c: (c.x, c.first)):
+        if not any(math.hypot(c.x - d.x, c.z - d.z) <= 1e3 * ZERO_THICKNESS for d in distinct):
+            distinct.append(c)
+    return distinct
+
+
+def crossing_error(x: np.ndarray, z: np.ndarray, where=None, noun: str = "points") -> str | None:
+    """Why a contour is not a section because it crosses or pinches itself (:func:`self_crossings`), or None.
+
+    ``where(i)`` numbers point ``i`` in the message, as ``noun`` (e.g. its line in a file: ``"lines"``).
+    """
+    crossings = self_crossings(x, z)
+    if not crossings:
+        return None
+    name = where or str
+    n = len(x)
+    i_le = int(np.argmin(x))
+
+    def surface(segment: int) -> str:
+        if segment == n - 1:
+            return "trailing-edge base"
+        return "upper surface" if segment < i_le else "lower surface"
+
+    first = crossings[0]
+    parts = {surface(first.first), surface(first.second)}
+    if parts == {"upper surface", "lower surface"}:
+        what = f"its upper and lower surfaces {'meet' if first.touching else 'cross'}"
+    elif len(parts) == 2:
+        what = f"its {' and '.join(sorted(parts))} {'meet' if first.touching else 'cross'}"
+    else:
+        what = f"its {parts.pop()} {'touches' if first.touching else 'crosses'} itself"
+    points = f"{noun} " + " and ".join(f"{name(s)}-{name((s + 1) % n)}" for s in (first.first, first.second))
+    more = f" ({len(crossings)} places in all, from x/c = {crossings[0].x:.4g} to {crossings[-1].x:.4g})" \
+        if len(crossings) > 1 else ""
+    return (f"{what} at x/c = {first.x:.4g}, z/c = {first.z:.4g} (between {points}){more}: the section has "
+            f"{'zero' if first.touching else 'negative'} thickness inside the chord, which no rib or skin can "
+            f"take; correct the coordinates there (a lost minus sign, or surfaces swapped) so the upper surface "
+            f"lies above the lower one everywhere ahead of the trailing edge")
+
+
+def _validated_contour(x: ArrayLike, z: ArrayLike, what: str, crossing: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Checks a Selig-ordered, chord-normalised contour and returns float64 copies.
+
+    ``crossing``: also refuse a contour that crosses or pinches itself (:func:`crossing_error`); off for
+    the nodes derived from a section already accepted (a resampling, a trailing-edge blend), whose
+    polygon may pinch where the section's own thickness is below their spacing (a thin tail on a
+    coarse grid, the blend of a closed trailing edge).
 
     Raises:
         ValueError: With a sentence naming what to change.
@@ -200,6 +350,9 @@ def _validated_contour(x: ArrayLike, z: ArrayLike, what: str) -> tuple[np.ndarra
             f"{what} is not chord-normalised: its leading edge is at x = {x[i_le]:.6g}, expected 0 "
             f"within {LEADING_EDGE_BOUND:g}; shift the coordinates so the leading edge is at x = 0"
         )
+    crossed = crossing_error(x, z) if crossing else None
+    if crossed is not None:
+        raise ValueError(f"{what}: {crossed}")
     # Shoelace area of the polygon closed by the trailing-edge base.
     area = 0.5 * float(np.sum(x * np.roll(z, -1) - np.roll(x, -1) * z))
     if abs(area) <= ZERO_AREA:
@@ -478,7 +631,7 @@ class Airfoil:
     ) -> Airfoil:
         """An airfoil whose nodes were sampled from an existing smooth contour."""
         airfoil = cls.__new__(cls)
-        x, z = _validated_contour(x, z, f"airfoil {name!r}")
+        x, z = _validated_contour(x, z, f"airfoil {name!r}", crossing=False)
         airfoil._set(x, z, name, contour)
         return airfoil
 
@@ -517,6 +670,32 @@ class Airfoil:
     def leading_edge(self) -> np.ndarray:
         """The leading edge, the minimum-x point of the smooth contour, as (x, z)."""
         return self._contour.points(np.array(self._contour.le_parameter))
+
+    @property
+    def leading_edge_parameter(self) -> float:
+        """Where the leading edge (minimum x) lies along the smooth contour, as a fraction of its length
+        (the parameter of :meth:`contour_points`): the upper surface runs before it, the lower after."""
+        return self._contour.le_parameter / self._contour.length
+
+    def contour_points(self, t: ArrayLike) -> np.ndarray:
+        """Points of the smooth contour at fractions ``t`` of its length from the first node.
+
+        Args:
+            t: Fractions in [0, 1] (0: the first node, the upper trailing
+                edge; 1: the last node), any shape; the cumulative chord
+                length of the nodes parametrises the spline, so ``t`` is
+                close to the arc-length fraction.
+
+        Returns:
+            ``(..., 2)`` points (x, z), chord units.
+
+        Raises:
+            ValueError: If a fraction lies outside [0, 1] or is not finite.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        if not np.all(np.isfinite(t) & (t >= 0.0) & (t <= 1.0)):
+            raise ValueError("contour fractions t must lie in [0, 1]")
+        return self._contour.points(t * self._contour.length)
 
     @cached_property
     def leading_edge_radius(self) -> float:
@@ -753,7 +932,10 @@ class Airfoil:
             x[nodes] += weight * (moved[0] - end[0])
             z[nodes] += weight * (moved[1] - end[1])
         (x[0], z[0]), (x[-1], z[-1]) = new_first, new_last
-        return Airfoil(x, z, name=self.name)
+        # (the blend may pinch the polygon to zero thickness where the section is thinner than the gap
+        # change, within the blend: the accepted section's own trailing edge, closed)
+        x, z = _validated_contour(x, z, f"airfoil {self.name!r}", crossing=False)
+        return Airfoil._on_contour(x, z, self.name, _SmoothContour(x, z))
 
     def with_closed_trailing_edge(self, blend: float = TRAILING_EDGE_BLEND) -> Airfoil:
         """The section with its trailing edge closed (see :meth:`with_trailing_edge`, gap 0)."""

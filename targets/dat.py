@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil, order_error
+from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil, crossing_error, order_error
 
 RENORMALISE_LIMIT = 5e-3
 """Largest chord error (chord units) that :func:`load_airfoil` renormalises: the
@@ -319,6 +319,9 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     z = np.array([p[2] for p in kept])
     label = label if name is None else name
     x, z, note = _renormalised(where, label, x, z)
+    crossed = crossing_error(x, z, lambda i: str(kept[i][0]), "lines")
+    if crossed is not None:
+        raise ValueError(f"{where}: airfoil {label!r}: {crossed}")
     try:
         airfoil = Airfoil(x, z, name=label)
     except ValueError as err:

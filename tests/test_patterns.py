@@ -28,7 +28,8 @@ from forward_solver import Bay, Fabric, Parameters, Result, Scene, solve_equilib
 from forward_solver import forces as fk  # noqa: E402
 from inverse_design.app import cli  # noqa: E402
 from inverse_design.app.report import write_report  # noqa: E402
-from inverse_design.pattern import develop, offset_outline  # noqa: E402
+from inverse_design.app.pattern import rib_mark_nodes  # noqa: E402
+from inverse_design.pattern import RIB_CHORDAL_ERROR, develop, mounted_skin, offset_outline, rib_template  # noqa: E402
 from inverse_design.rib_design import cut_lengths  # noqa: E402
 from targets import naca  # noqa: E402
 
@@ -246,3 +247,79 @@ def test_a_negative_seam_allowance_is_refused_with_one_line(tmp_path, capsys, sc
     with pytest.raises(ValueError, match="seam allowance must be 0 mm or more"):
         write_report(tmp_path / "o", design, TARGET, scene=scene, seam_allowance_mm=-1.0)
     assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------------------------------------------- rib templates and layers
+
+
+def _segment_midpoints(outline):
+    return 0.5 * (outline + np.roll(outline, -1, axis=0))
+
+
+def test_the_rib_template_is_the_section_not_the_grid_polygon(folder):
+    # 5x32 grid, chord 1 m: the grid's polygon is millimetres off the section at the nose and between nodes.
+    # The drawn outline must be the section within 0.1 mm, at its points and between them (its chords).
+    out, _ = folder
+    for name in ("rib_0.dxf", "rib_1.dxf"):
+        outline = _layer(ezdxf.readfile(out / name), "SEW")[0] / 1000.0  # m, chord 1 m: chord units
+        assert np.max(np.abs(TARGET.distance(outline))) < 1e-9, name  # on the section
+        chordal = np.max(np.abs(TARGET.distance(_segment_midpoints(outline))))
+        assert chordal <= RIB_CHORDAL_ERROR * 1.05, (name, chordal)  # (the midpoint is probed: 5% for the rest)
+        assert chordal <= 1e-4, name
+
+
+def test_the_rib_attachment_marks_are_at_the_skins_nodes(folder, scene, design):
+    out, _ = folder
+    nodes = mounted_skin(scene, design.parameters)[0][:, [0, 2]] * 1000.0  # mm, the root rib's contour nodes
+    doc = ezdxf.readfile(out / "rib_0.dxf")
+    outline = _layer(doc, "SEW")[0]
+    ticks = _layer(doc, "MARK")
+    j_le = int(np.argmin(nodes[:, 0]))
+    marked = rib_mark_nodes(len(nodes), j_le)
+    assert len(ticks) == len(marked) and 0 in marked and j_le in marked
+    np.testing.assert_allclose(np.array([t[-1] for t in ticks]), nodes[marked], rtol=0, atol=1e-9)
+    # the nodes lie on the drawn outline (the same section), within its chordal error
+    a, b = outline, np.roll(outline, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("pkd,kd->pk", nodes[:, None] - a, ab) / np.sum(ab * ab, axis=1), 0, 1)
+    gap = np.min(np.linalg.norm(nodes[:, None] - (a + t[..., None] * ab), axis=-1), axis=1)
+    assert gap.max() <= RIB_CHORDAL_ERROR * 1000.0 * 1.05
+    # each tick runs 5 mm (10 mm at the leading edge) inward from its node
+    lengths = np.array([np.linalg.norm(t[-1] - t[0]) for t in ticks])
+    np.testing.assert_allclose(lengths, [10.0 if j == j_le else 5.0 for j in marked], rtol=1e-9)
+    assert Polygon(outline).contains_points(np.array([t[0] for t in ticks])).all()
+
+
+def test_the_rib_template_says_which_line_is_the_part(folder):
+    out, _ = folder
+    texts = " | ".join(t.dxf.text for t in ezdxf.readfile(out / "rib_0.dxf").modelspace().query("TEXT"))
+    assert "SEW (blue): the rib outline, the part" in texts
+    assert f"CUT (red): {ALLOWANCE:g} mm outside, the seam allowance of a fabric rib, not the part" in texts
+
+
+def test_the_panels_grid_layer_is_off_for_a_cutter(folder):
+    out, summary = folder
+    for name in summary["patterns"]["files"]:
+        if name.endswith(".dxf"):
+            layers = ezdxf.readfile(out / name).layers
+            for layer in ("CUT", "SEW", "MARK"):
+                assert layers.get(layer).is_on(), (name, layer)
+            if name.startswith("pattern_"):
+                assert layers.get("GRID").is_off(), name
+
+
+@pytest.mark.parametrize("n_span, n_contour", [(17, 256), (9, 32)])
+def test_a_designed_rib_template_is_the_designed_section(n_span, n_contour):
+    # The default grid and chord, and a coarse one; a rib shape and thickness scale: the outline against
+    # the designed section (`forward_solver.rib_section`, on 2001 points of the section: 1e-8 chord).
+    from forward_solver import rib_section
+
+    shape = np.array([0.01, -0.02, 0.015, 0.0, 0.01, 0.02])
+    parameters = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02, rib_thickness_scale=0.9,
+                            rib_shape=shape)
+    bay_scene = Scene(Bay.from_airfoil(TARGET, chord=1.0, rib_spacing=0.25, n_span=n_span, n_contour=n_contour))
+    outline, nodes = rib_template(bay_scene, parameters, 0)
+    designed = rib_section(TARGET, shape, 0.9, n_points=2001)
+    assert np.max(np.abs(designed.distance(outline))) < 1e-6
+    assert np.max(np.abs(designed.distance(_segment_midpoints(outline)))) <= 1e-4
+    assert np.max(np.abs(designed.distance(nodes))) < 1e-6  # the skin's nodes lie on it too

@@ -291,8 +291,9 @@ left by a killed run are removed by the next run to DIR:
   pattern_bay_0_upper.dxf, pattern_bay_0_lower.dxf   the flat panels, cut-ready, 1:1 in mm:
                         layers SEW (sewing line at the cut lengths), CUT (at the seam
                         allowance), MARK (alignment marks, LE, warp, label), GRID (the
-                        developed span fibres); .svg of each for a quick look; rib_0.dxf,
-                        rib_1.dxf the rib templates (a successful design only; not with
+                        developed span fibres; a layer off when opened); .svg of each for
+                        a quick look; rib_0.dxf, rib_1.dxf the rib templates (SEW the rib
+                        itself, CUT its seam allowance; a successful design only; not with
                         --no-patterns)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in

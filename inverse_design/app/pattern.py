@@ -19,14 +19,20 @@ millimetres (``$INSUNITS`` 4), drawn at scale 1:1, on these layers:
   label (bay, panel, scale 1:1, seam allowance).
 * ``GRID``: the developed grid's span fibres (one open polyline per contour
   node, through its span nodes): the reference the sewing line and marks
-  come from, for checking; not to be cut.
+  come from, for checking; not to be cut. The layer is off in the file (a
+  cutter or viewer shows it only when it is switched on).
 
-A rib template draws the mounted rib (its designed shape: thickness and
-chord scales and rib shape applied, as the solver mounts it) through the
-grid's contour nodes at its chord: ``SEW`` the attachment line, ``CUT``
-offset by the seam allowance, ``MARK`` ticks at every `MARK_EVERY`-th
-attachment node (the skin's nodes) and at the leading and trailing edges,
-with a label.
+A rib template draws the rib itself (`pattern.rib_template`): the designed
+section (thickness and chord scales and rib shape applied, as the solver
+mounts it) at its chord, from the section's smooth contour with a chordal
+error below `pattern.RIB_CHORDAL_ERROR` (0.05 mm), not the grid's polygon:
+``SEW`` the rib outline, the part itself (a rigid rib is cut on it);
+``CUT`` offset outward by the seam allowance, the allowance of a fabric rib
+(not the part); ``MARK`` attachment ticks at the skin's nodes (the grid's
+contour nodes on the rib) where the panels' rib edges have their marks
+(every `MARK_EVERY`-th node from the trailing and leading edges), a longer
+one at the leading edge, and the label, whose lines say which line is the
+part and which the allowance.
 """
 
 from __future__ import annotations
@@ -35,12 +41,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pattern import bay_panels, mounted_skin, offset_outline, panel_outline
+from ..pattern import bay_panels, offset_outline, panel_outline, rib_template
 
-__all__ = ["LAYERS", "MARK_EVERY", "write_bay_patterns", "write_panel_dxf", "write_panel_svg", "write_rib_dxf"]
+__all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "rib_mark_nodes", "write_bay_patterns", "write_panel_dxf",
+           "write_panel_svg", "write_rib_dxf"]
 
 #: Layer name -> AutoCAD colour index (red, blue, green, grey).
 LAYERS = {"CUT": 1, "SEW": 5, "MARK": 3, "GRID": 8}
+#: Layers that are off when a file is opened (module docstring).
+HIDDEN_LAYERS = ("GRID",)
 #: Alignment marks at every this many grid nodes along the ribs and the seams.
 MARK_EVERY = 4
 #: Notch length inside the sewing line, mm.
@@ -55,7 +64,9 @@ def _document():
 
     doc = ezdxf.new("R2010", units=ezdxf.units.MM)  # $INSUNITS 4: millimetres
     for name, colour in LAYERS.items():
-        doc.layers.add(name, color=colour)
+        layer = doc.layers.add(name, color=colour)
+        if name in HIDDEN_LAYERS:
+            layer.off()  # kept for checking, not drawn or cut unless switched on
     return doc
 
 
@@ -161,22 +172,43 @@ def write_panel_svg(path, panel, seam_allowance_mm: float = 10.0) -> Path:
     return path
 
 
-def write_rib_dxf(path, section, label: str, seam_allowance_mm: float = 10.0) -> Path:
-    """Write a rib template: the mounted rib's section ``(n_contour, 2)`` x-z in metres (Selig order,
-    the grid's contour nodes) as DXF, 1:1 in millimetres (module docstring)."""
-    sew = np.asarray(section, np.float64) * _MM
-    keep = np.r_[True, np.linalg.norm(np.diff(sew, axis=0), axis=1) > 1e-9]  # (a closed TE repeats no point)
+def rib_mark_nodes(n_contour: int, leading_edge: int) -> list[int]:
+    """The contour nodes of a rib that carry attachment marks: those the panels' rib edges mark (every
+    `MARK_EVERY`-th panel column from each panel's first, and each panel's last), so the notches meet."""
+    upper = [j for j in range(leading_edge + 1) if j % MARK_EVERY == 0 or j == leading_edge]
+    lower_columns = list(range(leading_edge, n_contour)) + [0]
+    lower = [j for k, j in enumerate(lower_columns) if k % MARK_EVERY == 0 or k == len(lower_columns) - 1]
+    return sorted(set(upper + lower))
+
+
+def write_rib_dxf(path, outline, nodes, label: str, seam_allowance_mm: float = 10.0) -> Path:
+    """Write a rib template as DXF, 1:1 in millimetres (module docstring).
+
+    Args:
+        path: the file.
+        outline: ``(n, 2)`` the rib's outline, x-z in metres, Selig order (`pattern.rib_template`).
+        nodes: ``(n_contour, 2)`` the skin's nodes on the rib (the grid's contour nodes), x-z in metres.
+        label: the rib's name and chord.
+        seam_allowance_mm: the allowance, mm (>= 0).
+    """
+    sew = np.asarray(outline, np.float64) * _MM
+    keep = np.r_[True, np.linalg.norm(np.diff(sew, axis=0), axis=1) > 1e-9]
     sew = sew[keep]
     cut = offset_outline(sew, seam_allowance_mm)
     normal = _outward_normals(sew)
-    le = int(np.argmin(sew[:, 0]))
+    attach = np.asarray(nodes, np.float64) * _MM
+    le = int(np.argmin(attach[:, 0]))
     marks = []
-    for q in range(len(sew)):
-        if q % MARK_EVERY == 0 or q == le:
-            marks.append([sew[q] - 5.0 * normal[q], sew[q]])
-    marks.append([sew[le] - 10.0 * normal[le], sew[le]])  # the leading edge: a longer tick
-    text = [(sew[le, 0] + 0.3 * (sew[:, 0].max() - sew[le, 0]), float(np.mean(sew[:, 1])) - 0.5 * _TEXT, 0.5 * _TEXT,
-             f"{label}  scale 1:1 mm")]
+    for j in rib_mark_nodes(attach.shape[0], le):
+        n = normal[int(np.argmin(np.linalg.norm(sew - attach[j], axis=1)))]  # the outline's normal there
+        marks.append([attach[j] - (10.0 if j == le else 5.0) * n, attach[j]])  # the leading edge: longer
+    height = 0.5 * _TEXT
+    x0 = attach[le, 0] + 0.3 * (sew[:, 0].max() - attach[le, 0])
+    y0 = float(np.mean(sew[:, 1])) + 0.5 * height
+    lines = [f"{label}  scale 1:1 mm",
+             "SEW (blue): the rib outline, the part: cut a rigid rib on this line",
+             f"CUT (red): {seam_allowance_mm:g} mm outside, the seam allowance of a fabric rib, not the part"]
+    text = [(x0, y0 - 1.5 * height * k, height, line) for k, line in enumerate(lines)]
     return _write_dxf(path, {"SEW": [sew], "CUT": [cut], "MARK": marks, "text": text})
 
 
@@ -214,14 +246,14 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
             else:
                 write(folder / name, panel, allowance)
             names.append(name)
-    if rib_templates and scene.bay.periodic:
-        nodes = mounted_skin(scene, parameters)
+    if rib_templates and scene.bay.periodic and scene.bay.airfoil is not None:
         for row, rib in zip((0, -1), ribs):
             if rib is None:
                 continue
             name = f"rib_{rib}.dxf"
             chord = (scene.bay.chord_root if row == 0 else scene.bay.chord_tip) * float(parameters.rib_chord_scale)
-            writer(folder / name, write_rib_dxf, np.asarray(nodes[row][:, [0, 2]]),
-                   f"rib {rib} template, chord {chord * _MM:.1f} mm", allowance)
+            outline, nodes = rib_template(scene, parameters, row)
+            writer(folder / name, write_rib_dxf, outline, nodes, f"rib {rib} template, chord {chord * _MM:.1f} mm",
+                   allowance)
             names.append(name)
     return names, panels

@@ -442,7 +442,9 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                             run_task(task)
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
-                if shaped:
+                if shaped and "rib_crossing" in (design.violated_constraints if design is not None else {}):
+                    skipped["rib.dat"] = "the designed rib crosses itself (constraints.violated: rib_crossing)"
+                elif shaped:
                     from forward_solver import rib_section
 
                     section = rib_section(start_rib, solution.parameters.rib_shape,
@@ -718,10 +720,15 @@ def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = N
             if len(sol.bays) > PER_BAY_PLOTS:
                 skipped["bay_K_mid_bay_section.png"] = (f"{len(sol.bays)} bays: more than {PER_BAY_PLOTS}, so "
                                                         "wing_overview.png shows every bay in one figure")
+            crossed = result.violated_constraints.get("rib_crossing", {})
+            if crossed:
+                skipped["rib_K.dat"] = f"designed ribs {sorted(crossed)} cross themselves (rib_crossing)"
             if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
                 from forward_solver import rib_section
 
                 for k, (airfoil, row) in enumerate(zip(result.wing.sections, np.asarray(result.rib_shapes))):
+                    if k in crossed:
+                        continue
                     section = rib_section(airfoil, row, float(result.parameters.rib_thickness_scale),
                                           name=f"{airfoil.name} rib {k}")
                     write_selig(staging / f"rib_{k}.dat", section,
