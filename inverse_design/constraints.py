@@ -67,6 +67,12 @@ ACTIVE_TOLERANCE = 1e-3
 #: below what a fabric's allowable or a wrinkle test can resolve.
 VIOLATION_TOLERANCE = 1e-3
 
+#: The cell rows of a floor at or above zero (`cell_constraints`) ask for this
+#: fraction of the tension scale above the floor (0.005 N/m at 1 kPa on a 1 m
+#: chord): a Gauss-Newton step is exact only to its linearisation, and a
+#: wrinkle-free floor is broken by any negative tension (`floor_threshold`).
+FLOOR_MARGIN = 1e-5
+
 #: Sharpness ``rho`` of the KS aggregate, per tension scale.
 KS_SHARPNESS = 1000.0
 
@@ -198,13 +204,15 @@ def constraint_functions(constraints: Constraints | None, tensions, fabric, scal
 def cell_constraints(constraints: Constraints | None, tensions, fabric, scale: float):
     """Every cell's constraint rows ``>= 0`` (dimensionless): ``(T - floor) / scale`` for every tension,
     then ``(ceiling - T) / scale``, for the limits of `Constraints.names` in that order (``T`` the
-    unclamped cell tensions, N/m). Their least values are the true extremes that `constraint_report`
-    checks (`constraint_functions` aggregates them smoothly instead)."""
+    unclamped cell tensions, N/m), less `FLOOR_MARGIN` on the rows of a floor at or above zero. Their
+    least values are the true extremes that `constraint_report` checks (`constraint_functions`
+    aggregates them smoothly instead)."""
     if constraints is None:
         return jnp.zeros(0)
     parts = []
     if constraints.min_tension is not None:
-        parts.append((tensions - constraints.min_tension) / scale)
+        margin = FLOOR_MARGIN if constraints.min_tension >= 0.0 else 0.0
+        parts.append((tensions - constraints.min_tension) / scale - margin)
     ceiling = constraints.ceiling(fabric)
     if math.isfinite(ceiling):
         parts.append((ceiling - tensions) / scale)
