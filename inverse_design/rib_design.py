@@ -44,7 +44,6 @@ from forward_solver.cut_field import local_prestrain
 from forward_solver.programs import stored
 from forward_solver.rib_shape import rib_offsets
 
-from .constraints import Violation
 
 __all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "cut_lengths"]
 
@@ -166,7 +165,7 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
     Returns:
         ``(active, violated, values, per_rib, messages)``: names of limits
         within `RIB_TOLERANCE` of their bound (``"rib_min_thickness"``; with
-        several ribs ``"rib_min_thickness@rib 2"``); ``{name: Violation}`` of
+        several ribs ``"rib_min_thickness@rib 2"``); ``{name: {rib: amount}}`` of
         each limit broken by more than it at some rib, relative to the limit
         (the thickness ratio's shortfall, or the radius's in fractions of
         chord); the measured values (`RibGeometry.measure`) of the rib with
@@ -199,7 +198,7 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
                 values.update({name: value, f"{name}_limit": limit})
                 if name == "rib_min_radius":
                     values["rib_start_radius"] = measured["rib_start_radius"]
-    return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
+    return active, where, values, per_rib, messages
 
 
 @stored(static_argnames=("physics",))
