@@ -275,7 +275,7 @@ def _main(argv: list[str] | None, started: float) -> int:
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
-        patterns = "" if args.no_patterns else "; no cut pattern was written"
+        patterns = "" if args.no_patterns else "; no panel or rib template (DXF, SVG) was written"
         print(f"{PROG}: failed: {why}: {summary['results']['message']} "
               f"(the results are in {summary['out']}{patterns})", file=sys.stderr)
         return 1

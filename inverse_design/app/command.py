@@ -130,7 +130,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
                    tolerance=args.tolerance, progress=progress, rib_limits=rib_limits, callback=safe_point,
                    solver_options=solver_options, root_condition=args.root_condition)
-    inputs = {**vars(args), "sources": sources}
+    inputs = {"wing": None, **vars(args), "sources": sources}  # (the same keys for a bay and a case file's ribs)
     if wing_ribs is None:
         def scene_on(n_span: int) -> Scene:
             return Scene(Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
@@ -138,7 +138,6 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
         scene = scene_on(args.n_span)
         bays = [(args.rib_spacing, args.chord)]
-        inputs.update(target_name=target.name, rib_name=rib.name)
 
         def design():
             return optimise_pressure(scene, target, variables=variables, initial=initial, objective=args.objective,
