@@ -26,8 +26,9 @@ from inverse_design.app import case as case_reader, cli, command, export, interr
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
-FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv", "mid_bay_section.png",
-          "deviation.png", "tensions.png", "history.png", "rib_0.dxf", "rib_1.dxf",
+FOLDER = {"summary.json", "wing.npz", "equilibrium.npz", "skin.obj", "skin.stl", "bay_0_cut_pattern.csv",
+          "wing_overview.png", "bay_0_mid_bay_section.png", "deviation.png", "tensions.png", "history.png",
+          "rib_0.dxf", "rib_1.dxf",
           *(f"pattern_bay_0_{panel}.{kind}" for panel in ("upper", "lower") for kind in ("dxf", "svg"))}
 
 
@@ -107,8 +108,10 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert inputs["sources"] == {"n_span": "command line", "n_contour": "command line",
                                  "out": "command line"}
     assert summary["case"]["grid"] == [5, 32] and summary["mode"] == "optimise"
-    # One layout for a bay and a wing (schema 2): the bay axis has this bay's one entry.
-    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 1
+    # One layout for a bay and a wing: the bay axis has this bay's one entry.
+    assert summary["schema"] == 3 and summary["case"]["n_bays"] == 1
+    assert [(r["target"], r["chord_m"], r["station_m"]) for r in summary["case"]["ribs"]] == [
+        ("NACA 2412", 1.0, 0.0), ("NACA 2412", 1.0, 0.25)]
     (bay,) = summary["bays"]
     assert bay["errors_after"]["rms"] == pytest.approx(summary["errors"]["after"]["rms"], rel=1e-12)
     assert bay["errors_before"]["rms"] == pytest.approx(summary["errors"]["before"]["rms"], rel=1e-12)
@@ -123,7 +126,7 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert results["equilibrium"]["relative_residual"] < 1e-6
     assert results["iterations"] == len(summary["history"]) > 0
     errors = summary["errors"]
-    assert errors["objective"] == "average" and errors["unit"] == "fraction of chord"
+    assert errors["objective"] == "average" and errors["unit"] == "fraction of the local chord"
     # The optimiser must improve on its start; max >= rms by definition.
     assert 0 < errors["after"]["rms"] < errors["before"]["rms"]
     assert errors["after"]["max"] >= errors["after"]["rms"]
@@ -407,7 +410,7 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
     done = run_cli(*SMALL, "--max-iterations", "2", "--quiet", "--out", "out", cwd=tmp_path)
     assert done.returncode == 1 and done.stdout == ""
     assert "did not converge" in done.stderr and "Traceback" not in done.stderr
-    assert len(done.stderr.strip().splitlines()) == 1 and "no cut pattern was written" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "no panel or rib template (DXF, SVG) was written" in done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["results"]["success"] is False and summary["results"]["message"]
     assert not list((tmp_path / "out").glob("*.dxf")) and not list((tmp_path / "out").glob("pattern_*"))

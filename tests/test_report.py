@@ -62,9 +62,10 @@ def test_a_bay_by_options_and_by_a_two_rib_case_file_write_the_same_files_and_ke
     assert sorted(by_options["files"]) == sorted(by_file["files"])
     assert {"wing.npz", "wing_overview.png", "bay_0_mid_bay_section.png", "equilibrium.npz", "deviation.png",
             "tensions.png", "bay_0_cut_pattern.csv"} <= set(by_options["files"])
-    # The inputs are the options as given (where each came from differs by nature); every other key is
-    # the same, down to the bay axis.
-    keys = [{k for k in _keys(s) if not k.startswith("/inputs/sources/")} for s in (by_options, by_file)]
+    # The inputs are the options as given (where each came from, and the case file's rib tables, differ
+    # by nature); every other key is the same, down to the bay axis.
+    keys = [{k for k in _keys(s) if not k.startswith(("/inputs/sources/", "/inputs/wing[]/"))}
+            for s in (by_options, by_file)]
     assert keys[0] == keys[1]
     assert by_options["case"]["n_bays"] == by_file["case"]["n_bays"] == 1
     # The same bay: the same design (the same grid and start; the scenes are built the same way).
@@ -178,3 +179,20 @@ def test_a_bay_s_section_plot_names_its_own_ribs_and_stations():
     labels = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
     assert any(label.startswith("rib 2 at y = 0.5 m") for label in labels)
     assert not any("y = 0 " in label or label.endswith("y = 0") for label in labels + [title])
+
+
+def test_the_panel_label_runs_clear_of_the_warp_arrow():
+    from forward_solver import Bay, Fabric, Parameters, Scene
+    from inverse_design.app.pattern import _panel_drawing
+    from inverse_design.pattern import bay_panels
+    from targets import naca
+
+    scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())
+    for panel in bay_panels(scene, Parameters(pressure=1e3, prestrain_span=0.02, prestrain_chord=0.0)):
+        drawing = _panel_drawing(panel, 10.0)
+        shaft = np.asarray(drawing["MARK"][-3])  # the arrow's shaft, then its two barbs
+        warp = next(t for t in drawing["text"] if t[3] == "WARP")
+        x, y, height, label = drawing["text"][-1]
+        assert label.startswith(f"bay 0 {panel.name} panel")
+        # The label is horizontal, the warp arrow runs along the span (y): clear if their heights part.
+        assert y + height < shaft[:, 1].min() and y > 0.0 and abs(warp[1] - y) > height

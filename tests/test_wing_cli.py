@@ -69,7 +69,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert (out / "wing.toml").read_bytes() == b"# the user's case"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["mode"] == "optimise" and summary["results"]["success"]
-    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
+    assert summary["schema"] == 3 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
     assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
     assert summary["case"]["ribs"][3]["target"] == "NACA 4415"
     bays = summary["bays"]
@@ -148,7 +148,8 @@ def test_the_40_cell_case_is_a_tapered_wing_of_40_bays():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, gauss_newton, least_squares or optax"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing of 3 bays .*: root finding solves one scalar "
+                                  r"condition at one bay's mid-bay section: use slsqp, gauss_newton, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):
