@@ -576,8 +576,8 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
 
 
 def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = None, *, objective: str = "mid_bay",
-                    wing: Wing | None = None, rtol: float = 1e-8,
-                    solver_options: Mapping | None = None) -> DesignResult:
+                    wing: Wing | None = None, rtol: float = 1e-8, solver_options: Mapping | None = None,
+                    solution: Solution | WingSolution | None = None) -> DesignResult:
     """One equilibrium of N >= 1 bays at ``parameters``, measured as a design is (no variables, no history).
 
     The errors are those of `optimise_wing` (each bay's rows against the
@@ -599,13 +599,17 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             `forward_solver.solve_equilibrium`'s).
         solver_options: ``{"method": ..., "max_steps": ...}`` of the solve
             (`problem.check_solver_options`).
+        solution: an equilibrium of the bays solved already (a `Solution`
+            of one bay, or a `WingSolution`): measured as it is, not solved
+            again (``parameters``, ``rtol`` and ``solver_options`` are then
+            not used; one that did not converge gives ``success`` False).
 
     Returns:
         A `DesignResult` with no variables and an empty history; its
         initial errors are NaN (there is no start).
 
     Raises:
-        WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay does not converge.
+        WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's solve does not converge.
         ValueError: for an unknown objective or bad solver options.
     """
     from forward_solver import solve_bays
@@ -619,18 +623,29 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     if len(targets) != len(scenes) + 1:
         raise ValueError(f"give one target section per rib: {len(scenes) + 1} ribs, got {len(targets)} targets")
     check_objective(objective)
-    options = check_solver_options(None if solver_options is None else dict(solver_options))
-    if not isinstance(parameters, Parameters):
-        parameters = DEFAULT_START.replace(**dict(parameters or {}))
     start = time.perf_counter()
     bays = [scene.bay for scene in scenes]
     etas = station_etas(objective, bays[0].n_span)
     weights = bay_weights(bays)
+    if isinstance(solution, Solution):  # one bay's solve: the wing of that bay
+        if len(scenes) != 1:
+            raise ValueError(f"a Solution is one bay's equilibrium; got {len(scenes)} scenes")
+        solution = WingSolution(
+            nodes=np.asarray(solution.nodes, np.float64)[None], result=np.asarray([int(solution.result)], np.int32),
+            residual=np.asarray([float(solution.residual)]), steps=np.asarray([int(solution.steps)]),
+            bays=bays, parameters=solution.parameters, fabric=scenes[0].fabric,
+            tension_only=scenes[0].tension_only, solutions=[solution], scenes=scenes)
     with jax.enable_x64(True):
-        sol = solve_bays(scenes, parameters, rtol=rtol, max_steps=options["max_steps"], method=options["method"],
-                         sequencing=bays[0].n_contour > 128)
-        if not sol.converged:
-            raise WingConvergenceError(sol, sol.failed_bays()[0])
+        if solution is None:
+            options = check_solver_options(None if solver_options is None else dict(solver_options))
+            if not isinstance(parameters, Parameters):
+                parameters = DEFAULT_START.replace(**dict(parameters or {}))
+            sol = solve_bays(scenes, parameters, rtol=rtol, max_steps=options["max_steps"], method=options["method"],
+                             sequencing=bays[0].n_contour > 128)
+            if not sol.converged:
+                raise WingConvergenceError(sol, sol.failed_bays()[0])
+        else:
+            sol, parameters = solution, solution.parameters
         errors, mean_squares, tensions = [], [], []
         for k, (scene, bay) in enumerate(zip(scenes, bays)):
             rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
@@ -646,7 +661,9 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
         parameters=parameters.as_floats(), variables=(),
         rms_error=float(rms[0]) if len(scenes) == 1 else float(np.sqrt(np.sum(weights * np.array(mean_squares)))),
         max_error=float(np.max(largest)), initial_rms_error=math.nan, initial_max_error=math.nan,
-        wing_solution=sol, success=bool(sol.converged), message="a single equilibrium (no optimisation)",
+        wing_solution=sol, success=bool(sol.converged),
+        message=("a single equilibrium (no optimisation)" if sol.converged else
+                 f"a single equilibrium that did not converge: {sol.bay_solution(sol.failed_bays()[0]).message}"),
         constraint_values={"min_tension": float(low.min()), "max_tension": float(high.max())},
         objective=objective, solves=1, wall_time=time.perf_counter() - start, weights=weights,
         bay_rms_error=rms, bay_max_error=largest, initial_bay_rms_error=nan, initial_bay_max_error=nan,

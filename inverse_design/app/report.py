@@ -149,9 +149,22 @@ def _checked(result) -> DesignResult:
     if isinstance(result, DesignResult):
         return result
     if isinstance(result, Solution):
-        raise TypeError("a report is of a DesignResult: measure a single equilibrium with "
-                        "inverse_design.evaluate_design(scene, target, parameters)")
-    raise TypeError(f"expected an inverse_design.DesignResult, got {type(result).__name__}")
+        raise TypeError("a single bay's Solution needs its target and scene: write_report(out, solution, target, "
+                        "scene=scene), or measure it with inverse_design.evaluate_design")
+    raise TypeError(f"expected an inverse_design.DesignResult or a forward_solver.Solution, "
+                    f"got {type(result).__name__}")
+
+
+def _measured(solution: Solution, target, scene, objective: str | None) -> DesignResult:
+    """A single bay's equilibrium as a `DesignResult` (`evaluate_design` on the solution as it is)."""
+    from forward_solver import Wing
+
+    from ..optimise import evaluate_design
+
+    if target is None or scene is None:
+        _checked(solution)
+    wing = Wing.from_scene(scene) if getattr(scene.bay, "airfoil", None) is not None else None
+    return evaluate_design(scene, target, objective=objective or "mid_bay", wing=wing, solution=solution)
 
 
 def summarise(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None, aero=None,
@@ -444,8 +457,9 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
 
 
-def write_report(out_dir, result: DesignResult, target=None, *, scene=None, bounds: dict | None = None,
-                 inputs: dict | None = None, timings: dict | None = None, magnification: float | None = None,
+def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene=None, objective: str | None = None,
+                 bounds: dict | None = None, inputs: dict | None = None, timings: dict | None = None,
+                 magnification: float | None = None,
                  aero=None, warnings: list | None = None, rib_limits=None, patterns: bool = True,
                  seam_allowance_mm: float = 10.0, workers=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
@@ -454,9 +468,11 @@ def write_report(out_dir, result: DesignResult, target=None, *, scene=None, boun
         out_dir: the folder to create, or to write into (replacing only an earlier
             report's files: `staged_folder`).
         result: a `DesignResult` (`optimise_pressure`, `optimise_wing`,
-            `evaluate_design`): it carries its bays, targets and ribs.
-        target, scene: a single bay's target and scene, as the design was
-            given them; when given they must be the result's own (ValueError if not).
+            `evaluate_design`): it carries its bays, targets and ribs; or a
+            single bay's equilibrium `Solution` (measured by `evaluate_design`).
+        target, scene: a single bay's target and scene: needed with a
+            `Solution`; with a `DesignResult` they must be its own (ValueError if not).
+        objective: the rows a `Solution`'s errors are measured on (default "mid_bay").
         bounds: variable bounds to draw in the history plot.
         inputs, warnings, aero: as `summarise` (``aero`` also draws
             ``bay_K_aero.png``).
@@ -484,9 +500,12 @@ def write_report(out_dir, result: DesignResult, target=None, *, scene=None, boun
     Raises:
         ValueError: if ``out_dir`` cannot be written (`check_output_folder`),
             ``seam_allowance_mm`` is negative, or ``target``/``scene`` are not the result's.
-        TypeError: if ``result`` is not a `DesignResult`.
+        TypeError: if ``result`` is neither a `DesignResult` nor a `Solution` (or a
+            `Solution` comes without its target and scene).
     """
     check_seam_allowance(seam_allowance_mm)
+    if isinstance(result, Solution):
+        result = _measured(result, target, scene, objective)
     result = _checked(result)
     if target is not None and not all(same_section(target, t) for t in result.targets):
         raise ValueError(f"target {target.name} is not the design's ({result.targets[0].name})")
@@ -605,8 +624,8 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
             target_names=np.array([t.name for t in result.targets], dtype=str),
             variables=np.array(list(shared), dtype=str),
             history_objective=np.array([h["objective"] for h in result.history], np.float64),
-            history_values=np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
-                                     for h in result.history], np.float64).reshape(len(result.history), -1),
+            history_values=(np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
+                                      for h in result.history], np.float64) if result.history else np.zeros((0, 0))),
             rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
             cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns)))
     joined = wing_nodes(result)
@@ -615,7 +634,8 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
     write_stl(staging / "skin.stl", joined, periodic)
     files += ["wing.npz", "skin.obj", "skin.stl"]
     if result.n_bays == 1:  # the one-bay extra: the bay in full
-        write_npz(staging / "equilibrium.npz", solutions[0], targets[0], scenes[0], result)
+        write_npz(staging / "equilibrium.npz", solutions[0], targets[0], scenes[0],
+                  result if result.variables else None)  # (a single equilibrium: no variables, no history)
         files.append("equilibrium.npz")
     for k in range(result.n_bays):
         name = f"bay_{k}_cut_pattern.csv"
