@@ -196,3 +196,15 @@ def test_the_panel_label_runs_clear_of_the_warp_arrow():
         assert label.startswith(f"bay 0 {panel.name} panel")
         # The label is horizontal, the warp arrow runs along the span (y): clear if their heights part.
         assert y + height < shaft[:, 1].min() and y > 0.0 and abs(warp[1] - y) > height
+
+
+def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
+    # Root finding solves one scalar condition at one bay's mid-bay section: a two-rib case file is
+    # such a bay (a wing of several bays is refused, tests/test_wing_cli.py).
+    (tmp_path / "bay.toml").write_text(TWO_RIBS)
+    code = cli.main(["--config", str(tmp_path / "bay.toml"), "--method", "root", "--variables", "pressure",
+                     "--out", str(tmp_path / "out"),
+                     "--no-compilation-cache", "--quiet"])
+    assert code == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["results"]["method"] == "root" and summary["results"]["success"]

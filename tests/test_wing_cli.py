@@ -160,3 +160,24 @@ def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, caps
     assert str(case) in err or "wing.toml" in err
     assert re.search(message, err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_wing_is_evaluated_and_compared_aerodynamically_bay_by_bay(tmp_path, capsys):
+    # --evaluate and --aero on a wing (both were refused): one equilibrium of the three bays, each
+    # bay's sections against its own mid-bay target, written as a single bay's would be, per bay.
+    pytest.importorskip("neuralfoil")
+    code, _ = _run(tmp_path, CASE, "--evaluate", "--aero", "--alpha-range", "0", "4", "2")
+    assert code == 0, capsys.readouterr().err
+    out = tmp_path / "out"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mode"] == "evaluate" and summary["case"]["n_bays"] == 3
+    assert summary["errors"]["before"] is None and summary["history"] == []
+    assert "history.png" in summary["skipped"] and not (out / "history.png").exists()
+    for k, bay in enumerate(summary["bays"]):
+        assert bay["result"] == "converged" and bay["errors_before"] is None
+        assert bay["aero"]["alphas_deg"] == [0.0, 2.0, 4.0] and f"bay_{k}_aero.png" in summary["files"]
+        assert (out / f"bay_{k}_aero.png").stat().st_size > 10_000
+    # The wing's own files, as a design's, but no optimiser history.
+    assert {"wing.npz", "wing_overview.png", "bay_2_mid_bay_section.png", "bay_2_cut_pattern.csv"} <= set(
+        summary["files"])
+    assert summary["errors"]["after"]["rms"] > 0 and summary["constraints"]["note"].startswith("a single equilibrium")
