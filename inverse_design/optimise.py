@@ -71,7 +71,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from forward_solver import Fabric, Parameters, Scene, Solution, Wing
+from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
@@ -609,7 +609,8 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
         initial errors are NaN (there is no start).
 
     Raises:
-        WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's solve does not converge.
+        forward_solver.ConvergenceError: if a bay's solve does not converge (a
+            `WingConvergenceError` naming the bay for several bays).
         ValueError: for an unknown objective or bad solver options.
     """
     from forward_solver import solve_bays
@@ -642,8 +643,9 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
                 parameters = DEFAULT_START.replace(**dict(parameters or {}))
             sol = solve_bays(scenes, parameters, rtol=rtol, max_steps=options["max_steps"], method=options["method"],
                              sequencing=bays[0].n_contour > 128)
-            if not sol.converged:
-                raise WingConvergenceError(sol, sol.failed_bays()[0])
+            if not sol.converged:  # (one bay: its own failure, as solve_equilibrium's)
+                raise (WingConvergenceError(sol, sol.failed_bays()[0]) if len(scenes) > 1
+                       else ConvergenceError(sol.bay_solution(0)))
         else:
             sol, parameters = solution, solution.parameters
         errors, mean_squares, tensions = [], [], []

@@ -102,7 +102,9 @@ def test_a_value_zero_to_rounding_prints_as_zero():
                           "after": {"rms": 1e-3, "max": 2e-3}},
                "constraints": {"active": [], "violated": {}, "violated_where": {}, "violated_at_start": {}},
                "bays": [], "timings_s": {"total": 1.0, "report": 0.5}, "out": "out", "files": []}
-    assert "  slsqp: prestrain_chord 0" in describe(summary)
+    lines = describe(summary)
+    assert "  slsqp: prestrain_chord 0" in lines
+    assert lines[3].endswith("violated: none; 1 iterate, 1 forward solve")  # (not "1 iterates")
 
 
 def test_a_failed_design_says_that_no_panel_was_written_not_that_no_cut_pattern_was(tmp_path, capsys):

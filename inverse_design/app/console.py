@@ -72,6 +72,11 @@ def refined_line(results: dict) -> str | None:
             f"{grid['grids'][1][1]}: {moves}; rms {grid['rms_error'][0]:.3e} -> {grid['rms_error'][1]:.3e}")
 
 
+def _count(n: int, word: str) -> str:
+    """``"1 iterate"``, ``"3 iterates"``: ``n`` and ``word``, plural unless one (``word`` names one)."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 def _case_line(summary: dict) -> str:
     """The first line: the targets, the bays, the grid and the objective."""
     case, err = summary["case"], summary["errors"]
@@ -101,7 +106,7 @@ def describe(summary: dict) -> list[str]:
     unit = "of the local chord" + (" (area-weighted)" if several else "")
     if summary["mode"] == "evaluate":
         eq = res["equilibrium"]
-        lines.append(f"  equilibrium at {number_text(v['pressure_pa'])} Pa: {eq['result']} in {eq['steps']} steps")
+        lines.append(f"  equilibrium at {number_text(v['pressure_pa'])} Pa: {eq['result']} in {_count(eq['steps'], 'step')}")
         lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} {unit} "
                      f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
     else:
@@ -128,9 +133,9 @@ def describe(summary: dict) -> list[str]:
         constraints = summary["constraints"]
         violated = (constraints["violated_where"] if several else constraints["violated"]) or {}
         shown = ", ".join(f"{name} {_amount_text(name, amount)}" for name, amount in violated.items())
-        solves = "wing solves" if several else "forward solves"
+        solves = _count(res["forward_solves"], "wing solve" if several else "forward solve")
         lines.append(f"  active constraints: {', '.join(constraints['active']) or 'none'}; violated: "
-                     f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} {solves}")
+                     f"{shown or 'none'}; {_count(res['iterations'], 'iterate')}, {solves}")
         start_line = start_violation_line(summary)
         if start_line:
             lines.append(start_line)

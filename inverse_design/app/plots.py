@@ -433,7 +433,7 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     status = "converged" if result.success else "did not converge"
     fig.suptitle(f"optimiser history: {result.method}, {result.objective} objective, "
-                 f"{len(history)} iterates, {status}")
+                 f"{len(history)} iterate{'' if len(history) == 1 else 's'}, {status}")
     return fig
 
 
