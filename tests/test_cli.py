@@ -232,8 +232,8 @@ def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, 
                              env=cli_env, capture_output=True, text=True, timeout=600)
     assert counted.returncode == 0, counted.stderr
     run = json.loads(counted.stdout.strip().splitlines()[-1])
-    if drawing_workers_possible():  # four figures, two panels' and two ribs' DXF: none left to this process
-        assert run["saved"] == [list(range(8))]
+    if drawing_workers_possible():  # five figures, two panels' and two ribs' DXF: none left to this process
+        assert run["saved"] == [list(range(9))]
     serial = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--quiet", "--out", "serial"],
                             cwd=base, env=dict(cli_env, INFLATABLE_WING_SERIAL_FIGURES="1"), capture_output=True,
                             text=True, timeout=600)

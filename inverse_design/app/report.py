@@ -74,6 +74,7 @@ import math
 import platform
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -109,8 +110,9 @@ PER_BAY_PLOTS = 8
 #: The order in which the figures are saved (a `drawing.FigureSaver` child takes them from the front
 #: while the parent writes the other files, then the parent takes them from the back); measured on the
 #: 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay section
-#: 0.28 s, deviation 0.24 s. Figures not named keep their place after these.
-_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png")
+#: 0.28 s, deviation 0.24 s (the wing overview, added later, last). Figures not named keep their place
+#: after these.
+_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
 #: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
@@ -410,6 +412,21 @@ def _local_prestrain_range(result: DesignResult) -> dict | None:
             "chord": [float(np.min(chord)), float(np.max(chord))]}
 
 
+class _Overview:
+    """What `plots.plot_wing_overview` reads of a result, as plain values: it pickles for the report's
+    workers (a `DesignResult` carries its scenes, solutions and targets)."""
+
+    def __init__(self, result: DesignResult):
+        self.wing = SimpleNamespace(stations=tuple(float(y) for y in _chords_and_stations(result)[1]))
+        self.parameters = SimpleNamespace(pressure=float(result.parameters.pressure))
+        for name in ("initial_bay_rms_error", "bay_rms_error", "bay_max_error", "bay_min_tension", "bay_max_tension"):
+            setattr(self, name, np.asarray(getattr(result, name), np.float64))
+        self.constraint_values = dict(result.constraint_values)
+        self.success, self.variables, self.method, self.solves = (bool(result.success), tuple(result.variables),
+                                                                  result.method, int(result.solves))
+        self.initial_rms_error, self.rms_error = float(result.initial_rms_error), float(result.rms_error)
+
+
 class _SharedHistory:
     """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes and
     per-bay cut fields are many coefficients; they are in summary.json's history, the rib_K.dat and
@@ -526,7 +543,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
         # workers if there are any; every other is built here (where JAX may be called), then saved
         # on two cores while the other files are written (`drawing.FigureSaver`).
-        specs = [("wing_overview.png", plot_wing_overview, (_without_factors(result), deviation), {})]
+        specs = [("wing_overview.png", plot_wing_overview, (_Overview(result), deviation), {})]
         for k in range(n_bays if n_bays <= PER_BAY_PLOTS else 0):
             start_rib = (result.wing.sections[k] if result.wing is not None and rib_files else None)
             specs.append((f"bay_{k}_mid_bay_section.png", plot_section, (solutions[k], targets[k], scenes[k]),
