@@ -181,6 +181,12 @@ def test_a_bay_s_section_plot_names_its_own_ribs_and_stations():
     labels = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
     assert any(label.startswith("rib 2 at y = 0.5 m") for label in labels)
     assert not any("y = 0 " in label or label.endswith("y = 0") for label in labels + [title])
+    fig.canvas.draw()  # the title fits the figure's width (it ran off both sides on one line)
+    from matplotlib.text import Text
+
+    (shown,) = [t for t in fig.findobj(Text) if t.get_text() == title]
+    box = shown.get_window_extent(fig.canvas.get_renderer())
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.width
 
 
 def test_the_panel_label_runs_clear_of_the_warp_arrow():

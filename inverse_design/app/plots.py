@@ -218,8 +218,8 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     bottom.legend(fontsize="small", ncols=3, loc="best")
     bottom.set_title(f"true deviation (not magnified): {station} rms {errors.rms:.2e}, "
                      f"max {errors.max:.2e} chord", fontsize="medium")
-    fig.suptitle(f"bay {bay} (ribs {bay} and {bay + 1} at y = {y0:g} and {y1:g} m), {target.name}: {station} "
-                 f"section against rib {bay} and the target, p = {_kpa(solution.pressure)}")
+    fig.suptitle(f"bay {bay} (ribs {bay} and {bay + 1} at y = {y0:g} and {y1:g} m): {station} section against "
+                 f"rib {bay} and the target\n{target.name}, p = {_kpa(solution.pressure)}")
     return fig
 
 
