@@ -71,19 +71,20 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing
+from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
 from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
-from .constraints import UNMET_ADVICE, Constraints, constraint_report
+from .constraints import UNMET_ADVICE, Constraints, cell_tensions, constraint_report
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
-from .objectives import check_objective, same_section
+from .objectives import (bay_distances, bay_weights, check_objective, distance_errors, local_chords,
+                         row_targets, same_section, station_etas)
 from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_report
-from .variables import VARIABLES, DesignVariables, concrete_rows
+from .variables import DEFAULT_START, VARIABLES, DesignVariables, concrete_rows
 
 __all__ = ["METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult", "evaluate_design", "optimise_wing",
            "optimise_pressure", "refine_design"]
@@ -613,12 +614,6 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             `WingConvergenceError` naming the bay for several bays).
         ValueError: for an unknown objective or bad solver options.
     """
-    from forward_solver import solve_bays
-
-    from .constraints import cell_tensions
-    from .objectives import bay_distances, bay_weights, distance_errors, local_chords, row_targets, station_etas
-    from .variables import DEFAULT_START
-
     scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
     targets = [targets] * (len(scenes) + 1) if hasattr(targets, "distance") else list(targets)
     if len(targets) != len(scenes) + 1:

@@ -2,9 +2,9 @@
 
 `run` checks the grid, loads the sections, builds the bays, calls the design
 library (`inverse_design.optimise_pressure`, `inverse_design.optimise_wing`,
-`inverse_design.refine_design`; ``--evaluate``: `forward_solver.solve_equilibrium`
-once) and the aerodynamic comparison, and hands the result to the report
-writer. No physics lives here.
+`inverse_design.refine_design`; ``--evaluate``: `inverse_design.evaluate_design`,
+one equilibrium) and the aerodynamic comparison of each bay, and hands the
+result to the report writer, for one bay or a wing alike. No physics lives here.
 """
 
 from __future__ import annotations
