@@ -22,6 +22,7 @@ from .objectives import section_errors as section_errors
 from .optimise import DesignResult as DesignResult
 from .optimise import WingDesignResult as WingDesignResult
 from .optimise import optimise_wing as optimise_wing
+from .optimise import evaluate_design as evaluate_design
 from .optimise import optimise_pressure as optimise_pressure
 from .optimise import refine_design as refine_design
 from .rib_design import RibLimits as RibLimits
@@ -35,6 +36,7 @@ __all__ = [
     "VARIABLES",
     "design_errors",
     "objective_residuals",
+    "evaluate_design",
     "optimise_pressure",
     "refine_design",
     "section_errors",

@@ -25,7 +25,7 @@ tensions (`constraint_report`): a constraint is *active* when the true
 extreme, or the smooth aggregate the optimiser saw, lies within
 `ACTIVE_TOLERANCE` of its limit, and *violated* when the true extreme is
 beyond it by more than `VIOLATION_TOLERANCE` (both fractions of the tension
-scale ``p * chord / 2``), reported per bay as a `Violation`; a violated
+scale ``p * chord / 2``), reported per bay (``{name: {bay: amount}}``); a violated
 design is not a success.
 
 The tolerance is judged at the design's own pressure: ``p`` is the pressure
@@ -52,7 +52,7 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver import forces as fk
 
-__all__ = ["Constraints", "Violation", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "KS_SHARPNESS",
+__all__ = ["Constraints", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "FLOOR_MARGIN", "KS_SHARPNESS",
            "cell_tensions", "cell_constraints", "floor_threshold", "constraint_functions", "penalty_residuals",
            "constraint_report", "tension_scale",
            "UNMET_ADVICE"]
@@ -233,35 +233,6 @@ def penalty_residuals(constraints: Constraints | None, tensions, fabric, scale: 
     return jnp.concatenate(parts) if parts else jnp.zeros(0)
 
 
-class Violation(float):
-    """How far a limit is broken: the largest amount (this float), and where.
-
-    ``where`` maps each bay (tension limits, N/m beyond the limit) or rib (rib
-    limits, `rib_design.rib_report`'s amounts) that breaks it to its amount;
-    iterating a `Violation`, indexing it and ``items()`` go through ``where``.
-    """
-
-    def __new__(cls, where: dict):
-        value = super().__new__(cls, max(where.values()))
-        value.where = {int(k): float(v) for k, v in where.items()}
-        return value
-
-    def __iter__(self):
-        return iter(self.where)
-
-    def __getitem__(self, index):
-        return self.where[index]
-
-    def __len__(self):
-        return len(self.where)
-
-    def items(self):
-        return self.where.items()
-
-    def __reduce__(self):
-        return Violation, (self.where,)
-
-
 #: What a message about unmet limits suggests.
 UNMET_ADVICE = (" (no design within the bounds meets the limits, or the optimiser stopped early: widen the "
                 "bounds or relax the limits)")
@@ -286,7 +257,7 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
     Returns:
         ``(active, violated, values, messages)``: names such as
         ``"pressure>=lower"``, ``"min_tension"``, ``"max_tension"`` at their
-        limit (module docstring); ``{name: Violation}`` of each tension limit
+        limit (module docstring); ``{name: {bay: amount}}`` of each tension limit
         broken by more than `VIOLATION_TOLERANCE` in some bay (N/m beyond
         it; a floor at or above zero by any negative tension, `floor_threshold`);
         the measured minimum and maximum tension over all bays (N/m)
@@ -327,4 +298,4 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
             where.setdefault("max_tension", {})[k] = high - ceiling
             messages.append(f"max_tension violated{at}: {its} largest fibre tension is {high:.4g} N/m, "
                             f"{high - ceiling:.4g} N/m above the ceiling {ceiling:.4g} N/m")
-    return active, {name: Violation(amounts) for name, amounts in where.items()}, report, messages
+    return active, where, report, messages

@@ -76,25 +76,27 @@ from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from forward_solver import Fabric, Parameters, Scene, Solution, Wing
+from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
 from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
-from .constraints import UNMET_ADVICE, Constraints, constraint_report, tension_scale
+from .constraints import UNMET_ADVICE, Constraints, cell_tensions, constraint_report, tension_scale
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
-from .objectives import check_objective, same_section
+from .objectives import (bay_distances, bay_weights, check_objective, distance_errors, local_chords,
+                         row_targets, same_section, station_etas)
 from .problem import DesignProblem, WingConvergenceError, check_solver_options
 from .rib_design import RibGeometry, RibLimits, rib_crossings, rib_report
-from .variables import VARIABLES, DesignVariables, concrete_rows
+from .variables import DEFAULT_START, VARIABLES, DesignVariables, concrete_rows
 
 __all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult",
-           "optimise_wing", "optimise_pressure", "refine_design"]
+           "evaluate_design", "optimise_wing", "optimise_pressure", "refine_design"]
 
 METHODS = ("auto", "slsqp", "gauss_newton", "least_squares", "optax", "root")
 ROOT_CONDITIONS = ("thickness", "mean_offset")
@@ -140,17 +142,19 @@ class DesignResult(ParameterViews):
             constraints (``"min_tension"``, ``"max_tension"``) and rib limits
             (``"rib_min_thickness"``; ``"rib_min_thickness@rib 2"`` with a shape
             per rib) at their limit (within `constraints.ACTIVE_TOLERANCE`).
-        violated_constraints: ``{name: constraints.Violation}``: the amount
-            beyond the limit (N/m for a tension limit, broken by more than
+        violated_constraints: ``{name: amount}``: the amount beyond the
+            limit (N/m for a tension limit, broken by more than
             `constraints.VIOLATION_TOLERANCE`; for a shaped rib
             ``rib_min_thickness``, the thickness ratio's shortfall, and
             ``rib_min_radius``, the radius's, chord, broken by more than
             `rib_design.RIB_TOLERANCE` of the limit), the largest over the
-            bays or ribs, with the amount at each (``.items()``).
-        violated_at_start: the same for the starting design (empty when
-            the start met every limit). A start that broke a limit may have
-            a smaller error than a design that meets it: the error then
-            rises, and this says why.
+            bays or ribs.
+        violated_where: ``{name: {index: amount}}``: the same amounts at
+            each bay (tension limits) or rib (rib limits) that breaks them.
+        violated_at_start, violated_at_start_where: the same for the
+            starting design (empty when the start met every limit). A start
+            that broke a limit may have a smaller error than a design that
+            meets it: the error then rises, and this says why.
         constraint_values: the measured minimum and maximum fibre tension (N/m)
             over every bay and the limits; for a shaped rib the least thickness
             ratio and radius of curvature with their limits
@@ -195,6 +199,8 @@ class DesignResult(ParameterViews):
     violated_constraints: dict = field(default_factory=dict)
     constraint_values: dict = field(default_factory=dict)
     violated_at_start: dict = field(default_factory=dict)
+    violated_where: dict = field(default_factory=dict)
+    violated_at_start_where: dict = field(default_factory=dict)
     method: str = ""
     objective: str = ""
     solves: int = 0
@@ -262,6 +268,7 @@ def optimise_wing(
     n_contour: int = 64,
     progress: bool = False,
     callback=None,
+    root_condition: str = "thickness",
 ) -> DesignResult:
     """One pressure (and prestrain, rib scales, rib shapes) for every bay of ``wing`` (module docstring).
 
@@ -283,9 +290,10 @@ def optimise_wing(
             default a wrinkle-free skin below the fabric's allowable), or None.
         method: "auto" (default: "gauss_newton", whose forward solves hardly
             grow with the number of variables; "slsqp" for the objective
-            "worst"), "slsqp", "gauss_newton", "least_squares" or "optax"
-            ("root" is for one bay: `optimise_pressure`).
-            ``DesignResult.method`` names the one that ran.
+            "worst"), "slsqp", "gauss_newton", "least_squares", "optax" or
+            "root" (a wing of one bay only: root finding solves one scalar
+            condition at its mid-bay section). ``DesignResult.method`` names
+            the one that ran.
         max_iterations: cap on iterations (SLSQP iterations, and twice that in
             forward solves; Gauss-Newton forward solves; least-squares Jacobian evaluations; optax steps;
             brentq iterations).
@@ -325,6 +333,8 @@ def optimise_wing(
         callback: called as ``callback(entry)`` after every iterate with the
             new `DesignResult.history` entry; an exception it raises stops the
             optimisation and propagates.
+        root_condition: "thickness" (default) or "mean_offset" (``method="root"``,
+            as `optimise_pressure`).
 
     Returns:
         A `DesignResult`.
@@ -333,8 +343,8 @@ def optimise_wing(
         TypeError: for a target that is not a `targets.Airfoil`.
         ValueError: for an unknown method, objective or variable, bad bounds,
             targets or limits, ribs too close for the grid, rib limits with a
-            method other than slsqp or gauss_newton, ``method="root"``, or
-            gauss_newton with the objective "worst".
+            method other than slsqp or gauss_newton, ``method="root"`` on
+            several bays, or gauss_newton with the objective "worst".
         WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
             solve at the start (or the final solve at a clipped design never
             solved before) does not converge; a failure in between ends the
@@ -359,7 +369,7 @@ def optimise_wing(
                                            **({} if max_steps is None else {"max_steps": max_steps})})
     return _optimise(wing.scenes(fabric, n_span, n_contour), targets, list(wing.sections), wing, variables,
                      initial=initial, bounds=bounds, objective=objective, constraints=constraints, method=method,
-                     root_condition="thickness", max_iterations=max_iterations, tolerance=tolerance,
+                     root_condition=root_condition, max_iterations=max_iterations, tolerance=tolerance,
                      optimiser=optimiser, rtol=rtol, solver_options=solver_options, progress=progress,
                      callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, cut_pattern=cut_pattern,
                      name="optimise_wing",
@@ -557,9 +567,11 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         success=bool(success and sol.converged),
         message=message,
         active_constraints=active,
-        violated_constraints=violated,
+        violated_constraints=_largest(violated),
+        violated_where=violated,
         constraint_values=report,
-        violated_at_start=violated_at_start,
+        violated_at_start=_largest(violated_at_start),
+        violated_at_start_where=violated_at_start,
         method=method,
         objective=objective,
         solves=problem.solves,
@@ -578,6 +590,97 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         rib_limits=per_rib,
         cut_patterns=fields,
     )
+
+
+def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = None, *, objective: str = "mid_bay",
+                    wing: Wing | None = None, rtol: float = 1e-8, solver_options: Mapping | None = None,
+                    solution: Solution | WingSolution | None = None) -> DesignResult:
+    """One equilibrium of N >= 1 bays at ``parameters``, measured as a design is (no variables, no history).
+
+    The errors are those of `optimise_wing` (each bay's rows against the
+    targets blended between its ribs, combined by planform area); the
+    tensions are the unclamped cell tensions (`constraints.cell_tensions`),
+    so a fibre that would be in compression shows as a negative tension.
+    No limit is judged: ``violated_constraints`` is empty and
+    ``constraint_values`` holds the measured extremes only.
+
+    Args:
+        scenes: a `forward_solver.Scene`, or one per bay, root to tip
+            (`forward_solver.Wing.scenes`).
+        targets: one `targets.Airfoil` for every rib, or one per rib.
+        parameters: a `Parameters` or ``{name: value}`` over
+            `variables.DEFAULT_START` (Pa, fractions).
+        objective: the rows measured, as `optimise_wing`.
+        wing: the `forward_solver.Wing` the scenes belong to (for the report's stations).
+        rtol: relative residual every bay is solved to (default
+            `forward_solver.solve_equilibrium`'s).
+        solver_options: ``{"method": ..., "max_steps": ...}`` of the solve
+            (`problem.check_solver_options`).
+        solution: an equilibrium of the bays solved already (a `Solution`
+            of one bay, or a `WingSolution`): measured as it is, not solved
+            again (``parameters``, ``rtol`` and ``solver_options`` are then
+            not used; one that did not converge gives ``success`` False).
+
+    Returns:
+        A `DesignResult` with no variables and an empty history; its
+        initial errors are NaN (there is no start).
+
+    Raises:
+        forward_solver.ConvergenceError: if a bay's solve does not converge (a
+            `WingConvergenceError` naming the bay for several bays).
+        ValueError: for an unknown objective or bad solver options.
+    """
+    scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
+    targets = [targets] * (len(scenes) + 1) if hasattr(targets, "distance") else list(targets)
+    if len(targets) != len(scenes) + 1:
+        raise ValueError(f"give one target section per rib: {len(scenes) + 1} ribs, got {len(targets)} targets")
+    check_objective(objective)
+    start = time.perf_counter()
+    bays = [scene.bay for scene in scenes]
+    etas = station_etas(objective, bays[0].n_span)
+    weights = bay_weights(bays)
+    if isinstance(solution, Solution):  # one bay's solve: the wing of that bay
+        if len(scenes) != 1:
+            raise ValueError(f"a Solution is one bay's equilibrium; got {len(scenes)} scenes")
+        solution = WingSolution(
+            nodes=np.asarray(solution.nodes, np.float64)[None], result=np.asarray([int(solution.result)], np.int32),
+            residual=np.asarray([float(solution.residual)]), steps=np.asarray([int(solution.steps)]),
+            bays=bays, parameters=solution.parameters, fabric=scenes[0].fabric,
+            tension_only=scenes[0].tension_only, solutions=[solution], scenes=scenes)
+    with jax.enable_x64(True):
+        if solution is None:
+            options = check_solver_options(None if solver_options is None else dict(solver_options))
+            if not isinstance(parameters, Parameters):
+                parameters = DEFAULT_START.replace(**dict(parameters or {}))
+            sol = solve_bays(scenes, parameters, rtol=rtol, max_steps=options["max_steps"], method=options["method"],
+                             sequencing=bays[0].n_contour > 128)
+            if not sol.converged:  # (one bay: its own failure, as solve_equilibrium's)
+                raise (WingConvergenceError(sol, sol.failed_bays()[0]) if len(scenes) > 1
+                       else ConvergenceError(sol.bay_solution(0)))
+        else:
+            sol, parameters = solution, solution.parameters
+        errors, mean_squares, tensions = [], [], []
+        for k, (scene, bay) in enumerate(zip(scenes, bays)):
+            rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
+            d = np.asarray(bay_distances(jnp.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas)))
+            errors.append(distance_errors(d, objective))
+            mean_squares.append(np.mean(d**2) if objective != "worst" else errors[-1][0] ** 2)
+            tensions.append(np.asarray(cell_tensions(scene, jnp.asarray(sol.nodes[k]), sol.bay_solution(k).parameters)))
+    rms = np.array([e[0] for e in errors])
+    largest = np.array([e[1] for e in errors])
+    low, high = np.array([t.min() for t in tensions]), np.array([t.max() for t in tensions])
+    nan = np.full(len(scenes), np.nan)
+    return DesignResult(
+        parameters=parameters.as_floats(), variables=(),
+        rms_error=float(rms[0]) if len(scenes) == 1 else float(np.sqrt(np.sum(weights * np.array(mean_squares)))),
+        max_error=float(np.max(largest)), initial_rms_error=math.nan, initial_max_error=math.nan,
+        wing_solution=sol, success=bool(sol.converged),
+        message=("a single equilibrium (no optimisation)" if sol.converged else
+                 f"a single equilibrium that did not converge: {sol.bay_solution(sol.failed_bays()[0]).message}"),
+        constraint_values={"min_tension": float(low.min()), "max_tension": float(high.max())},
+        objective=objective, solves=1, wall_time=time.perf_counter() - start, weights=weights,
+        bay_rms_error=rms, bay_max_error=largest, initial_bay_rms_error=nan, initial_bay_max_error=nan,
+        bay_min_tension=low, bay_max_tension=high, targets=tuple(targets), scenes=tuple(scenes), wing=wing)
 
 
 def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, n_span: int | None = None,
@@ -641,7 +744,13 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
                                history=[*result.history, *fine.history],
                                initial_rms_error=result.initial_rms_error,
                                initial_max_error=result.initial_max_error,
-                               violated_at_start=result.violated_at_start)
+                               violated_at_start=result.violated_at_start,
+                               violated_at_start_where=result.violated_at_start_where)
+
+
+def _largest(where: dict) -> dict:
+    """``{name: the largest amount}`` of ``{name: {bay or rib: amount}}``."""
+    return {name: max(float(v) for v in amounts.values()) for name, amounts in where.items()}
 
 
 def _value(result: DesignResult, name: str):

@@ -50,7 +50,6 @@ from forward_solver.rib_shape import rib_offsets
 
 from targets.airfoil import self_crossings
 
-from .constraints import Violation
 
 __all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "rib_crossings", "cut_lengths"]
 
@@ -172,7 +171,7 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
     Returns:
         ``(active, violated, values, per_rib, messages)``: names of limits
         within `RIB_TOLERANCE` of their bound (``"rib_min_thickness"``; with
-        several ribs ``"rib_min_thickness@rib 2"``); ``{name: Violation}`` of
+        several ribs ``"rib_min_thickness@rib 2"``); ``{name: {rib: amount}}`` of
         each limit broken by more than it at some rib, relative to the limit
         (the thickness ratio's shortfall, or the radius's in fractions of
         chord); the measured values (`RibGeometry.measure`) of the rib with
@@ -205,7 +204,7 @@ def rib_report(geometries: list, parameters: Parameters, rib_shapes=None) -> tup
                 values.update({name: value, f"{name}_limit": limit})
                 if name == "rib_min_radius":
                     values["rib_start_radius"] = measured["rib_start_radius"]
-    return active, {name: Violation(amounts) for name, amounts in where.items()}, values, per_rib, messages
+    return active, where, values, per_rib, messages
 
 
 def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tuple[dict, list[str]]:
@@ -226,7 +225,7 @@ def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tu
         rib_shapes: ``(n_ribs, 2 K)`` per-rib shapes, or None (shared).
 
     Returns:
-        ``({"rib_crossing": Violation} or {}, messages)``: the amount per
+        ``({"rib_crossing": {rib: amount}} or {}, messages)``: the amount per
         crossed rib, chord (0 for a pinch), and one sentence per crossed rib
         saying where (x/c) and what to change.
     """
@@ -257,7 +256,7 @@ def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tu
             f"x/c = {first.x:.4g} (its lower surface up to {depth:.3g} chord above the upper one"
             f"{f', at {len(crossings)} places' if len(crossings) > 1 else ''}): such a rib cannot be made; keep "
             f"the rib limits on (min_thickness) or narrow the rib_shape bounds")
-    return ({"rib_crossing": Violation(where)} if where else {}), messages
+    return ({"rib_crossing": where} if where else {}), messages
 
 
 @partial(jax.jit, static_argnames=("physics",))

@@ -186,8 +186,8 @@ def test_cli_writes_aero(tmp_path):
     assert done.returncode == 0, done.stderr
     out = tmp_path / "out"
     summary = json.loads((out / "summary.json").read_text())
-    assert (out / "aero.png").stat().st_size > 10_000 and "aero.png" in summary["files"]
-    record = summary["aero"]
+    assert (out / "bay_0_aero.png").stat().st_size > 10_000 and "bay_0_aero.png" in summary["files"]
+    record = summary["bays"][0]["aero"]
     assert record["reynolds"] == 5e5 and record["alphas_deg"] == [-2.0, 0.0, 2.0, 4.0, 6.0]
     for section in ("target", "mid_bay", "bay_average"):
         assert len(record["sections"][section]["cd"]) == 5

@@ -26,8 +26,9 @@ from inverse_design.app import case as case_reader, cli, command, export, interr
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ("--n-span", "5", "--n-contour", "32")
-FOLDER = {"summary.json", "equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv", "mid_bay_section.png",
-          "deviation.png", "tensions.png", "history.png", "rib_0.dxf", "rib_1.dxf",
+FOLDER = {"summary.json", "wing.npz", "equilibrium.npz", "skin.obj", "skin.stl", "bay_0_cut_pattern.csv",
+          "wing_overview.png", "bay_0_mid_bay_section.png", "deviation.png", "tensions.png", "history.png",
+          "rib_0.dxf", "rib_1.dxf",
           *(f"pattern_bay_0_{panel}.{kind}" for panel in ("upper", "lower") for kind in ("dxf", "svg"))}
 
 
@@ -108,8 +109,10 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert inputs["sources"] == {"n_span": "command line", "n_contour": "command line",
                                  "out": "command line"}
     assert summary["case"]["grid"] == [5, 32] and summary["mode"] == "optimise"
-    # One layout for a bay and a wing (schema 2): the bay axis has this bay's one entry.
-    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 1
+    # One layout for a bay and a wing: the bay axis has this bay's one entry.
+    assert summary["schema"] == 3 and summary["case"]["n_bays"] == 1
+    assert [(r["target"], r["chord_m"], r["station_m"]) for r in summary["case"]["ribs"]] == [
+        ("NACA 2412", 1.0, 0.0), ("NACA 2412", 1.0, 0.25)]
     (bay,) = summary["bays"]
     assert bay["errors_after"]["rms"] == pytest.approx(summary["errors"]["after"]["rms"], rel=1e-12)
     assert bay["errors_before"]["rms"] == pytest.approx(summary["errors"]["before"]["rms"], rel=1e-12)
@@ -124,7 +127,7 @@ def test_the_summary_holds_inputs_results_errors_constraints_timings_version(def
     assert results["equilibrium"]["relative_residual"] < 1e-6
     assert results["iterations"] == len(summary["history"]) > 0
     errors = summary["errors"]
-    assert errors["objective"] == "average" and errors["unit"] == "fraction of chord"
+    assert errors["objective"] == "average" and errors["unit"] == "fraction of the local chord"
     # The optimiser must improve on its start; max >= rms by definition.
     assert 0 < errors["after"]["rms"] < errors["before"]["rms"]
     assert errors["after"]["max"] >= errors["after"]["rms"]
@@ -232,8 +235,8 @@ def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, 
                              env=cli_env, capture_output=True, text=True, timeout=600)
     assert counted.returncode == 0, counted.stderr
     run = json.loads(counted.stdout.strip().splitlines()[-1])
-    if drawing_workers_possible():  # four figures, two panels' and two ribs' DXF: none left undone
-        assert run["saved"] == [list(range(8))]
+    if drawing_workers_possible():  # five figures, two panels' and two ribs' DXF: none left undone
+        assert run["saved"] == [list(range(9))]
     serial = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--quiet", "--out", "serial"],
                             cwd=base, env=dict(cli_env, INFLATABLE_WING_SERIAL_FIGURES="1"), capture_output=True,
                             text=True, timeout=600)
@@ -409,7 +412,7 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
     done = run_cli(*SMALL, "--max-iterations", "2", "--quiet", "--out", "out", cwd=tmp_path)
     assert done.returncode == 1 and done.stdout == ""
     assert "did not converge" in done.stderr and "Traceback" not in done.stderr
-    assert len(done.stderr.strip().splitlines()) == 1 and "no cut pattern was written" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "no panel or rib template (DXF, SVG) was written" in done.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["results"]["success"] is False and summary["results"]["message"]
     assert not list((tmp_path / "out").glob("*.dxf")) and not list((tmp_path / "out").glob("pattern_*"))

@@ -232,7 +232,7 @@ def test_a_failed_design_gets_no_pattern(folder, scene, design, tmp_path):
     assert not [n for n in summary["files"] if n.startswith("pattern_") or n.endswith(".dxf")]
     assert "failed design" in summary["skipped"]["patterns"] and "patterns" not in summary
     assert not list((tmp_path / "out").glob("*.dxf"))
-    assert "cut_pattern.csv" in summary["files"]  # the table of lengths stays
+    assert "bay_0_cut_pattern.csv" in summary["files"]  # the table of lengths stays
     summary = write_report(tmp_path / "off", design, TARGET, scene=scene, patterns=False)
     assert not list((tmp_path / "off").glob("*.dxf")) and "patterns" in summary["skipped"]
 

@@ -132,11 +132,11 @@ def test_rib_limits_need_slsqp(scene):
 def test_the_report_writes_the_rib_and_the_cut_pattern(scene, shaped_design, tmp_path):
     summary = write_report(tmp_path / "out", shaped_design, TARGET, scene=scene, bounds=BOUNDS)
     out = tmp_path / "out"
-    assert {"rib.dat", "rib_design.png", "cut_pattern.csv"} <= set(summary["files"])
+    assert {"rib.dat", "rib_design.png", "bay_0_cut_pattern.csv"} <= set(summary["files"])
     written = load_airfoil(out / "rib.dat")
     designed = rib_section(TARGET, shaped_design.parameters.rib_shape)
     np.testing.assert_allclose(written.z, designed.z, atol=1e-8)  # 8 decimals in the file
-    rows = np.genfromtxt(out / "cut_pattern.csv", delimiter=",", skip_header=2, names=True, dtype=None,
+    rows = np.genfromtxt(out / "bay_0_cut_pattern.csv", delimiter=",", skip_header=2, names=True, dtype=None,
                          encoding="utf-8")
     assert rows.shape == (32,)
     np.testing.assert_allclose(rows["span_cut_m"], 0.25 / 1.02, atol=1e-6)

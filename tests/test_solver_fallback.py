@@ -56,7 +56,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         seen.update(kwargs)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(forward_solver, "solve_equilibrium", spy)
+    monkeypatch.setattr(forward_solver.wing, "solve_equilibrium", spy)  # (each bay's solve, evaluate_design's)
     args, _ = case_reader.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
                                    "newton", "--max-steps", "777", "--out", str(tmp_path / "out")])
     command.run(args)

@@ -69,7 +69,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
     assert (out / "wing.toml").read_bytes() == b"# the user's case"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["mode"] == "optimise" and summary["results"]["success"]
-    assert summary["schema"] == 2 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
+    assert summary["schema"] == 3 and summary["case"]["n_bays"] == 3 and len(summary["bays"]) == 3
     assert [r["chord_m"] for r in summary["case"]["ribs"]] == [1.0, 0.8, 0.7, 0.6]
     assert summary["case"]["ribs"][3]["target"] == "NACA 4415"
     bays = summary["bays"]
@@ -149,7 +149,8 @@ def test_the_40_cell_case_is_a_tapered_wing_of_40_bays():
     (RIBS.replace("station = 0.25", "station = 0.25\nspan = 3"), r"wing.toml: rib 1: unknown key\(s\) \['span'\]"),
     (RIBS.replace('section = "naca4415"', 'section = "missing.dat"'), r"wing.toml: rib 3: section: no such file"),
     ("chord = 0.5\n" + RIBS, r"chord does not apply to a wing .*: give each rib's chord in its \[\[rib\]\] table"),
-    ('method = "root"\n' + RIBS, r"method root does not apply to a wing .*: use slsqp, gauss_newton, least_squares or optax"),
+    ('method = "root"\n' + RIBS, r"method root does not apply to a wing of 3 bays .*: root finding solves one scalar "
+                                  r"condition at one bay's mid-bay section: use slsqp, gauss_newton, least_squares or optax"),
 ], ids=["one rib", "stations", "unknown section", "missing chord", "negative chord", "unknown key",
         "missing file", "chord option", "method"])
 def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, capsys, text, message):
@@ -160,3 +161,24 @@ def test_bad_wing_input_exits_2_with_one_line_naming_file_and_rib(tmp_path, caps
     assert str(case) in err or "wing.toml" in err
     assert re.search(message, err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_wing_is_evaluated_and_compared_aerodynamically_bay_by_bay(tmp_path, capsys):
+    # --evaluate and --aero on a wing (both were refused): one equilibrium of the three bays, each
+    # bay's sections against its own mid-bay target, written as a single bay's would be, per bay.
+    pytest.importorskip("neuralfoil")
+    code, _ = _run(tmp_path, CASE, "--evaluate", "--aero", "--alpha-range", "0", "4", "2")
+    assert code == 0, capsys.readouterr().err
+    out = tmp_path / "out"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mode"] == "evaluate" and summary["case"]["n_bays"] == 3
+    assert summary["errors"]["before"] is None and summary["history"] == []
+    assert "history.png" in summary["skipped"] and not (out / "history.png").exists()
+    for k, bay in enumerate(summary["bays"]):
+        assert bay["result"] == "converged" and bay["errors_before"] is None
+        assert bay["aero"]["alphas_deg"] == [0.0, 2.0, 4.0] and f"bay_{k}_aero.png" in summary["files"]
+        assert (out / f"bay_{k}_aero.png").stat().st_size > 10_000
+    # The wing's own files, as a design's, but no optimiser history.
+    assert {"wing.npz", "wing_overview.png", "bay_2_mid_bay_section.png", "bay_2_cut_pattern.csv"} <= set(
+        summary["files"])
+    assert summary["errors"]["after"]["rms"] > 0 and summary["constraints"]["note"].startswith("a single equilibrium")

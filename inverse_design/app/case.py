@@ -243,12 +243,11 @@ def check_equilibrium_method(args: argparse.Namespace, strategy: str) -> None:
 
 #: Names of `export.REPORT_FILES` that a kind of run never writes (`report_may_write`).
 _NEVER = {
-    "bay": r"wing\.npz|wing_overview\.png|bay_[0-9]+_.*|rib_[0-9]+\.dat",
-    "wing": r"equilibrium\.npz|cut_pattern\.csv|mid_bay_section\.png|deviation\.png|tensions\.png|aero\.png|"
-            r"rib\.dat|rib_design\.png",
+    "any": r"cut_pattern\.csv|mid_bay_section\.png|aero\.png",  # (an earlier layout's names)
+    "several_bays": r"equilibrium\.npz|deviation\.png|tensions\.png|rib\.dat|rib_design\.png",
     "evaluate": r"history\.png|rib(_[0-9]+)?\.dat|rib_design\.png",
     "unshaped": r"rib(_[0-9]+)?\.dat|rib_design\.png",
-    "no_aero": r"aero\.png",
+    "no_aero": r"(bay_[0-9]+_)?aero\.png",
     "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
 }
 
@@ -257,14 +256,16 @@ def report_may_write(args: argparse.Namespace):
     """A predicate on a file name: whether the report of this run may write a file of that name.
 
     Every report file name (`export.REPORT_FILES`) but those this kind of run
-    never writes (a wing's files in a single bay's run, ``history.png`` with
+    never writes (a single bay's extras in a run of several bays, ``history.png`` with
     ``--evaluate``, ``rib.dat`` without a rib shape, the patterns with
     ``--no-patterns``, ...). Used to refuse, before the long work, a file an
     earlier report wrote and someone edited since, which this run would
     replace (`export.check_output_folder`); the run keeps such a file that it
     does not write, and says so.
     """
-    never = [_NEVER["wing" if getattr(args, "wing", None) is not None else "bay"]]
+    never = [_NEVER["any"]]
+    if len(getattr(args, "wing", None) or ()) > 2:
+        never.append(_NEVER["several_bays"])
     if args.evaluate:
         never.append(_NEVER["evaluate"])
     if "rib_shape" not in variable_names(args.variables):

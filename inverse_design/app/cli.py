@@ -384,7 +384,7 @@ def _main(argv: list[str] | None, started: float) -> int:
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
-        patterns = "" if args.no_patterns else "; no cut pattern was written"
+        patterns = "" if args.no_patterns else "; no panel or rib template (DXF, SVG) was written"
         message = str(summary["results"]["message"])
         whole = "" if shorten(message) == " ".join(message.split()) else "; the whole message is in summary.json"
         _say(f"{PROG}: failed: {why}: {shorten(message)} (the results are in {summary['out']}{patterns}{whole})")

@@ -2,9 +2,9 @@
 
 `run` checks the grid, loads the sections, builds the bays, calls the design
 library (`inverse_design.optimise_pressure`, `inverse_design.optimise_wing`,
-`inverse_design.refine_design`; ``--evaluate``: `forward_solver.solve_equilibrium`
-once) and the aerodynamic comparison, and hands the result to the report
-writer. No physics lives here.
+`inverse_design.refine_design`; ``--evaluate``: `inverse_design.evaluate_design`,
+one equilibrium) and the aerodynamic comparison of each bay, and hands the
+result to the report writer, for one bay or a wing alike. No physics lives here.
 """
 
 from __future__ import annotations
@@ -23,15 +23,11 @@ from .resources import check_flat_panels, check_grid
 
 __all__ = ["NOT_FOR_A_WING", "WORKER_MODULES", "plausibility", "run", "safe_point"]
 
-#: Options that have no meaning for a wing, or that the command does not run for one, and why.
+#: Options that a wing's case file gives per rib instead, and where.
 NOT_FOR_A_WING = {
     "chord": "give each rib's chord in its [[rib]] table",
     "rib_spacing": "give each rib's station in its [[rib]] table",
     "rib": "give each rib's section in its [[rib]] table",
-    "evaluate": ("the command evaluates a single bay; solve a wing once with forward_solver.solve_wing, or "
-                 "design it (the report then shows the start's errors too)"),
-    "aero": ("NeuralFoil compares one bay's mid-bay and bay-average sections with its target; run the bay "
-             "of interest as a single bay (--target, --rib, --chord, --rib-spacing) with --aero"),
 }
 
 
@@ -69,19 +65,22 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
     """Run the case described by ``args`` (one bay, or a wing of ``[[rib]]`` tables), write the output
     folder and return its summary.
 
-    One path for both: the sections are loaded and checked before JAX is
-    imported, the output folder is checked before the long work, the design
-    runs (`optimise_pressure` for one bay, `optimise_wing` for a wing; every
-    method, ``--refine``, the solver options), and `report.write_report`
-    writes the folder. A wing refuses the options of `NOT_FOR_A_WING` with
-    one line that says why. The whole run holds the output folder's lock
+    One path for any number of bays: the sections are loaded and checked
+    before JAX is imported, the output folder is checked before the long
+    work, the design runs (`optimise_pressure` for a bay given by options,
+    `optimise_wing` for ``[[rib]]`` tables; every method where the physics
+    allows it, ``--refine``, the solver options) or, with ``--evaluate``, one
+    equilibrium is measured (`evaluate_design`), ``--aero`` compares each
+    bay's sections with its target, and `report.write_report` writes the
+    folder. A wing refuses the options of `NOT_FOR_A_WING` and, on several
+    bays, ``--method root``, with one line that says why. The whole run holds the output folder's lock
     (`export.output_lock`): a second run into the same ``--out`` meanwhile is
     refused at once (ValueError, exit 2) instead of racing this one.
 
     ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
     start of `main`, so that it includes importing JAX. ``workers`` (a
-    `drawing.ReportWorkers`, the command's, which import `WORKER_MODULES`) write a single bay's
-    figures and DXF patterns (`report.write_report`).
+    `drawing.ReportWorkers`, the command's, which import `WORKER_MODULES`) write figures and
+    DXF patterns (`report.write_report`).
 
     Raises:
         ValueError: bad input (`InputError` among them).
@@ -103,9 +102,10 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
             if option in sources:
                 raise InputError(f"{option.replace('_', '-')} does not apply to a wing ([[rib]] tables in "
                                  f"{args.config}): {why}")
-        if args.method == "root":
-            raise InputError(f"method root does not apply to a wing ([[rib]] tables in {args.config}): it solves "
-                             "one scalar condition at one bay's mid-bay section: use slsqp, gauss_newton, least_squares or optax")
+        if args.method == "root" and len(wing_ribs) > 2 and not args.evaluate:
+            raise InputError(f"method root does not apply to a wing of {len(wing_ribs) - 1} bays ([[rib]] tables in "
+                             f"{args.config}): root finding solves one scalar condition at one bay's mid-bay "
+                             "section: use slsqp, gauss_newton, least_squares or optax")
     check_grid(args.n_span, args.n_contour, evaluate=args.evaluate, allow_large=args.allow_large_grid)
     if args.max_steps < 1:
         raise InputError(f"--max-steps must be a positive integer, got {args.max_steps}")
@@ -123,11 +123,11 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         sections = [load_section(r["section"], f"{where}: rib {k}: section") for k, r in enumerate(wing_ribs)]
         targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
                     common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
-    from forward_solver import Bay, ConvergenceError, Fabric, Scene, Wing, solve_equilibrium
+    from forward_solver import Bay, Fabric, Scene, Wing
     from forward_solver.adjoint import GRADIENT_RTOL
     from forward_solver.wing import check_rib_gaps, default_strategy
 
-    from ..optimise import optimise_pressure, optimise_wing, refine_design
+    from ..optimise import evaluate_design, optimise_pressure, optimise_wing, refine_design
     from .export import check_output_folder
     from .report import write_report
 
@@ -137,10 +137,30 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
+    solver_options = {"method": args.equilibrium_method, "max_steps": args.max_steps}
     options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
                    tolerance=args.tolerance, progress=progress, rib_limits=rib_limits, callback=safe_point,
-                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
-    if wing_ribs is not None:
+                   solver_options=solver_options, root_condition=args.root_condition)
+    inputs = {"wing": None, **vars(args), "sources": sources}  # (the same keys for a bay and a case file's ribs)
+    if wing_ribs is None:
+        def scene_on(n_span: int) -> Scene:
+            return Scene(Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
+                                          n_contour=args.n_contour), fabric)
+
+        scene = scene_on(args.n_span)
+        bays = [(args.rib_spacing, args.chord)]
+
+        def design():
+            return optimise_pressure(scene, target, variables=variables, initial=initial, objective=args.objective,
+                                     method=args.method, rib=rib, **options)
+
+        def refine(result):
+            return refine_design(result, scene_on(2 * args.n_span - 1), target, rib=rib, **options)
+
+        def evaluate():
+            return evaluate_design(scene, target, initial, objective=args.objective, wing=Wing.from_scene(scene),
+                                   solver_options=solver_options)
+    else:
         try:
             wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in wing_ribs),
                         stations=tuple(r["station"] for r in wing_ribs), trailing_edge=args.trailing_edge)
@@ -149,59 +169,39 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         chords, stations = wing.chords, wing.stations
         # Ribs too close for the grid are refused before any warning about the inputs is shown.
         check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
-        notes = plausibility(args, fabric, initial, [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1]))
-                                                     for k in range(len(chords) - 1)], bounds, sources)
-        if not args.no_patterns:  # (before the design: the report would fail after it)
-            check_flat_panels(wing.scenes(fabric, n_span=args.n_span, n_contour=args.n_contour), initial, wing=True)
-        timings = {"setup": time.perf_counter() - start}
-        t = time.perf_counter()
-        result = optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
-                               method=args.method, n_span=args.n_span, n_contour=args.n_contour,
-                               cut_pattern=args.cut_pattern_layout, **options)
-        if args.refine:
-            result = refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
-        timings["optimisation"] = time.perf_counter() - t
-        interrupts.check()
-        return write_report(out, result, bounds=bounds, inputs={**vars(args), "sources": sources},
-                            timings=timings, magnification=args.magnification, warnings=notes,
-                            patterns=not args.no_patterns, seam_allowance_mm=args.seam_allowance)
+        bays = [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1])) for k in range(len(chords) - 1)]
 
-    def scene_on(n_span: int) -> Scene:
-        bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
-                               n_contour=args.n_contour)
-        return Scene(bay, fabric)
+        def design():
+            return optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
+                                 method=args.method, n_span=args.n_span, n_contour=args.n_contour,
+                                 cut_pattern=args.cut_pattern_layout, **options)
 
-    scene = scene_on(args.n_span)
-    notes = plausibility(args, fabric, initial, [(args.rib_spacing, args.chord)], None if args.evaluate else bounds,
-                         sources)
-    if not args.no_patterns:
-        check_flat_panels([scene], initial)
-    inputs = {**vars(args), "target_name": target.name, "rib_name": rib.name, "sources": sources}
-    report = dict(target=target, objective=args.objective, inputs=inputs, magnification=args.magnification,
-                  rib=rib, rib_limits=rib_limits, warnings=notes, patterns=not args.no_patterns,
-                  seam_allowance_mm=args.seam_allowance, workers=workers)
+        def refine(result):
+            return refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
+
+        def evaluate():
+            return evaluate_design(wing.scenes(fabric, args.n_span, args.n_contour), targets, initial,
+                                   objective=args.objective, wing=wing, solver_options=solver_options)
+    notes = plausibility(args, fabric, initial, bays, None if args.evaluate else bounds, sources)
+    if not args.no_patterns:  # (before the design: the report would fail after it)
+        check_flat_panels([scene] if wing_ribs is None else wing.scenes(fabric, n_span=args.n_span,
+                                                                       n_contour=args.n_contour),
+                          initial, wing=wing_ribs is not None)
     timings = {"setup": time.perf_counter() - start}
-    if args.evaluate:
-        t = time.perf_counter()
-        result = solve_equilibrium(scene, initial, max_steps=args.max_steps, method=args.equilibrium_method,
-                                   throw=False)
-        timings["equilibrium"] = time.perf_counter() - t
-        if not result.converged:
-            raise ConvergenceError(result)
-        aero = _aero(args, result, target, alphas, timings)
-        interrupts.check()
-        return write_report(out, result, scene=scene, timings=timings, aero=aero, **report)
-    options.update(root_condition=args.root_condition, rib=rib)
     t = time.perf_counter()
-    result = optimise_pressure(scene, target, variables=variables, initial=initial,
-                               objective=args.objective, method=args.method, **options)
-    if args.refine:
-        scene = scene_on(2 * args.n_span - 1)
-        result = refine_design(result, scene, target, **options)
-    timings["optimisation"] = time.perf_counter() - t
-    aero = _aero(args, result.solution, target, alphas, timings)
+    if args.evaluate:
+        result = evaluate()
+        timings["equilibrium"] = time.perf_counter() - t
+    else:
+        result = design()
+        if args.refine:
+            result = refine(result)
+        timings["optimisation"] = time.perf_counter() - t
+    aero = _aero(args, result, alphas, timings)
     interrupts.check()
-    return write_report(out, result, scene=scene, bounds=bounds, timings=timings, aero=aero, **report)
+    return write_report(out, result, bounds=None if args.evaluate else bounds, inputs=inputs, timings=timings,
+                        magnification=args.magnification, aero=aero, warnings=notes, rib_limits=rib_limits,
+                        patterns=not args.no_patterns, seam_allowance_mm=args.seam_allowance, workers=workers)
 
 
 def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds, sources: dict | None = None) -> list[str]:
@@ -246,13 +246,17 @@ def _aero_angles(args: argparse.Namespace):
         raise InputError(f"--alpha-range: {exc}") from None
 
 
-def _aero(args: argparse.Namespace, solution, target, alphas, timings: dict):
-    """The `inverse_design.aero.AeroComparison` of ``--aero`` (None without it); times it."""
+def _aero(args: argparse.Namespace, result, alphas, timings: dict):
+    """The `inverse_design.aero.AeroComparison` of each bay with ``--aero`` (None without it): its mid-bay
+    and bay-average sections against its mid-bay target, at its mean chord; times it."""
     if not args.aero:
         return None
     from ..aero import aerodynamic_cost
+    from .report import mid_bay_targets
 
     t = time.perf_counter()
-    comparison = aerodynamic_cost(solution, target, args.chord, reynolds=args.reynolds, alphas=alphas)
+    sol = result.wing_solution
+    comparisons = [aerodynamic_cost(sol.bay_solution(k), target, float(sol.bays[k].chord), reynolds=args.reynolds,
+                                    alphas=alphas) for k, target in enumerate(mid_bay_targets(result))]
     timings["aero"] = time.perf_counter() - t
-    return comparison
+    return comparisons

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["describe", "describe_wing", "start_violation_line"]
+__all__ = ["describe", "number_text", "refined_line", "start_violation_line"]
 
 #: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
 _VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
@@ -30,7 +30,7 @@ def start_violation_line(summary: dict) -> str | None:
     if not at_start:
         return None
     where = constraints.get("violated_at_start_where") or {}
-    several = "ribs" in summary.get("case", {})
+    several = summary.get("case", {}).get("n_bays", 1) > 1
     broke = "; ".join(f"{name} {_amount_text(name, where[name] if several and name in where else amount)}"
                       for name, amount in at_start.items())
     err = summary["errors"]
@@ -43,11 +43,22 @@ def start_violation_line(summary: dict) -> str | None:
         verdict = "the design is feasible"
     return f"  note: the start broke {broke}; {verdict}"
 
+#: Below this size a design value is zero to rounding: the optimiser's scaled variables are
+#: ``lower + u (upper - lower)``, and a value at zero inside its bounds comes back as a few 1e-19.
+_ZERO = 1e-15
+
+
+def number_text(value: float, digits: int = 6) -> str:
+    """``value`` with ``digits`` significant digits; a value that is zero to rounding (below 1e-15 in
+    size, far below any design value's meaning) as ``0``."""
+    return "0" if abs(value) < _ZERO else f"{value:.{digits}g}"
+
+
 def _value_text(name: str, value) -> str:
     """``name value`` for the console (a vector variable as its rounded components)."""
     if isinstance(value, list):
-        return f"{name} [{', '.join(f'{v:.4f}' for v in value)}]"
-    return f"{name} {value:.6g}" + (" Pa" if name == "pressure" else "")
+        return f"{name} [{', '.join('0' if abs(v) < _ZERO else f'{v:.4f}' for v in value)}]"
+    return f"{name} {number_text(value)}" + (" Pa" if name == "pressure" else "")
 
 
 def refined_line(results: dict) -> str | None:
@@ -61,86 +72,87 @@ def refined_line(results: dict) -> str | None:
             f"{grid['grids'][1][1]}: {moves}; rms {grid['rms_error'][0]:.3e} -> {grid['rms_error'][1]:.3e}")
 
 
+def _count(n: int, word: str) -> str:
+    """``"1 iterate"``, ``"3 iterates"``: ``n`` and ``word``, plural unless one (``word`` names one)."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def _case_line(summary: dict) -> str:
+    """The first line: the targets, the bays, the grid and the objective."""
+    case, err = summary["case"], summary["errors"]
+    ribs, n = case["ribs"], case["n_bays"]
+    targets = list(dict.fromkeys(r["target"] for r in ribs))
+    chords = ribs[0]["chord_m"], ribs[-1]["chord_m"]
+    chord = f"{chords[0]:g} m chord" if chords[0] == chords[1] else f"{chords[0]:g} to {chords[1]:g} m chord"
+    span = ribs[-1]["station_m"] - ribs[0]["station_m"]
+    bays = "one bay" if n == 1 else f"a wing of {n} bays"
+    per_bay = "" if n == 1 else " per bay"
+    return (f"{' to '.join(targets)}, {bays} ({chord}, {span:g} m span), {case['grid'][0]}x{case['grid'][1]} "
+            f"grid{per_bay}, {err['objective']} objective")
+
+
 def describe(summary: dict) -> list[str]:
-    """The console lines of a finished run."""
-    if "ribs" in summary["case"]:  # a wing case (any number of bays)
-        return describe_wing(summary)
+    """The console lines of a finished run, of one bay or several."""
     case, res, err = summary["case"], summary["results"], summary["errors"]
     v = res["values"]
-    lines = [f"{case['target']}, {case['grid'][0]}x{case['grid'][1]} grid, {err['objective']} objective"]
+    several = case["n_bays"] > 1
+    lines = [_case_line(summary)]
+    trailing = case.get("trailing_edge") or {}
+    for change in trailing.get("changed", []):
+        source = change.get("file") or change["section"]
+        lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
+                     f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
+                     f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
+    unit = "of the local chord" + (" (area-weighted)" if several else "")
     if summary["mode"] == "evaluate":
         eq = res["equilibrium"]
-        lines.append(f"  equilibrium at {v['pressure_pa']:.6g} Pa: {eq['result']} in {eq['steps']} steps")
-        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} chord "
+        lines.append(f"  equilibrium at {number_text(v['pressure_pa'])} Pa: {eq['result']} in {_count(eq['steps'], 'step')}")
+        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} {unit} "
                      f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
     else:
-        chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n]) for n in res["variables"])
-        lines.append(f"  {res['method']}: {chosen}")
-        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} chord, "
-                     f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} chord")
-        violated = summary["constraints"]["violated"] or {}
-        lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; "
-                     f"violated: {', '.join(f'{k} {_amount_text(k, v)}' for k, v in violated.items()) or 'none'}; "
-                     f"{res['iterations']} iterates, {res['forward_solves']} forward solves")
+        per_bay = res.get("cut_patterns") is not None
+        per_rib = res.get("rib_shapes") is not None
+        chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n]) for n in res["variables"]
+                           if not (n == "rib_shape" and per_rib) and not (n == "cut_pattern" and per_bay))
+        if per_rib:
+            chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
+        if per_bay:
+            local = res["cut_pattern_local"]
+            chosen += (f", a cut field per bay (bay_K_cut_pattern.csv; local prestrain span {local['span'][0]:.4f}.."
+                       f"{local['span'][1]:.4f}, contour {local['chord'][0]:.4f}..{local['chord'][1]:.4f})")
+        lines.append(f"  {res['method']}: {chosen.lstrip(', ')}")
+        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e}, "
+                     f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} {unit}")
+    if several:
+        for bay in summary["bays"]:
+            before = f"{bay['errors_before']['rms']:.3e} -> " if bay.get("errors_before") else ""
+            lines.append(f"  bay {bay['bay']}: {bay['result']}, rms {before}{bay['errors_after']['rms']:.3e}, "
+                         f"max {bay['errors_after']['max']:.3e}, tension {bay['min_tension_n_per_m']:.4g} to "
+                         f"{bay['max_tension_n_per_m']:.4g} N/m")
+    if summary["mode"] != "evaluate":
+        constraints = summary["constraints"]
+        violated = (constraints["violated_where"] if several else constraints["violated"]) or {}
+        shown = ", ".join(f"{name} {_amount_text(name, amount)}" for name, amount in violated.items())
+        solves = _count(res["forward_solves"], "wing solve" if several else "forward solve")
+        lines.append(f"  active constraints: {', '.join(constraints['active']) or 'none'}; violated: "
+                     f"{shown or 'none'}; {_count(res['iterations'], 'iterate')}, {solves}")
         start_line = start_violation_line(summary)
         if start_line:
             lines.append(start_line)
         refined = refined_line(res)
         if refined:
             lines.append(refined)
-    aero = summary.get("aero")
-    if aero:
-        worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
-        lines.append(f"  aerodynamics at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: mid-bay "
-                     f"max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
-                     f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
+    for bay in summary["bays"]:
+        aero = bay.get("aero")
+        if aero:
+            worst, alphas = aero["max_abs_difference"]["mid_bay"], aero["alphas_deg"]
+            where = f" of bay {bay['bay']}" if several else ""
+            lines.append(f"  aerodynamics{where} at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: "
+                         f"mid-bay max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
+                         f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
     wrinkled = res["equilibrium"]["wrinkled_fraction"]
     if wrinkled:
         lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
-    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
-    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
-    return lines
-
-
-def describe_wing(summary: dict) -> list[str]:
-    """The console lines of a finished wing run."""
-    res, err = summary["results"], summary["errors"]
-    v = res["values"]
-    ribs = summary["case"]["ribs"]
-    lines = [f"wing of {len(ribs) - 1} bays ({ribs[0]['chord_m']:g} to {ribs[-1]['chord_m']:g} m chord, "
-             f"{ribs[-1]['station_m'] - ribs[0]['station_m']:g} m span), {summary['case']['grid'][0]}x"
-             f"{summary['case']['grid'][1]} grid per bay, {err['objective']} objective"]
-    per_bay = res.get("cut_patterns") is not None
-    chosen = ", ".join(_value_text(n, v['pressure_pa' if n == 'pressure' else n])
-                       for n in res["variables"] if n != "rib_shape" and not (n == "cut_pattern" and per_bay))
-    if "rib_shape" in res["variables"]:
-        chosen += f", a rib shape per rib (rib_K.dat; largest coefficient {res['rib_shape_max_abs']:.3g})"
-    if per_bay:
-        local = res["cut_pattern_local"]
-        chosen += (f", a cut field per bay (bay_K_cut_pattern.csv; local prestrain span {local['span'][0]:.4f}.."
-                   f"{local['span'][1]:.4f}, contour {local['chord'][0]:.4f}..{local['chord'][1]:.4f})")
-    trailing = summary["case"].get("trailing_edge") or {}
-    for change in trailing.get("changed", []):
-        source = change.get("file") or change["section"]
-        lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
-                     f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
-                     f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
-    lines.append(f"  {res['method']}: {chosen}")
-    lines.append(f"  wing error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e} (area-weighted)")
-    for bay in summary["bays"]:
-        lines.append(f"  bay {bay['bay']}: {bay['result']}, rms {bay['errors_before']['rms']:.3e} -> "
-                     f"{bay['errors_after']['rms']:.3e}, max {bay['errors_after']['max']:.3e} chord, "
-                     f"tension {bay['min_tension_n_per_m']:.4g} to {bay['max_tension_n_per_m']:.4g} N/m")
-    where = summary["constraints"]["violated_where"] or {}
-    shown = ", ".join(f"{name} {_amount_text(name, places)}" for name, places in where.items())
-    lines.append(f"  active constraints: {', '.join(summary['constraints']['active']) or 'none'}; violated: "
-                 f"{shown or 'none'}; {res['iterations']} iterates, {res['forward_solves']} wing solves")
-    start_line = start_violation_line(summary)
-    if start_line:
-        lines.append(start_line)
-    refined = refined_line(res)
-    if refined:
-        lines.append(refined)
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines

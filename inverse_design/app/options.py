@@ -224,7 +224,7 @@ OPTIONS = (
     ("aero", "--aero", dict(action="store_true",
                             help="compare lift, drag and moment of the cured mid-bay and bay-average sections "
                             "with the target's (NeuralFoil: pip install \"inflatable-wing[aero]\"); "
-                            "writes aero.png and summary.json's aero entry")),
+                            "per bay; writes bay_K_aero.png and each bay's aero entry in summary.json")),
     ("aero", "--reynolds", dict(type=_number(positive=True), default=1e6, metavar="RE",
                                 help="chord Reynolds number of --aero (default 1e6)")),
     ("aero", "--alpha-range", dict(type=_number("deg"), nargs=3, default=(-4.0, 10.0, 1.0),
@@ -275,25 +275,25 @@ does not write (e.g. rib.dat) are removed; nothing else is touched. A DIR holdin
 file of a report's name that no report wrote is refused (exit 2). Temporary folders
 left by a killed run are removed by the next run to DIR:
   summary.json          inputs, results, errors before/after, active constraints,
-                        timings, package version, the files written
-  equilibrium.npz       nodes (n_span, n_contour, 3) m, tensions N/m, wrinkled
-                        cells, deviation from the target, parameters
-  skin.obj, skin.stl    the equilibrium skin as a mesh, metres
-  mid_bay_section.png   mid-bay section against the rib and the target (magnified)
-  deviation.png         deviation from the target over the whole bay
-  tensions.png          fibre tensions with the wrinkled cells marked
+                        timings, package version, the files written, a bay axis
+  wing.npz              every bay: nodes (n_bays, n_span, n_contour, 3) m, tensions N/m,
+                        wrinkled cells, deviation from the targets, parameters
+  skin.obj, skin.stl    the equilibrium skin as one mesh, metres
+  wing_overview.png     every bay: deviation map, errors and tensions per bay
+  bay_K_mid_bay_section.png   bay K's mid-bay section against its rib and target (magnified)
   history.png           the optimiser's iterates (not with --evaluate)
-  aero.png              lift, drag and moment against the target (with --aero)
-  cut_pattern.csv       the fabric's cut lengths along the contour and the span
-  rib.dat, rib_design.png   the designed rib (Selig) and its offset and thickness
-                        (with --variables ...,rib_shape)
-  (with --variables ...,cut_pattern the cut lengths of cut_pattern.csv follow the designed field)
-  pattern_bay_0_upper.dxf, pattern_bay_0_lower.dxf   the flat panels, cut-ready, 1:1 in mm:
+  bay_K_aero.png        bay K's lift, drag and moment against its target (with --aero)
+  bay_K_cut_pattern.csv bay K's cut lengths along the contour and the span
+  rib.dat or rib_K.dat  the designed rib(s), Selig (with --variables ...,rib_shape)
+  (with --variables ...,cut_pattern the cut lengths follow the designed field)
+  one bay also: equilibrium.npz (the bay in full), deviation.png (deviation over the
+                        bay), tensions.png (wrinkled cells marked), rib_design.png
+  pattern_bay_K_upper.dxf, pattern_bay_K_lower.dxf   the flat panels, cut-ready, 1:1 in mm:
                         layers SEW (sewing line at the cut lengths), CUT (at the seam
                         allowance), MARK (alignment marks, LE, warp, label), GRID (the
                         developed span fibres; a layer off when opened); .svg of each for
-                        a quick look; rib_0.dxf, rib_1.dxf the rib templates (SEW the rib
-                        itself, CUT its seam allowance; a successful design only; not with
+                        a quick look; rib_K.dxf the rib templates (SEW the rib itself, CUT
+                        its seam allowance; a successful design only; not with
                         --no-patterns)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in

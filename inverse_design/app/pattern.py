@@ -117,7 +117,10 @@ def _panel_drawing(panel, seam_allowance_mm: float) -> dict:
     marks += [[tail, head], [head, head - 6.0 * d + 3.0 * side], [head, head - 6.0 * d - 3.0 * side]]
     text.append((tail[0] + 4.0, 0.5 * (tail[1] + head[1]), _TEXT, "WARP"))
     centre = np.mean(flat.reshape(-1, 2), axis=0)
-    text.append((centre[0] - 0.25 * (flat[0, -1, 0] - flat[0, 0, 0]), centre[1] - 2 * _TEXT, _TEXT,
+    # The label runs across the span fibres (along the contour): below the arrow's tail, halfway to the
+    # root rib, so that it never crosses the arrow (at the panel's centre it ran through it).
+    below = tail - 0.5 * float(np.dot(tail - np.mean(flat[0], axis=0), d)) * d
+    text.append((centre[0] - 0.25 * (flat[0, -1, 0] - flat[0, 0, 0]), below[1] - 0.5 * _TEXT, _TEXT,
                  f"bay {panel.bay} {panel.name} panel  scale 1:1 mm  seam allowance {seam_allowance_mm:g} mm"))
     fibres = [flat[:, k] for k in range(m)]
     return {"SEW": [sew], "CUT": [cut], "MARK": marks, "GRID": fibres, "text": text}

@@ -132,8 +132,8 @@ def _figure(width: float, height: float):
 
 # ------------------------------------------------------------------ plots
 def plot_section(solution: Solution, target, scene, *, magnification: float | None = None,
-                 eta: float = 0.5, start_rib=None):
-    """The skin section at ``y = eta * rib_spacing`` against the rib (y = 0) and the target.
+                 eta: float = 0.5, start_rib=None, bay: int = 0, rib_stations: tuple | None = None):
+    """The skin section at ``y = eta * rib_spacing`` against the bay's root rib and the target.
 
     Top: the profiles with their deviation from the target magnified, as a
     structural engineer draws a deformed shape: each grid node ``p`` is drawn
@@ -154,6 +154,9 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
         eta: span station of the skin section, fraction of the rib spacing.
         start_rib: the rib's section before its shape was designed (a
             `targets.Airfoil`), drawn beside the designed rib; None: not drawn.
+        bay: the bay's index in its wing (its root rib is rib ``bay``).
+        rib_stations: the span stations of the bay's two ribs, m (default 0
+            and the rib spacing), named in the legend and the title.
 
     Returns:
         A `matplotlib.figure.Figure`.
@@ -187,7 +190,8 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
         start = np.vstack([start, start[:1]])
         top.plot(start[:, 0], start[:, 1], ls=":", color="0.5", lw=1.2,
                  label=f"starting rib (deviation {times})")
-    rib_label = "designed rib" if start_rib is not None else "rib at y = 0"
+    y0, y1 = (0.0, scene.bay.rib_spacing) if rib_stations is None else (float(rib_stations[0]), float(rib_stations[1]))
+    rib_label = f"{'designed ' if start_rib is not None else ''}rib {bay} at y = {y0:g} m"
     top.plot(rib_m[:, 0], rib_m[:, 1], ls="--", label=f"{rib_label} (deviation {times})", **_RIB_STYLE)
     top.plot(skin_m[:, 0], skin_m[:, 1], label=f"{station} skin (deviation {times})", **_SKIN_STYLE)
     top.set_aspect("equal", adjustable="datalim")  # true shape; the box keeps its size
@@ -201,7 +205,7 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     for surface, idx in _surfaces(skin.shape[0], j_le, scene.bay.periodic).items():
         ls = "-" if surface == "upper" else "--"
         bottom.plot(rib[idx, 0], rib_proj.distance[idx], ls=ls, color=_RIB_STYLE["color"],
-                    label=f"rib, {surface} surface")
+                    label=f"rib {bay}, {surface} surface")
         bottom.plot(skin[idx, 0], skin_proj.distance[idx], ls=ls, color=_SKIN_STYLE["color"],
                     label=f"{station} skin, {surface} surface")
     bottom.axhline(0.0, **_TARGET_STYLE, label=f"target {target.name}")
@@ -214,8 +218,8 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     bottom.legend(fontsize="small", ncols=3, loc="best")
     bottom.set_title(f"true deviation (not magnified): {station} rms {errors.rms:.2e}, "
                      f"max {errors.max:.2e} chord", fontsize="medium")
-    fig.suptitle(f"{target.name}: {station} section against the rib and the target, "
-                 f"p = {_kpa(solution.pressure)}")
+    fig.suptitle(f"bay {bay} (ribs {bay} and {bay + 1} at y = {y0:g} and {y1:g} m): {station} section against "
+                 f"rib {bay} and the target\n{target.name}, p = {_kpa(solution.pressure)}")
     return fig
 
 
@@ -308,11 +312,15 @@ def plot_tensions(solution: Solution, scene):
     return fig
 
 
-_UNITS = {"pressure": ("pressure, kPa", 1e-3), "prestrain_span": ("span prestrain, %", 100.0),
-          "prestrain_chord": ("chord prestrain, %", 100.0),
-          "rib_thickness_scale": ("rib thickness scale", 1.0), "rib_chord_scale": ("rib chord scale", 1.0),
-          "rib_shape": ("rib shape coefficients", 1.0),
-          "cut_pattern": ("cut pattern coefficients, %", 100.0)}
+#: Each variable's axis label, its factor from SI and the unit of a value on that axis.
+_UNITS = {"pressure": ("pressure, kPa", 1e-3, " kPa"), "prestrain_span": ("span prestrain, %", 100.0, "%"),
+          "prestrain_chord": ("chord prestrain, %", 100.0, "%"),
+          "rib_thickness_scale": ("rib thickness scale\n(x starting thickness)", 1.0, " x starting thickness"),
+          "rib_chord_scale": ("rib chord scale\n(x starting chord)", 1.0, " x starting chord"),
+          "rib_shape": ("rib shape coefficients\n(chord)", 1.0, " chord"),
+          "cut_pattern": ("cut pattern coefficients, %", 100.0, "%")}
+#: A legend beside its axes, outside them: it never covers a curve.
+_OUTSIDE = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
 
 
 def plot_rib_design(parameters, start_rib, chord: float, limits=None):
@@ -387,7 +395,7 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
     names = list(result.variables)
     it = np.arange(1, len(history) + 1)
     objective = np.array([h["objective"] for h in history], dtype=np.float64)
-    fig = _figure(8.0, 2.4 + 1.9 * len(names))
+    fig = _figure(10.0, 2.4 + 1.9 * len(names))
     axes = np.atleast_1d(fig.subplots(len(names) + 1, 1, sharex=True))
     ax = axes[0]
     if result.method == "root":
@@ -399,10 +407,10 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
         ax.axhline(result.rms_error, color="0.3", ls=":", label=f"result: rms {result.rms_error:.3e}")
         ax.set_ylabel("rms distance / chord")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize="small")
+    ax.legend(**_OUTSIDE)
     bounds = bounds or {}
     for ax, name in zip(axes[1:], names):
-        label, unit = _UNITS.get(name, (name, 1.0))
+        label, unit, suffix = _UNITS.get(name, (name, 1.0, ""))
         if np.ndim(result.values[name]) > 0:  # a vector variable: one line per component
             track = np.array([h["values"][name] for h in history], dtype=np.float64) * unit
             for k in range(track.shape[1]):
@@ -410,7 +418,7 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
         else:
             ax.plot(it, [h["values"][name] * unit for h in history], "o-", color="C0", label="iterate")
             ax.axhline(result.values[name] * unit, color="0.3", ls=":",
-                       label=f"result: {result.values[name] * unit:.5g}")
+                       label=f"result: {result.values[name] * unit:.5g}{suffix}")
         if name in bounds:
             for k, b in enumerate(bounds[name]):
                 ax.axhline(b * unit, color="0.5", ls="--", lw=1.0, label="bounds" if k == 0 else None)
@@ -420,12 +428,12 @@ def plot_history(result: DesignResult, bounds: dict | None = None):
             ax.yaxis.set_minor_formatter(NullFormatter())
         ax.set_ylabel(label)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize="small", loc="best")
+        ax.legend(**_OUTSIDE)
     axes[-1].set_xlabel("iterate (one forward solve each)")
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     status = "converged" if result.success else "did not converge"
     fig.suptitle(f"optimiser history: {result.method}, {result.objective} objective, "
-                 f"{len(history)} iterates, {status}")
+                 f"{len(history)} iterate{'' if len(history) == 1 else 's'}, {status}")
     return fig
 
 
@@ -480,6 +488,23 @@ def plot_aero(comparison):
     return fig
 
 
+def _symlog_limits(values, linthresh: float, margin: float = 0.15) -> tuple[float, float]:
+    """Axis limits of a symlog axis that hold ``values`` with ``margin`` of the axis's height to spare at
+    each end (autoscaling a symlog axis leaves the largest value on its edge, its marker cut in half)."""
+    data = np.concatenate([np.ravel(np.asarray(v, np.float64)) for v in values])
+    data = data[np.isfinite(data)]
+
+    def forward(v):
+        return np.sign(v) * np.log10(1.0 + np.abs(v) / linthresh)
+
+    def inverse(t):
+        return np.sign(t) * linthresh * (10.0 ** np.abs(t) - 1.0)
+
+    low, high = forward(np.min(data)), forward(np.max(data))
+    spare = margin * max(high - low, 1.0)
+    return float(inverse(low - spare)), float(inverse(high + spare))
+
+
 def plot_wing_overview(result, deviation: np.ndarray):
     """One figure of every bay of a wing design: the deviation over the whole skin and the per-bay figures.
 
@@ -519,19 +544,24 @@ def plot_wing_overview(result, deviation: np.ndarray):
     ax_err.set_yscale("log")
     ax_err.set_ylabel("distance / local chord")
     ax_err.grid(alpha=0.3, which="both")
-    ax_err.legend(fontsize="small", ncol=3)
+    ax_err.legend(**_OUTSIDE)
     ax_ten.plot(middle, result.bay_min_tension, "o-", color="C2", ms=3, label="min fibre tension")
     ax_ten.plot(middle, result.bay_max_tension, "s-", color="C1", ms=3, label="max fibre tension")
     floor = result.constraint_values.get("min_tension_floor")
     if floor is not None:
         ax_ten.axhline(floor, color="0.3", ls="--", lw=1.0, label=f"floor {floor:g} N/m")
     ax_ten.set_yscale("symlog", linthresh=10.0)
+    ax_ten.set_ylim(*_symlog_limits([result.bay_min_tension, result.bay_max_tension, [floor or 0.0]], 10.0))
     ax_ten.set_ylabel("tension, N/m")
     ax_ten.set_xlabel("span station y, m (ribs: grey lines above)")
     ax_ten.grid(alpha=0.3, which="both")
-    ax_ten.legend(fontsize="small", ncol=3)
+    ax_ten.legend(**_OUTSIDE)
     status = "success" if result.success else "not a success"
-    fig.suptitle(f"{n_bays} bays at {_kpa(float(result.parameters.pressure))}: wing rms "
-                 f"{result.initial_rms_error:.3e} -> {result.rms_error:.3e} of the local chord, {status} "
-                 f"({result.method}, {result.solves} wing solves)")
+    bays = "1 bay" if n_bays == 1 else f"{n_bays} bays"
+    if result.variables:
+        what = (f"rms {result.initial_rms_error:.3e} -> {result.rms_error:.3e} of the local chord, {status} "
+                f"({result.method}, {result.solves} wing solves)")
+    else:
+        what = f"rms {result.rms_error:.3e} of the local chord (a single equilibrium)"
+    fig.suptitle(f"{bays} at {_kpa(float(result.parameters.pressure))}: {what}")
     return fig

@@ -1,71 +1,63 @@
-"""The one report writer: the summary of a design and its output folder, for one bay or a wing.
+"""The one report writer: the summary of a design of N >= 1 bays and its output folder.
 
-`write_report` turns a `DesignResult` (or a single equilibrium `Solution`)
-into a folder. ``summary.json`` has the same layout for a single bay and a
-wing (`SCHEMA_VERSION`): ``schema``, ``mode``, ``inputs``, ``case`` (with
-``n_bays``), ``results``, ``errors``, ``constraints`` (``violated``: the
-largest amount per limit; ``violated_where``: the amount per bay or rib;
-``violated_at_start``), ``timings_s``, ``history`` and ``bays``, the bay
-axis: one entry per bay (ribs, span, chords, weight, targets, result code,
-steps, residual, errors before and after, tensions, wrinkled fraction).
+`write_report` turns a `DesignResult` (`optimise_pressure`, `optimise_wing`,
+`evaluate_design`: one bay or several) into a folder, by one path whatever
+the number of bays: a bay given by options and the same bay given as a
+two-rib case file write the same files with the same summary keys.
+``summary.json`` (`summarise`, `SCHEMA_VERSION`) holds ``schema``, ``mode``
+("optimise", or "evaluate" for a single equilibrium), ``inputs``,
+``warnings``, ``case`` (``n_bays``, ``ribs``, grid, trailing edges,
+fabric), ``results``, ``errors`` (fractions of the local chord, before and
+after, and at mid-bay), ``constraints`` (``violated``: the largest amount
+per limit; ``violated_where``: the amount per bay or rib;
+``violated_at_start``), ``timings_s``, ``history``, ``rib`` (a shaped
+rib), ``patterns`` and ``bays``, the bay axis: one entry per bay (ribs,
+span, chords, weight, targets, result code, steps, residual, errors before
+and after, tensions, wrinkled fraction, cut lengths, and with ``aero`` its
+aerodynamic comparison).
 
-A single bay's folder::
+The folder, for any number of bays::
 
-    summary.json          inputs, results, errors before and after, constraints,
-                          timings, package version, the files written (`summarise`)
-    equilibrium.npz       nodes, tensions, wrinkled cells, deviation, target, parameters
-                          (`export.write_npz`)
-    skin.obj, skin.stl    the equilibrium skin as a mesh (metres)
-    mid_bay_section.png   the mid-bay section against the rib and the target,
-                          deviations magnified (`plots.plot_section`)
-    deviation.png         the deviation from the target over the whole bay (`plot_deviation`)
-    tensions.png          fibre tensions with the wrinkled cells marked (`plot_tensions`)
-    history.png           the optimiser's iterates (`plot_history`; skipped for a
-                          single equilibrium)
-    aero.png              lift, drag and moment against the target (`plot_aero`; only
-                          with an `inverse_design.aero.AeroComparison`)
-    cut_pattern.csv       the fabric's cut lengths along the contour and the span
-                          (`export.write_cut_pattern`)
-    pattern_bay_0_upper.dxf, pattern_bay_0_lower.dxf
-                          the flat panels, cut-ready: sewing line, cut line at the seam
-                          allowance, alignment marks, warp, label (1:1, mm; `app.pattern`);
-                          only for a successful design
-    pattern_bay_0_upper.svg, pattern_bay_0_lower.svg   the same for a quick look
-    rib_0.dxf, rib_1.dxf  the two ribs' templates at their chords with the attachment marks
-    rib.dat               the designed rib as a Selig file (`export.write_selig`; only
-                          for a shaped rib)
-    rib_design.png        the rib's template offset and the thickness kept
-                          (`plot_rib_design`; only for a shaped rib)
-
-A wing's folder::
-
-    summary.json                 as above, with a bay entry per bay
+    summary.json                 the summary (above), with the files written and those skipped
     wing.npz                     every bay stacked: nodes (n_bays, n_span, n_contour, 3) m
                                  (each bay in its own frame, root rib at y = 0), tensions,
-                                 wrinkled cells, deviation from the row targets, ribs
-    skin.obj, skin.stl           the whole wing's skin in one mesh (bays joined at their ribs,
-                                 y from the root rib), metres
+                                 wrinkled cells, deviation from the row targets, ribs, history
+    skin.obj, skin.stl           the skin in one mesh (bays joined at their ribs, y from the root
+                                 rib), metres
     wing_overview.png            every bay in one figure: the deviation over the whole skin,
                                  each bay's errors and tensions (`plots.plot_wing_overview`)
-    bay_K_mid_bay_section.png    bay K's mid-bay section against its rib and its target (only
-                                 for a wing of at most `PER_BAY_PLOTS` bays)
-    rib_K.dat                    rib K's designed section (Selig), when the rib shapes were
-                                 optimised
+    bay_K_mid_bay_section.png    bay K's mid-bay section against its root rib and its target (for
+                                 at most `PER_BAY_PLOTS` bays)
+    bay_K_aero.png               with an aerodynamic comparison: bay K's lift, drag and moment
+                                 against its target's (`plots.plot_aero`; at most `PER_BAY_PLOTS` bays)
     bay_K_cut_pattern.csv        bay K's cut lengths (`export.write_cut_pattern`)
+    history.png                  the optimiser's iterates (not for a single equilibrium)
     pattern_bay_K_upper.dxf/.svg, pattern_bay_K_lower.dxf/.svg
-                                 bay K's flat panels (as a single bay's; a successful design only)
+                                 bay K's flat panels, cut-ready (1:1, mm; `app.pattern`); a
+                                 successful design only
     rib_K.dxf                    rib K's template at its chord (a successful design only)
-    history.png                  the optimiser's iterates
+    rib.dat                      the designed rib as a Selig file (one shape for every rib)
+    rib_K.dat                    rib K's designed section (a shape per rib)
+
+and for a single bay, on top of these::
+
+    equilibrium.npz              the bay in full: nodes, tensions, wrinkled cells, held nodes,
+                                 deviation, target, sections, cut lengths, parameters, history
+                                 (`export.write_npz`)
+    deviation.png                the deviation from the target over the whole bay (`plot_deviation`)
+    tensions.png                 fibre tensions with the wrinkled cells marked (`plot_tensions`)
+    rib_design.png               a shaped rib's template offset and thickness kept (`plot_rib_design`)
 
 The folder is written by `export.staged_folder`: only the tool's own files
 are replaced, nothing else in the folder is touched. The pattern files are
 plain names in the folder (not a ``patterns/`` subfolder): the staging and
 ownership rules (`export.written_files`) own plain files only.
 
-The command hands a single bay's four figures and DXF patterns to its
-`drawing.ReportWorkers` (worker processes started when it starts, which
-import matplotlib and ezdxf while the design runs), so its own process
-imports neither; what they do not write, and every file of a library
+Each figure is a module-level plotting function and picklable arguments, so
+that another process may build it: the command hands the figures of
+`_PORTABLE` and then the DXF patterns to its `drawing.ReportWorkers` (worker
+processes started when it starts, which import matplotlib and ezdxf while
+the design runs); what they do not write, and every file of a library
 caller's report, is written in the calling process.
 
 A design that failed (``success`` false) gets no pattern files (the panels of
@@ -82,6 +74,7 @@ import math
 import platform
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -92,18 +85,21 @@ from .export import (check_output_folder, save_npz, staged_folder, write_cut_pat
                      write_selig, write_stl)
 from .export import file_checksums
 from .pattern import write_bay_patterns
-from ..objectives import bay_distances, design_errors, local_chords, row_targets, section_errors
+from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
                     plot_wing_overview)
-from ..rib_design import RibGeometry, RibLimits, cut_lengths
+from ..rib_design import cut_lengths
 
-__all__ = ["SCHEMA_VERSION", "summarise", "wing_deviation", "wing_nodes", "write_report"]
+__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
+           "write_report"]
 
 #: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
-#: ``bays`` (one entry per bay, also for a single bay) and ``constraints.violated_where``; a wing's
-#: ``mode`` is "optimise" like a bay's.
-SCHEMA_VERSION = 2
+#: ``bays`` and ``constraints.violated_where``; 3 is one layout for any number of bays: ``case.ribs``
+#: and ``case.trailing_edge`` (no ``case.target``, ``rib``, ``chord_m``, ``rib_spacing_m``), errors in
+#: fractions of the local chord, each bay's ``cut_lengths`` (and ``aero``) in its ``bays`` entry,
+#: ``rib`` with every shaped rib.
+SCHEMA_VERSION = 3
 
 #: Resolution of the PNG files in the folder, dots per inch.
 _DPI = 150
@@ -112,23 +108,14 @@ _PNG_COMPRESSION = 3
 #: A wing of at most this many bays also gets one mid-bay section plot per bay (more: only
 #: ``wing_overview.png``, which shows every bay; a plot per bay took 0.3 s each and 15 s of a 40-bay report).
 PER_BAY_PLOTS = 8
-#: The order in which a single bay's figures are handed to the workers, the slowest first (saving each
-#: on the 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay
-#: section 0.28 s, deviation 0.24 s). Figures not named keep their place after these.
-_SAVE_ORDER = ("history.png", "tensions.png", "mid_bay_section.png", "deviation.png")
+#: The order in which the figures are handed to the workers, the slowest first (saving each on the
+#: 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay section
+#: 0.28 s, deviation 0.24 s; the wing overview, added later, last). Figures not named keep their place
+#: after these.
+_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
 #: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
-
-
-# ------------------------------------------------------------------ inputs
-def _unpack(result) -> tuple[Solution, DesignResult | None]:
-    if isinstance(result, DesignResult):
-        return result.solution, result
-    if isinstance(result, Solution):
-        return result, None
-    raise TypeError(f"expected an inverse_design.DesignResult or a forward_solver.Solution, "
-                    f"got {type(result).__name__}")
 
 
 # ------------------------------------------------------------------ summary
@@ -160,59 +147,79 @@ def _jsonable(value):
     return value
 
 
-def summarise(result, target=None, scene=None, *, objective: str | None = None,
-              inputs: dict | None = None, timings: dict | None = None, aero=None, rib=None,
-              rib_limits: RibLimits | None = None, warnings: list | None = None) -> dict:
-    """The summary of a design or a single equilibrium, as `write_report` stores it.
+def _checked(result) -> DesignResult:
+    if isinstance(result, DesignResult):
+        return result
+    if isinstance(result, Solution):
+        raise TypeError("a single bay's Solution needs its target and scene: write_report(out, solution, target, "
+                        "scene=scene), or measure it with inverse_design.evaluate_design")
+    raise TypeError(f"expected an inverse_design.DesignResult or a forward_solver.Solution, "
+                    f"got {type(result).__name__}")
+
+
+def _measured(solution: Solution, target, scene, objective: str | None) -> DesignResult:
+    """A single bay's equilibrium as a `DesignResult` (`evaluate_design` on the solution as it is)."""
+    from forward_solver import Wing
+
+    from ..optimise import evaluate_design
+
+    if target is None or scene is None:
+        _checked(solution)
+    wing = Wing.from_scene(scene) if getattr(scene.bay, "airfoil", None) is not None else None
+    return evaluate_design(scene, target, objective=objective or "mid_bay", wing=wing, solution=solution)
+
+
+def summarise(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None, aero=None,
+              warnings: list | None = None) -> dict:
+    """The summary of a design (or a single equilibrium) of N >= 1 bays, as `write_report` stores it.
 
     Args:
-        result: a `DesignResult`, or a `Solution` (a single equilibrium).
-        target: a single bay's target `targets.Airfoil`; None for a wing's
-            summary (any number of bays, the result's own targets).
-        scene: a single bay's `forward_solver.Scene`.
-        objective: the sections the errors are measured on (default the
-            result's objective, or "mid_bay" for a `Solution`).
+        result: a `DesignResult` (`optimise_pressure`, `optimise_wing`;
+            `evaluate_design` for a single equilibrium).
         inputs: the caller's options (stored as given).
         timings: seconds, e.g. ``{"setup": ..., "optimisation": ...}``.
-        aero: an `inverse_design.aero.AeroComparison` of the result, stored as
-            ``summary["aero"]`` (`AeroComparison.as_dict`); None leaves the key out.
-        rib: the rib's starting section (default the target), for the rib
-            entry of a shaped rib.
-        rib_limits: the `rib_design.RibLimits` the design used (default the defaults).
+        aero: one `inverse_design.aero.AeroComparison` per bay (mid-bay and
+            bay-average sections against the bay's mid-bay target), stored in
+            the bay's entry as ``aero`` (`AeroComparison.as_dict`); None leaves it out.
         warnings: lines about the inputs (`inverse_design.plausibility`),
             stored as ``summary["warnings"]`` (default none).
 
     Returns:
-        A JSON-ready dict. Errors are fractions of chord; ``null`` marks a
-        value that does not exist (no upper tension limit, a gradient not
-        computed).
+        A JSON-ready dict (module docstring). Errors are fractions of the
+        local chord; ``null`` marks a value that does not exist (no upper
+        tension limit, no start for a single equilibrium).
     """
-    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):
-        return _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
-    solution, design = _unpack(result)
-    objective = objective or (design.objective if design is not None else "mid_bay")
-    params = solution.parameters.as_dict()
-    chord = scene.bay.chord
-    rms, largest = design_errors(solution.nodes, target, chord, objective)
-    mid = section_errors(solution, target, chord)
-    bay, fabric = scene.bay, scene.fabric
+    result = _checked(result)
+    design = bool(result.variables)
+    sol = result.wing_solution
+    fabric = sol.fabric if sol.fabric is not None else result.scenes[0].fabric
+    params = result.parameters.resolved(fabric).as_dict()
+    specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
+    solutions = [sol.bay_solution(k) for k in range(result.n_bays)]
+    wing = result.wing
     summary = {
         "schema": SCHEMA_VERSION,
         "package": {"name": "inflatable-wing", "version": _version("inflatable-wing")},
-        "versions": {"python": platform.python_version(), "jax": _version("jax"),
-                     "numpy": np.__version__},
-        "mode": "optimise" if design is not None else "evaluate",
+        "versions": {"python": platform.python_version(), "jax": _version("jax"), "numpy": np.__version__},
+        "mode": "optimise" if design else "evaluate",
         "inputs": dict(inputs or {}),
         "warnings": list(warnings or []),
         "case": {
-            "n_bays": 1, "target": str(target.name), "rib": bay.name, "chord_m": chord,
-            "rib_spacing_m": bay.rib_spacing, "grid": [bay.n_span, bay.n_contour],
+            "n_bays": result.n_bays,
+            "ribs": [{"section": section, "target": t.name, "chord_m": c, "station_m": y}
+                     for section, t, c, y in zip(_rib_names(result), result.targets, *_chords_and_stations(result))],
+            "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
+            "trailing_edge": None if wing is None else {
+                "option": wing.trailing_edge, "unit": "chord",
+                "changed": [{"rib": c["index"], "section": wing.airfoils[c["index"]].name,
+                             **({"file": specs[c["index"]]} if c["index"] < len(specs) else {}),
+                             "gap_before": c["gap_before"], "gap_after": c["gap_after"], "blend": c["blend"]}
+                            for c in wing.trailing_edge_changes]},
             "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
                        "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
         },
         "results": {
-            "success": bool(design.success if design is not None else solution.converged),
-            "message": design.message if design is not None else solution.message,
+            "success": bool(result.success), "message": result.message,
             "values": {"pressure_pa": params["pressure"], "prestrain_span": params["prestrain_span"],
                        "prestrain_chord": params["prestrain_chord"],
                        "rib_thickness_scale": params["rib_thickness_scale"],
@@ -220,108 +227,246 @@ def summarise(result, target=None, scene=None, *, objective: str | None = None,
                        "stiffness_span_n_per_m": params["stiffness_span"],
                        "stiffness_chord_n_per_m": params["stiffness_chord"],
                        "rib_shape": params["rib_shape"], "cut_pattern": params["cut_pattern"]},
-            "variables": list(design.variables) if design is not None else [],
-            "method": design.method if design is not None else None,
-            "iterations": len(design.history) if design is not None else 0,
-            "forward_solves": design.solves if design is not None else 1,
-            "grid_change": design.grid_change if design is not None else None,
-            "equilibrium": {"result": solution.result.name, "converged": solution.converged,
-                            "steps": int(solution.steps), "relative_residual": solution.residual,
-                            "method": solution.method,
-                            "wrinkled_fraction": solution.wrinkled_fraction},
+            "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
+            "rib_shape_max_abs": _largest_coefficient(result),
+            "rib_limits": list(result.rib_limits),
+            "cut_patterns": None if result.cut_patterns is None else np.asarray(result.cut_patterns).tolist(),
+            "cut_pattern_local": _local_prestrain_range(result),
+            "variables": list(result.variables), "method": result.method if design else None,
+            "iterations": len(result.history), "forward_solves": result.solves,
+            "wall_time_s": result.wall_time,
+            "grid_change": result.grid_change,  # after --refine: both grids and how far the design moved
+            "equilibrium": _equilibrium(solutions),
         },
         "errors": {
-            "unit": "fraction of chord",
-            "objective": objective,
-            "before": (None if design is None else
-                       {"rms": design.initial_rms_error, "max": design.initial_max_error}),
-            "after": {"rms": rms, "max": largest},
-            "mid_bay_after": {"rms": mid.rms, "max": mid.max},
+            "unit": "fraction of the local chord", "objective": result.objective,
+            "weighting": "bay planform area",
+            "before": {"rms": result.initial_rms_error, "max": result.initial_max_error} if design else None,
+            "after": {"rms": result.rms_error, "max": result.max_error},
+            "mid_bay_after": _mid_bay_errors(result),
         },
         "constraints": {
-            "active": list(design.active_constraints) if design is not None else None,
-            "violated": ({name: float(v) for name, v in design.violated_constraints.items()}
-                         if design is not None else None),
-            "violated_where": _violated_where(design.violated_constraints) if design is not None else None,
-            "violated_at_start": ({name: float(v) for name, v in design.violated_at_start.items()}
-                                  if design is not None else None),
-            "violated_at_start_where": (_violated_where(design.violated_at_start) if design is not None
-                                        else None),
-            "values": (dict(design.constraint_values) if design is not None else
-                       {"min_tension": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
-                        "max_tension": float(max(np.max(solution.tension_span), np.max(solution.tension_chord)))}),
-            "unit": "N/m",
+            "active": list(result.active_constraints) if design else None,
+            "violated": dict(result.violated_constraints) if design else None,
+            "violated_where": _labelled(result.violated_where) if design else None,
+            "violated_at_start": dict(result.violated_at_start) if design else None,
+            "violated_at_start_where": _labelled(result.violated_at_start_where) if design else None,
+            "values": dict(result.constraint_values), "unit": "N/m",
         },
         "timings_s": dict(timings or {}),
-        "history": list(design.history) if design is not None else [],
-        "bays": (_bay_entries(design) if design is not None else
-                 [_equilibrium_entry(solution, scene, target, rms, largest)]),
+        "history": list(result.history),
+        "bays": _bay_entries(result, solutions, aero),
     }
-    if design is None:
-        summary["constraints"]["note"] = ("a single equilibrium: constraints are not enforced; "
-                                          "tensions are the solver's (compression clamped to zero)")
-    if aero is not None:
-        summary["aero"] = aero.as_dict()
-    cuts = cut_lengths(scene, solution.parameters)
-    mid_row = bay.n_span // 2
-    summary["cut_lengths"] = {
-        "unit": "m", "file": "cut_pattern.csv",
-        "contour_perimeter": {"root_rib": cuts["contour_cut_m"][0], "mid_bay": cuts["contour_cut_m"][mid_row],
-                              "tip_rib": cuts["contour_cut_m"][-1]},
-        "span_fibre": {"min": float(np.min(cuts["span_cut_m"])), "max": float(np.max(cuts["span_cut_m"]))},
-    }
-    if solution.parameters.rib_shape is not None:
-        geometry = RibGeometry(target if rib is None else rib, rib_limits or RibLimits())
-        summary["rib"] = {"coefficients": solution.parameters.rib_shape,
-                          "terms_per_surface": int(np.size(solution.parameters.rib_shape)) // 2,
-                          "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
-                                             "upper-surface coefficients, then lower (forward_solver.rib_shape)",
-                          "limits": geometry.measure(solution.parameters), "file": "rib.dat"}
+    if not design:
+        summary["constraints"]["note"] = ("a single equilibrium: no limit is judged; the tensions are the "
+                                          "fibres' unclamped tensions (below zero a fibre would be in "
+                                          "compression: the cell wrinkles)")
+    rib = _rib_entry(result)
+    if rib is not None:
+        summary["rib"] = rib
     return _jsonable(summary)
 
 
-def _violated_where(violated: dict) -> dict:
-    """``{name: {"bay k" or "rib k": amount}}`` of a design's `constraints.Violation`s."""
-    where = {}
-    for name, violation in violated.items():
-        label = "rib" if name.startswith("rib_") else "bay"
-        where[name] = {f"{label} {k}": float(v) for k, v in violation.items()}
-    return where
-
-
-def _bay_entries(result: DesignResult) -> list:
-    """The bay axis of the summary: one entry per bay of a design (also of a single bay)."""
-    sol = result.wing_solution
+def _chords_and_stations(result: DesignResult) -> tuple:
+    """The ribs' chords and span stations, m (a flat panel: its width from y = 0)."""
     if result.wing is not None:
-        stations = np.asarray(result.wing.stations, np.float64)
-    else:  # a flat panel: one bay from y = 0
-        stations = np.asarray([0.0, sol.bays[0].rib_spacing])
+        return tuple(result.wing.chords), tuple(result.wing.stations)
+    bays = result.wing_solution.bays
+    stations = np.concatenate([[0.0], np.cumsum([b.rib_spacing for b in bays])])
+    return tuple([b.chord_root for b in bays] + [bays[-1].chord_tip]), tuple(stations)
+
+
+def _rib_names(result: DesignResult) -> list:
+    if result.wing is not None:
+        return [af.name for af in result.wing.airfoils]
+    return [b.name for b in result.wing_solution.bays] + [result.wing_solution.bays[-1].name]
+
+
+def _labelled(where: dict) -> dict:
+    """``{name: {"bay k" or "rib k": amount}}`` of ``{name: {k: amount}}``."""
+    return {name: {f"{'rib' if name.startswith('rib_') else 'bay'} {k}": float(v) for k, v in amounts.items()}
+            for name, amounts in where.items()}
+
+
+def _equilibrium(solutions: list) -> dict:
+    """The final solve of every bay in one entry: the worst result, the most steps, the largest residual."""
+    failed = [s for s in solutions if not s.converged]
+    return {"result": (failed[0] if failed else solutions[0]).result.name, "converged": not failed,
+            "steps": max(int(s.steps) for s in solutions),
+            "relative_residual": max(float(s.residual) for s in solutions),
+            "method": solutions[0].method,
+            "wrinkled_fraction": float(np.mean([s.wrinkled_fraction for s in solutions]))}
+
+
+def _largest_coefficient(result: DesignResult) -> float | None:
+    shapes = result.rib_shapes if result.rib_shapes is not None else result.parameters.rib_shape
+    return None if shapes is None else float(np.max(np.abs(np.asarray(shapes))))
+
+
+def _rib_entry(result: DesignResult) -> dict | None:
+    """``summary["rib"]`` of a shaped rib (one shape for every rib, or one per rib), else None."""
+    shared = result.parameters.rib_shape
+    if result.rib_shapes is None and shared is None:
+        return None
+    coefficients = np.asarray(shared if result.rib_shapes is None else result.rib_shapes, np.float64)
+    return {"layout": "shared" if result.rib_shapes is None else "per_rib",
+            "coefficients": coefficients.tolist(), "terms_per_surface": int(coefficients.shape[-1]) // 2,
+            "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
+                               "upper-surface coefficients, then lower (forward_solver.rib_shape)",
+            "limits": list(result.rib_limits), "files": _rib_files(result)}
+
+
+def _rib_files(result: DesignResult) -> list:
+    """The designed ribs' Selig files: ``rib.dat`` for one shape on ribs of one section, else ``rib_K.dat``."""
+    if result.wing is None or (result.rib_shapes is None and result.parameters.rib_shape is None):
+        return []
+    if result.rib_shapes is None and _same_sections(result):
+        return ["rib.dat"]
+    return [f"rib_{k}.dat" for k in range(len(result.wing.sections))]
+
+
+def _same_sections(result: DesignResult) -> bool:
+    sections = result.wing.sections
+    return all(same_section(sections[0], s) for s in sections[1:])
+
+
+def mid_bay_targets(result: DesignResult) -> list:
+    """Each bay's target at mid-bay: its two ribs' targets blended at the local chord
+    (`objectives.row_targets`; the rib's own when both ribs have the same target)."""
+    out = []
+    for k, bay in enumerate(result.wing_solution.bays):
+        root, tip = result.targets[k], result.targets[k + 1]
+        out.append(root if same_section(root, tip) else
+                   row_targets(root, tip, bay.chord_root, bay.chord_tip, [0.5])[0])
+    return out
+
+
+def _mid_bay_errors(result: DesignResult) -> dict:
+    """RMS (weighted by bay area) and largest distance of the bays' mid-bay sections from their targets."""
+    import jax
+
+    sol = result.wing_solution
+    rms, largest = [], []
+    with jax.enable_x64(True):
+        for k, bay in enumerate(sol.bays):
+            etas = np.array([0.5])
+            rows = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip, etas)
+            d = np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas)))
+            r, m = distance_errors(d, "mid_bay")
+            rms.append(r)
+            largest.append(m)
+    weights = np.asarray(result.weights, np.float64)
+    return {"rms": float(np.sqrt(np.sum(weights * np.square(rms)))), "max": float(np.max(largest))}
+
+
+def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
+    """The bay axis of the summary: one entry per bay."""
+    sol = result.wing_solution
+    stations = _chords_and_stations(result)[1]
+    design = bool(result.variables)
     entries = []
     for k, bay in enumerate(sol.bays):
-        entries.append({
+        cuts = cut_lengths(sol.scene(k) if sol.fabric is not None else result.scenes[k], solutions[k].parameters)
+        mid_row = bay.n_span // 2
+        entry = {
             "bay": k, "ribs": [k, k + 1], "span_m": [stations[k], stations[k + 1]],
             "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.weights[k],
             "targets": [result.targets[k].name, result.targets[k + 1].name],
             "result": result.bay_results[k], "steps": int(np.asarray(sol.steps)[k]),
             "relative_residual": float(np.asarray(sol.residual)[k]),
-            "errors_before": {"rms": result.initial_bay_rms_error[k], "max": result.initial_bay_max_error[k]},
+            "errors_before": ({"rms": result.initial_bay_rms_error[k], "max": result.initial_bay_max_error[k]}
+                              if design else None),
             "errors_after": {"rms": result.bay_rms_error[k], "max": result.bay_max_error[k]},
             "min_tension_n_per_m": result.bay_min_tension[k], "max_tension_n_per_m": result.bay_max_tension[k],
-            "wrinkled_fraction": sol.bay_solution(k).wrinkled_fraction,
-        })
+            "wrinkled_fraction": solutions[k].wrinkled_fraction,
+            "cut_lengths": {
+                "unit": "m", "file": f"bay_{k}_cut_pattern.csv",
+                "contour_perimeter": {"root_rib": cuts["contour_cut_m"][0], "mid_bay": cuts["contour_cut_m"][mid_row],
+                                      "tip_rib": cuts["contour_cut_m"][-1]},
+                "span_fibre": {"min": float(np.min(cuts["span_cut_m"])), "max": float(np.max(cuts["span_cut_m"]))}},
+        }
+        if aero is not None:
+            entry["aero"] = aero[k].as_dict()
+        entries.append(entry)
     return entries
 
 
-def _equilibrium_entry(solution: Solution, scene, target, rms: float, largest: float) -> dict:
-    """The one bay entry of a single equilibrium (``--evaluate``): no start, solver tensions."""
-    bay = scene.bay
-    return {"bay": 0, "ribs": [0, 1], "span_m": [0.0, bay.rib_spacing], "chords_m": [bay.chord_root, bay.chord_tip],
-            "weight": 1.0, "targets": [target.name, target.name], "result": solution.result.name,
-            "steps": int(solution.steps), "relative_residual": solution.residual, "errors_before": None,
-            "errors_after": {"rms": rms, "max": largest},
-            "min_tension_n_per_m": float(min(np.min(solution.tension_span), np.min(solution.tension_chord))),
-            "max_tension_n_per_m": float(max(np.max(solution.tension_span), np.max(solution.tension_chord))),
-            "wrinkled_fraction": solution.wrinkled_fraction}
+def _shared_names(result: DesignResult) -> tuple:
+    """The design's variables shared by every bay (not per-rib shapes, not per-bay fields)."""
+    return tuple(n for n in result.variables if not (n == "rib_shape" and result.rib_shapes is not None)
+                 and not (n == "cut_pattern" and result.cut_patterns is not None))
+
+
+def _local_prestrain_range(result: DesignResult) -> dict | None:
+    """``{"span": [low, high], "chord": [low, high]}``: the local prestrain of the design's cut field(s)
+    over the contour (every bay's for per-bay fields), or None for a uniform cut."""
+    from forward_solver.cut_field import field_values
+
+    p = result.parameters
+    rows = [p.cut_pattern] if result.cut_patterns is None else list(np.asarray(result.cut_patterns))
+    if rows[0] is None:
+        return None
+    s = np.linspace(0.0, 1.0, 401)
+    span, chord = zip(*(field_values(s, p.prestrain_span, p.prestrain_chord, row) for row in rows))
+    return {"span": [float(np.min(span)), float(np.max(span))],
+            "chord": [float(np.min(chord)), float(np.max(chord))]}
+
+
+class _Overview:
+    """What `plots.plot_wing_overview` reads of a result, as plain values: it pickles for the report's
+    workers (a `DesignResult` carries its scenes, solutions and targets)."""
+
+    def __init__(self, result: DesignResult):
+        self.wing = SimpleNamespace(stations=tuple(float(y) for y in _chords_and_stations(result)[1]))
+        self.parameters = SimpleNamespace(pressure=float(result.parameters.pressure))
+        for name in ("initial_bay_rms_error", "bay_rms_error", "bay_max_error", "bay_min_tension", "bay_max_tension"):
+            setattr(self, name, np.asarray(getattr(result, name), np.float64))
+        self.constraint_values = dict(result.constraint_values)
+        self.success, self.variables, self.method, self.solves = (bool(result.success), tuple(result.variables),
+                                                                  result.method, int(result.solves))
+        self.initial_rms_error, self.rms_error = float(result.initial_rms_error), float(result.rms_error)
+
+
+class _SharedHistory:
+    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes and
+    per-bay cut fields are many coefficients; they are in summary.json's history, the rib_K.dat and
+    bay_K_cut_pattern.csv files). Plain values: it pickles for the report's workers."""
+
+    def __init__(self, result: DesignResult):
+        names = _shared_names(result)
+        self.variables, self.method, self.objective = names, result.method, result.objective
+        self.rms_error, self.success = result.rms_error, result.success
+        self.values = {n: v for n, v in result.values.items() if n in names}
+        self.history = [{**h, "values": {n: h["values"][n] for n in names}} for h in result.history]
+
+
+# ------------------------------------------------------------------ a wing of several bays
+def wing_nodes(result: DesignResult) -> np.ndarray:
+    """``(n_bays (n_span - 1) + 1, n_contour, 3)`` m: the bays joined at their shared ribs, y the
+    span station (`Wing.stations`)."""
+    sol = result.wing_solution
+    stations = np.asarray(_chords_and_stations(result)[1], np.float64)
+    parts = []
+    for k in range(len(sol.bays)):
+        nodes = np.array(sol.nodes[k], dtype=np.float64)
+        nodes[..., 1] += stations[k]
+        parts.append(nodes if k == 0 else nodes[1:])  # the first row is the previous bay's tip rib
+    return np.concatenate(parts)
+
+
+def wing_deviation(result: DesignResult) -> np.ndarray:
+    """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
+    fractions of the local chord (positive outside; `objectives` module docstring)."""
+    import jax
+
+    sol, targets = result.wing_solution, result.targets
+    out = []
+    with jax.enable_x64(True):
+        for k, bay in enumerate(sol.bays):
+            etas = np.linspace(0.0, 1.0, bay.n_span)
+            rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
+            out.append(np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas))))
+    return np.stack(out)
 
 
 # ------------------------------------------------------------------ the folder
@@ -329,41 +474,39 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
 
 
-def write_report(out_dir, result, target=None, *, scene=None, objective: str | None = None,
-                 bounds: dict | None = None, inputs: dict | None = None,
-                 timings: dict | None = None, magnification: float | None = None, aero=None,
-                 rib=None, rib_limits: RibLimits | None = None, warnings: list | None = None,
-                 patterns: bool = True, seam_allowance_mm: float = 10.0, workers=None) -> dict:
-    """Write the output folder of a design (or of a single equilibrium) and return its summary.
+def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene=None, objective: str | None = None,
+                 bounds: dict | None = None, inputs: dict | None = None, timings: dict | None = None,
+                 magnification: float | None = None,
+                 aero=None, warnings: list | None = None, rib_limits=None, patterns: bool = True,
+                 seam_allowance_mm: float = 10.0, workers=None) -> dict:
+    """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
 
     Args:
         out_dir: the folder to create, or to write into (replacing only an earlier
             report's files: `staged_folder`).
-        result: a `DesignResult` (`optimise_pressure`, `optimise_wing`: one
-            bay or several), or a single bay's `Solution`.
-        target: a single bay's target `targets.Airfoil` (chord-normalised);
-            None for a wing's folder (any number of bays; its targets are the
-            result's own, one per rib).
-        scene: a single bay's `forward_solver.Scene` it was solved on.
-        objective, inputs, warnings: as `summarise`.
+        result: a `DesignResult` (`optimise_pressure`, `optimise_wing`,
+            `evaluate_design`): it carries its bays, targets and ribs; or a
+            single bay's equilibrium `Solution` (measured by `evaluate_design`).
+        target, scene: a single bay's target and scene: needed with a
+            `Solution`; with a `DesignResult` they must be its own (ValueError if not).
+        objective: the rows a `Solution`'s errors are measured on (default "mid_bay").
         bounds: variable bounds to draw in the history plot.
+        inputs, warnings, aero: as `summarise` (``aero`` also draws
+            ``bay_K_aero.png``).
         timings: seconds spent before the report (e.g. ``setup``,
             ``optimisation``); ``report`` and, unless given, ``total`` (their
             sum) are added.
-        magnification: deviation factor of the section plot (default automatic).
-        aero: an `inverse_design.aero.AeroComparison`: stored in the summary
-            and drawn as ``aero.png`` (default none).
-        rib, rib_limits: the rib's starting section (default the target)
-            and its `rib_design.RibLimits`: a shaped rib is written as
-            ``rib.dat`` and drawn against it in ``rib_design.png``.
+        magnification: deviation factor of the section plots (default automatic).
+        rib_limits: the `rib_design.RibLimits` a shaped rib was designed
+            with, drawn in ``rib_design.png`` (default the defaults).
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
         workers: `drawing.ReportWorkers` started before the design (the
-            command's), to build and save a single bay's section, deviation,
-            tensions and history figures and to write its DXF patterns while
-            this process writes the other files; what they do not write is
-            written here. Default none: every file is written here.
+            command's), to build and save the figures of `_PORTABLE` and to
+            write the DXF patterns while this process writes the other
+            files; what they do not write is written here. Default none:
+            every file is written here.
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -371,70 +514,84 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         folder's absolute path).
 
     Raises:
-        ValueError: if ``out_dir`` cannot be written (`check_output_folder`), or
-            ``seam_allowance_mm`` is negative.
-        TypeError: if ``result`` is neither a `DesignResult` nor a `Solution`.
+        ValueError: if ``out_dir`` cannot be written (`check_output_folder`),
+            ``seam_allowance_mm`` is negative, or ``target``/``scene`` are not the result's.
+        TypeError: if ``result`` is neither a `DesignResult` nor a `Solution` (or a
+            `Solution` comes without its target and scene).
     """
     check_seam_allowance(seam_allowance_mm)
-    if isinstance(result, DesignResult) and (result.n_bays > 1 or target is None):  # a wing's folder
-        if aero is not None:
-            raise ValueError("the aerodynamic comparison is of one bay's sections; a wing's report has none")
-        return _write_wing_folder(out_dir, result, bounds=bounds, inputs=inputs, timings=timings,
-                                  magnification=magnification, warnings=warnings, patterns=patterns,
-                                  seam_allowance_mm=seam_allowance_mm)
-    if target is None or scene is None:
-        raise TypeError("a single bay's report needs its target and scene")
+    if isinstance(result, Solution):
+        result = _measured(result, target, scene, objective)
+    result = _checked(result)
+    if target is not None and not all(same_section(target, t) for t in result.targets):
+        raise ValueError(f"target {target.name} is not the design's ({result.targets[0].name})")
+    if scene is not None and (result.n_bays != 1 or scene.bay.n_span != result.wing_solution.bays[0].n_span):
+        raise ValueError("scene is not the design's bay (give the result alone: it carries its bays)")
     start = time.perf_counter()
     out = check_output_folder(out_dir)
-    solution, design = _unpack(result)
+    sol = result.wing_solution
+    n_bays = result.n_bays
+    solutions = [_without_factors(sol.bay_solution(k)) for k in range(n_bays)]
+    scenes = [sol.scene(k) if sol.fabric is not None else result.scenes[k] for k in range(n_bays)]
+    targets = mid_bay_targets(result)
+    stations = _chords_and_stations(result)[1]
+    deviation = wing_deviation(result)
     files, skipped = [], {}
-    start_rib = target if rib is None else rib
-    shaped = solution.parameters.rib_shape is not None
-    has_history = design is not None and bool(design.history)
+    rib_files = _rib_files(result)
     with staged_folder(out) as staging:
         # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
         # workers if there are any; every other is built here (where JAX may be called), then saved
         # after the other files are written (`drawing.saved_after`).
-        specs = [("mid_bay_section.png", plot_section, (solution, target, scene),
-                  dict(magnification=magnification, start_rib=start_rib if shaped else None)),
-                 ("deviation.png", plot_deviation, (solution, target, scene), {}),
-                 ("tensions.png", plot_tensions, (solution, scene), {})]
-        if has_history:
-            specs.append(("history.png", plot_history, (design, bounds), {}))
-        if aero is not None:
-            specs.append(("aero.png", plot_aero, (aero,), {}))
-        if shaped:
-            specs.append(("rib_design.png", plot_rib_design, (
-                solution.parameters, start_rib, scene.bay.chord * float(solution.parameters.rib_chord_scale),
-                rib_limits), {}))
+        specs = [("wing_overview.png", plot_wing_overview, (_Overview(result), deviation), {})]
+        for k in range(n_bays if n_bays <= PER_BAY_PLOTS else 0):
+            start_rib = (result.wing.sections[k] if result.wing is not None and rib_files else None)
+            specs.append((f"bay_{k}_mid_bay_section.png", plot_section, (solutions[k], targets[k], scenes[k]),
+                          dict(magnification=magnification, start_rib=start_rib, bay=k,
+                               rib_stations=(stations[k], stations[k + 1]))))
+            if aero is not None:
+                specs.append((f"bay_{k}_aero.png", plot_aero, (aero[k],), {}))
+        if n_bays > PER_BAY_PLOTS:
+            skipped["bay_K_mid_bay_section.png"] = (f"{n_bays} bays: more than {PER_BAY_PLOTS}, so "
+                                                    "wing_overview.png shows every bay in one figure")
+        if result.history:
+            specs.append(("history.png", plot_history, (_SharedHistory(result), bounds), {}))
+        else:
+            skipped["history.png"] = "a single equilibrium has no optimiser history"
+        if n_bays == 1:  # the one-bay extras
+            specs += [("deviation.png", plot_deviation, (solutions[0], targets[0], scenes[0]), {}),
+                      ("tensions.png", plot_tensions, (solutions[0], scenes[0]), {})]
+            if result.parameters.rib_shape is not None and result.wing is not None:
+                chord = scenes[0].bay.chord * float(result.parameters.rib_chord_scale)
+                specs.append(("rib_design.png", plot_rib_design, (
+                    result.parameters, result.wing.sections[0], chord, rib_limits), {}))
         to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
                          else len(_SAVE_ORDER))
         sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
         if workers is not None and workers.submitted == 0:
-            portable = [(staging / name, save_figure, (_save, function, tuple(_without_factors(a) for a in args),
-                                                        kwargs), {})
+            portable = [(staging / name, save_figure, (_save, function, args, kwargs), {})
                         for name, function, args, kwargs in to_save if name in _PORTABLE]
             if workers.submit(portable):
                 sent += portable
             else:
                 portable = []
         try:
-            summary = summarise(result, target, scene, objective=objective, inputs=inputs, timings=timings,
-                                aero=aero, rib=rib, rib_limits=rib_limits, warnings=warnings)
+            summary = summarise(result, inputs=inputs, timings=timings, aero=aero, warnings=warnings)
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
             with saved_after(built, _save):
-                write_npz(staging / "equilibrium.npz", solution, target, scene, design)
-                write_obj(staging / "skin.obj", solution.nodes, scene.bay.periodic, name=scene.bay.name)
-                write_stl(staging / "skin.stl", solution.nodes, scene.bay.periodic)
-                write_cut_pattern(staging / "cut_pattern.csv", scene, solution.parameters)
-                files += ["equilibrium.npz", "skin.obj", "skin.stl", "cut_pattern.csv"]
+                _write_data(staging, result, solutions, scenes, targets, deviation, files, skipped)
                 if _patterns_wanted(patterns, summary, skipped):
                     dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
-                    names, panels = write_bay_patterns(
-                        staging, scene, solution.parameters, seam_allowance_m=seam_allowance_mm / 1000.0,
-                        writer=(lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None)
+                    writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
+                    names, panels = [], []
+                    for k in range(n_bays):
+                        more, bay_panels = write_bay_patterns(staging, scenes[k], solutions[k].parameters, bay=k,
+                                                              ribs=(k if k == 0 else None, k + 1),
+                                                              seam_allowance_m=seam_allowance_mm / 1000.0,
+                                                              writer=writer)
+                        names += more
+                        panels += bay_panels
                     if dxf and workers.submit(dxf):
                         sent += dxf
                     else:
@@ -442,19 +599,6 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
                             run_task(task)
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
-                if shaped and "rib_crossing" in (design.violated_constraints if design is not None else {}):
-                    skipped["rib.dat"] = "the designed rib crosses itself (constraints.violated: rib_crossing)"
-                elif shaped:
-                    from forward_solver import rib_section
-
-                    section = rib_section(start_rib, solution.parameters.rib_shape,
-                                          float(solution.parameters.rib_thickness_scale),
-                                          name=f"{start_rib.name} designed rib")
-                    chord = scene.bay.chord * float(solution.parameters.rib_chord_scale)
-                    write_selig(staging / "rib.dat", section, comment=f"chord {chord:g} m")
-                    files.append("rib.dat")
-                if not has_history:
-                    skipped["history.png"] = "a single equilibrium has no optimiser history"
             if sent:  # the workers' files; any they did not write is written here
                 done = workers.finish()
                 for k, task in enumerate(sent):
@@ -473,6 +617,66 @@ def write_report(out_dir, result, target=None, *, scene=None, objective: str | N
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: list, targets: list,
+                deviation: np.ndarray, files: list, skipped: dict) -> None:
+    """The data files of the folder (module docstring): npz, meshes, cut lengths, designed ribs (each
+    name written is appended to ``files``; a rib not drawn, with why, goes to ``skipped``)."""
+    sol = result.wing_solution
+    params = result.parameters
+    shared = _shared_names(result)
+    save_npz(
+        staging / "wing.npz", dict(
+            nodes=np.stack([s.nodes for s in solutions]),
+            tension_span=np.stack([s.tension_span for s in solutions]),
+            tension_chord=np.stack([s.tension_chord for s in solutions]),
+            wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
+            deviation=deviation, weights=np.asarray(result.weights),
+            stations=np.asarray(_chords_and_stations(result)[1], np.float64),
+            chords=np.asarray(_chords_and_stations(result)[0], np.float64),
+            result=np.asarray(sol.result), residual=np.asarray(sol.residual, np.float64),
+            pressure=np.float64(params.pressure), prestrain=np.array(params.prestrain, np.float64),
+            rib_thickness_scale=np.float64(params.rib_thickness_scale),
+            rib_chord_scale=np.float64(params.rib_chord_scale),
+            target_names=np.array([t.name for t in result.targets], dtype=str),
+            variables=np.array(list(shared), dtype=str),
+            history_objective=np.array([h["objective"] for h in result.history], np.float64),
+            history_values=(np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
+                                      for h in result.history], np.float64) if result.history else np.zeros((0, 0))),
+            rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
+            cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns)))
+    joined = wing_nodes(result)
+    periodic = sol.bays[0].periodic
+    write_obj(staging / "skin.obj", joined, periodic, name="wing" if result.n_bays > 1 else sol.bays[0].name)
+    write_stl(staging / "skin.stl", joined, periodic)
+    files += ["wing.npz", "skin.obj", "skin.stl"]
+    if result.n_bays == 1:  # the one-bay extra: the bay in full
+        write_npz(staging / "equilibrium.npz", solutions[0], targets[0], scenes[0],
+                  result if result.variables else None)  # (a single equilibrium: no variables, no history)
+        files.append("equilibrium.npz")
+    for k in range(result.n_bays):
+        name = f"bay_{k}_cut_pattern.csv"
+        write_cut_pattern(staging / name, scenes[k], solutions[k].parameters)
+        files.append(name)
+    names = _rib_files(result)
+    if names:
+        from forward_solver import rib_section
+
+        rows = np.asarray(result.rib_shapes) if result.rib_shapes is not None else [params.rib_shape] * len(names)
+        crossed = result.violated_where.get("rib_crossing", {})  # (a rib that cannot be made is not drawn)
+        if crossed:
+            skipped["rib.dat" if names == ["rib.dat"] else "rib_K.dat"] = (
+                f"the designed rib{'s' if len(crossed) > 1 else ''} {', '.join(map(str, sorted(crossed)))} "
+                "cross themselves (constraints.violated: rib_crossing)")
+        for k, (name, airfoil, row, chord) in enumerate(zip(names, result.wing.sections, rows, result.wing.chords)):
+            if crossed and (name == "rib.dat" or k in crossed):
+                continue
+            label = "designed rib" if name == "rib.dat" else f"rib {name[4:-4]}"
+            write_selig(staging / name, rib_section(airfoil, row, float(params.rib_thickness_scale),
+                                                    name=f"{airfoil.name} {label}"),
+                        comment=f"chord {chord * float(params.rib_chord_scale):g} m")
+            files.append(name)
 
 
 def _without_factors(value):
@@ -501,7 +705,8 @@ def _patterns_wanted(patterns: bool, summary: dict, skipped: dict) -> bool:
         skipped["patterns"] = "not asked for (--no-patterns)"
         return False
     if not summary["results"]["success"]:
-        skipped["patterns"] = "a failed design is not to be cut: no pattern or rib template was written"
+        skipped["patterns"] = ("a failed design is not to be cut: no panel or rib template (DXF, SVG) was "
+                               "written")
         return False
     return True
 
@@ -513,249 +718,3 @@ def _pattern_entry(names: list, panels: list, seam_allowance_mm: float) -> dict:
             "panels": [{"bay": p.bay, "panel": p.name, "contour_nodes": [int(p.columns[0]), int(p.columns[-1])],
                         "length_error_m": p.length_error} for p in panels],
             "largest_length_error_m": max((p.length_error for p in panels), default=0.0)}
-
-
-# ------------------------------------------------------------------ a wing of several bays
-def wing_nodes(result: DesignResult) -> np.ndarray:
-    """``(n_bays (n_span - 1) + 1, n_contour, 3)`` m: the bays joined at their shared ribs, y the
-    span station (`Wing.stations`)."""
-    sol = result.wing_solution
-    stations = np.asarray(result.wing.stations, np.float64)
-    parts = []
-    for k in range(len(sol.bays)):
-        nodes = np.array(sol.nodes[k], dtype=np.float64)
-        nodes[..., 1] += stations[k]
-        parts.append(nodes if k == 0 else nodes[1:])  # the first row is the previous bay's tip rib
-    return np.concatenate(parts)
-
-
-def wing_deviation(result: DesignResult) -> np.ndarray:
-    """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
-    fractions of the local chord (positive outside; `objectives` module docstring)."""
-    import jax
-
-    sol, targets = result.wing_solution, result.targets
-    out = []
-    with jax.enable_x64(True):
-        for k, bay in enumerate(sol.bays):
-            etas = np.linspace(0.0, 1.0, bay.n_span)
-            rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
-            out.append(np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas))))
-    return np.stack(out)
-
-
-def _summarise_wing(result: DesignResult, *, inputs: dict | None = None, timings: dict | None = None,
-                    warnings: list | None = None) -> dict:
-    """The summary of a design of several bays (`summarise` for a single bay; module docstring)."""
-    sol = result.wing_solution
-    params = result.parameters.resolved(sol.fabric).as_dict()
-    specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
-    bays = _bay_entries(result)
-    fabric = sol.fabric
-    summary = {
-        "package": {"name": "inflatable-wing", "version": _version("inflatable-wing")},
-        "versions": {"python": platform.python_version(), "jax": _version("jax"), "numpy": np.__version__},
-        "schema": SCHEMA_VERSION,
-        "mode": "optimise",
-        "inputs": dict(inputs or {}),
-        "warnings": list(warnings or []),
-        "case": {
-            "n_bays": result.n_bays,
-            "ribs": [{"section": af.name, "target": t.name, "chord_m": c, "station_m": y}
-                     for af, t, c, y in zip(result.wing.airfoils, result.targets, result.wing.chords,
-                                            result.wing.stations)],
-            "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
-            "trailing_edge": {"option": result.wing.trailing_edge, "unit": "chord",
-                              "changed": [{"rib": c["index"], "section": result.wing.airfoils[c["index"]].name,
-                                           **({"file": specs[c["index"]]} if c["index"] < len(specs) else {}),
-                                           "gap_before": c["gap_before"], "gap_after": c["gap_after"],
-                                           "blend": c["blend"]} for c in result.wing.trailing_edge_changes]},
-            "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
-                       "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
-        },
-        "results": {
-            "success": result.success, "message": result.message,
-            "values": {"pressure_pa": params["pressure"], "prestrain_span": params["prestrain_span"],
-                       "prestrain_chord": params["prestrain_chord"],
-                       "rib_thickness_scale": params["rib_thickness_scale"],
-                       "rib_chord_scale": params["rib_chord_scale"],
-                       "stiffness_span_n_per_m": params["stiffness_span"],
-                       "stiffness_chord_n_per_m": params["stiffness_chord"],
-                       "cut_pattern": params["cut_pattern"]},
-            "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
-            "rib_shape_max_abs": None if result.rib_shapes is None else float(np.max(np.abs(result.rib_shapes))),
-            "rib_limits": list(result.rib_limits),
-            "cut_patterns": None if result.cut_patterns is None else np.asarray(result.cut_patterns).tolist(),
-            "cut_pattern_local": _local_prestrain_range(result),
-            "variables": list(result.variables), "method": result.method,
-            "iterations": len(result.history), "forward_solves": result.solves,
-            "wall_time_s": result.wall_time,
-            "grid_change": result.grid_change,  # after --refine: both grids and how far the design moved
-        },
-        "errors": {
-            "unit": "fraction of the local chord", "objective": result.objective,
-            "weighting": "bay planform area",
-            "before": {"rms": result.initial_rms_error}, "after": {"rms": result.rms_error},
-        },
-        "constraints": {
-            "active": list(result.active_constraints),
-            "violated": {name: float(v) for name, v in result.violated_constraints.items()},
-            "violated_where": _violated_where(result.violated_constraints),
-            "violated_at_start": {name: float(v) for name, v in result.violated_at_start.items()},
-            "violated_at_start_where": _violated_where(result.violated_at_start),
-            "values": dict(result.constraint_values), "unit": "N/m",
-        },
-        "timings_s": dict(timings or {}),
-        "history": list(result.history),
-        "bays": bays,
-    }
-    return _jsonable(summary)
-
-
-def _shared_names(result: DesignResult) -> tuple:
-    """The design's variables shared by every bay of a wing (not per-rib shapes, not per-bay fields)."""
-    return tuple(n for n in result.variables if n != "rib_shape"
-                 and not (n == "cut_pattern" and result.cut_patterns is not None))
-
-
-def _local_prestrain_range(result: DesignResult) -> dict | None:
-    """``{"span": [low, high], "chord": [low, high]}``: the local prestrain of the design's cut field(s)
-    over the contour (every bay's for per-bay fields), or None for a uniform cut."""
-    from forward_solver.cut_field import field_values
-
-    p = result.parameters
-    rows = [p.cut_pattern] if result.cut_patterns is None else list(np.asarray(result.cut_patterns))
-    if rows[0] is None:
-        return None
-    s = np.linspace(0.0, 1.0, 401)
-    span, chord = zip(*(field_values(s, p.prestrain_span, p.prestrain_chord, row) for row in rows))
-    return {"span": [float(np.min(span)), float(np.max(span))],
-            "chord": [float(np.min(chord)), float(np.max(chord))]}
-
-
-class _SharedHistory:
-    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes and
-    per-bay cut fields are many coefficients; they are in summary.json's history, the rib_K.dat and
-    bay_K_cut_pattern.csv files)."""
-
-    def __init__(self, result: DesignResult):
-        names = _shared_names(result)
-        self.variables, self.method, self.objective = names, result.method, result.objective
-        self.rms_error, self.success, self.values = result.rms_error, result.success, result.values
-        self.history = [{**h, "values": {n: h["values"][n] for n in names}} for h in result.history]
-
-
-def _write_wing_folder(out_dir, result: DesignResult, *, bounds: dict | None = None,
-                      inputs: dict | None = None, timings: dict | None = None,
-                      magnification: float | None = None, warnings: list | None = None,
-                      patterns: bool = True, seam_allowance_mm: float = 10.0) -> dict:
-    """Write the output folder of a wing design and return its summary (module docstring).
-
-    Args:
-        out_dir: the folder to create, or to write into (replacing only an earlier
-            report's files: `export.staged_folder`).
-        result: the `optimise.DesignResult` of the wing.
-        bounds: variable bounds to draw in the history plot.
-        inputs: the caller's options (stored as given).
-        timings: seconds spent before the report; ``report`` and ``total`` are added.
-        magnification: deviation factor of the section plots (default automatic).
-        patterns, seam_allowance_mm: as `write_report`.
-
-    Returns:
-        The summary, with ``files``, ``skipped`` and ``out``.
-
-    Raises:
-        ValueError: if ``out_dir`` cannot be written (`export.check_output_folder`).
-    """
-    start = time.perf_counter()
-    out = check_output_folder(out_dir)
-    summary = _summarise_wing(result, inputs=inputs, timings=timings, warnings=warnings)
-    sol = result.wing_solution
-    files, skipped = [], {}
-    with staged_folder(out) as staging:
-        solutions = [sol.bay_solution(k) for k in range(len(sol.bays))]
-        params = result.parameters
-        shared = _shared_names(result)
-        deviation = wing_deviation(result)
-        # Every figure is built first (here, where JAX may be called), then saved after the other
-        # files are written (`drawing.saved_after`).
-        figures = [("wing_overview.png", plot_wing_overview(result, deviation))]
-        for k, bay in enumerate(sol.bays if len(sol.bays) <= PER_BAY_PLOTS else ()):
-            target = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip,
-                                 [0.5])[0]
-            fig = plot_section(solutions[k], target, sol.scene(k), magnification=magnification)
-            fig.suptitle(f"bay {k} (ribs {k}-{k + 1}): {fig.get_suptitle()}")
-            figures.append((f"bay_{k}_mid_bay_section.png", fig))
-        bay_figures = [name for name, _ in figures]  # (the overview and the sections, listed before the ribs)
-        if result.history:
-            figures.append(("history.png", plot_history(_SharedHistory(result), bounds)))
-        with saved_after([(staging / name, fig) for name, fig in figures], _save):
-            save_npz(
-                staging / "wing.npz", dict(
-                    nodes=np.stack([s.nodes for s in solutions]),
-                    tension_span=np.stack([s.tension_span for s in solutions]),
-                    tension_chord=np.stack([s.tension_chord for s in solutions]),
-                    wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
-                    deviation=deviation, weights=np.asarray(result.weights),
-                    stations=np.asarray(result.wing.stations, np.float64),
-                    chords=np.asarray(result.wing.chords, np.float64),
-                    result=np.asarray(sol.result), residual=np.asarray(sol.residual, np.float64),
-                    pressure=np.float64(params.pressure), prestrain=np.array(params.prestrain, np.float64),
-                    rib_thickness_scale=np.float64(params.rib_thickness_scale),
-                    rib_chord_scale=np.float64(params.rib_chord_scale),
-                    target_names=np.array([t.name for t in result.targets], dtype=str),
-                    variables=np.array(list(shared), dtype=str),
-                    history_objective=np.array([h["objective"] for h in result.history], np.float64),
-                    history_values=np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
-                                             for h in result.history],
-                                            np.float64).reshape(len(result.history), -1),
-                    rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
-                    cut_patterns=(np.zeros((0, 0)) if result.cut_patterns is None
-                                  else np.asarray(result.cut_patterns))))
-            joined = wing_nodes(result)
-            write_obj(staging / "skin.obj", joined, sol.bays[0].periodic, name="wing")
-            write_stl(staging / "skin.stl", joined, sol.bays[0].periodic)
-            files += ["wing.npz", "skin.obj", "skin.stl"]
-            files += bay_figures
-            if len(sol.bays) > PER_BAY_PLOTS:
-                skipped["bay_K_mid_bay_section.png"] = (f"{len(sol.bays)} bays: more than {PER_BAY_PLOTS}, so "
-                                                        "wing_overview.png shows every bay in one figure")
-            crossed = result.violated_constraints.get("rib_crossing", {})
-            if crossed:
-                skipped["rib_K.dat"] = f"designed ribs {sorted(crossed)} cross themselves (rib_crossing)"
-            if result.rib_shapes is not None:  # each designed rib as a Selig file, as the single bay's rib.dat
-                from forward_solver import rib_section
-
-                for k, (airfoil, row) in enumerate(zip(result.wing.sections, np.asarray(result.rib_shapes))):
-                    if k in crossed:
-                        continue
-                    section = rib_section(airfoil, row, float(result.parameters.rib_thickness_scale),
-                                          name=f"{airfoil.name} rib {k}")
-                    write_selig(staging / f"rib_{k}.dat", section,
-                                comment=f"chord {result.wing.chords[k]:g} m")
-                    files.append(f"rib_{k}.dat")
-            for k in range(len(sol.bays)):
-                name = f"bay_{k}_cut_pattern.csv"
-                write_cut_pattern(staging / name, sol.scene(k), solutions[k].parameters)
-                files.append(name)
-            if _patterns_wanted(patterns, summary, skipped):
-                names, panels = [], []
-                for k in range(len(sol.bays)):
-                    more, bay_panels = write_bay_patterns(staging, sol.scene(k), solutions[k].parameters, bay=k,
-                                                          ribs=(k if k == 0 else None, k + 1),
-                                                          seam_allowance_m=seam_allowance_mm / 1000.0)
-                    names += more
-                    panels += bay_panels
-                files += names
-                summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
-            if result.history:
-                files.append("history.png")
-            else:
-                skipped["history.png"] = "no optimiser history"
-        times = dict(summary["timings_s"])
-        times["report"] = time.perf_counter() - start
-        times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
-        summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
-        summary["checksums"] = file_checksums(staging, files)  # (`export.changed_files` compares them)
-        (staging / "summary.json").write_text(json.dumps(_jsonable(summary), indent=2, allow_nan=False) + "\n")
-    return summary
