@@ -157,10 +157,12 @@ def test_the_command_warns_of_a_changed_file_it_keeps(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, writes, never", [
-    ([], ["summary.json", "equilibrium.npz", "history.png", "pattern_bay_0_upper.dxf", "rib_1.dxf"],
-     ["rib.dat", "aero.png", "wing.npz", "bay_0_cut_pattern.csv"]),
+    ([], ["summary.json", "equilibrium.npz", "wing.npz", "bay_0_cut_pattern.csv", "history.png",
+          "pattern_bay_0_upper.dxf", "rib_1.dxf"],
+     ["rib.dat", "bay_0_aero.png", "cut_pattern.csv", "mid_bay_section.png"]),
     (["--evaluate", "--no-patterns"], ["skin.obj", "tensions.png"], ["history.png", "pattern_bay_0_lower.svg"]),
-    (["--variables", "pressure,rib_shape", "--aero"], ["rib.dat", "rib_design.png", "aero.png"], ["rib_0.dat"]),
+    (["--variables", "pressure,rib_shape", "--aero"], ["rib.dat", "rib_design.png", "bay_0_aero.png"],
+     ["aero.png"]),
 ], ids=["default", "evaluate", "rib shape"])
 def test_what_a_run_may_write(argv, writes, never):
     args, _ = case_reader.parse_arguments(argv)
