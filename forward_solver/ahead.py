@@ -17,7 +17,7 @@ Nothing is computed ahead that the solve would not compute, and a task that
 fails is dropped (the solve compiles the program itself and meets the same
 error there, with its own message). Off on a single core, and switchable
 (`set_compile_ahead`); the worker starts on the first task, never at import.
-Measured on the 2-core development machine: README, "Compilation".
+What it saves is measured by ``benchmarks/compilation.py`` (docs/performance.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The cut as a field: prestrain varying along the contour (issue 21, item 1).
+"""The cut as a field: prestrain varying along the contour (docs/design_problem.md).
 
 A uniform prestrain cuts every fibre of one direction the same fraction
 shorter than its mounted length (eq. 12: reference length = mounted length /

@@ -1,4 +1,4 @@
-"""Rib shape as design variables: a smooth outward offset of the rib contour (issue 12, item 1).
+"""Rib shape as design variables: a smooth outward offset of the rib contour.
 
 The ribs fix the skin at their sections (paper, "Statement of the problem":
 the rib and the skin meet along the rib contour, the boundary of eq. 1's

@@ -1,4 +1,4 @@
-"""A whole wing: N bays between N + 1 rigid ribs, solved as one batch (issue 12, item 2, first part).
+"""A whole wing: N bays between N + 1 rigid ribs, solved as one batch.
 
 Given rigid ribs, the bays of a wing are independent: each is a `Bay`
 between its two ribs (with their sections and chords: taper), and all share
@@ -22,7 +22,7 @@ its earlier displacement added to this solve's mounted shape (as
 `WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
 wrinkles), for reports and for comparison with `solve_equilibrium`.
 
-One forward entry, two strategies (issue 18, item 2). `solve_bays` solves
+One forward entry, two strategies. `solve_bays` solves
 N >= 1 bays given as `Scene`s. Its "loop" strategy calls `solve_equilibrium`
 on each bay in turn (grid sequencing, half-bay symmetry, Newton and the
 factor reuse of a warm start, the host sparse LU adjoint): the faster way on

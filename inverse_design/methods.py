@@ -122,6 +122,10 @@ GN_DAMPING = 1e-8
 #: objective 9%); a step predicted to gain less than this fraction of the merit is checked by an
 #: exact solve of the same QP with hard limits (`_distance_step`) before the method reads it as converged.
 GN_QP_CHECK = 1e-3
+#: A predicted fall below this fraction of the starting merit (1 in the scaled merit) is below what
+#: the merit's float64 sum of squares resolves: converged, whatever ``tolerance`` asks of a merit
+#: that has itself fallen to rounding (a target the design reaches exactly).
+GN_RESOLUTION = 1e-15
 
 
 def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
@@ -141,7 +145,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     than 1e-4 of the model's predicted fall; the radius shrinks to a quarter of the step after a poor
     ratio (< 0.25) or a failed solve and doubles after a good one (> 0.75)
     at the trust-box edge. Converged when the model predicts a fall of at
-    most ``tolerance`` times the merit. Because ``J^T J`` is the exact
+    most ``tolerance`` times the merit (or below `GN_RESOLUTION`). Because ``J^T J`` is the exact
     Hessian of the fit up to the residuals' curvature, the number of solves
     hardly grows with the number of variables (SLSQP learns its Hessian one
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
@@ -168,7 +172,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
         d, predicted, checked = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
-        if predicted <= tolerance * max(phi, np.finfo(float).tiny):
+        if predicted <= max(tolerance * phi, GN_RESOLUTION):
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
         if solves >= max_iterations:

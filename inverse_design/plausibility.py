@@ -3,7 +3,7 @@
 The solver runs far outside these ranges (an 80% prestrain, a 100 m bay) and
 may converge, but nothing has checked that its answer means anything there:
 the membrane law of eq. 10 assumes small strains, and the validation cases
-and the random-scene stress test (README, "Where the numbers come from";
+and the random-scene stress test (docs/validation.md;
 ``tests/test_stress.py``) cover:
 
 =====================  =================  ====================================
@@ -19,10 +19,10 @@ rib spacing / chord    0.05 to 0.5        stress test (chord 1 m)
 
 Beside the physical ranges, `check_plausibility` flags the numerical and
 drawing choices that make a result doubtful (`LIMITS`): a design on fewer
-span nodes than the README's grid study found enough (17: on 9 span nodes
+span nodes than the grid study of docs/design_studies.md found enough (17: on 9 span nodes
 the default design lands at 6.4 kPa and rib scale 0.945 against 1 kPa and
 1.0 on 17 or more, a spurious compression beside the ribs that the wrinkle
-constraint obeys; README, "Inverse design" under "Studies"); a seam allowance over
+constraint obeys; docs/design_studies.md, "The default case on several grids"); a seam allowance over
 50 mm (a typo for metres or centimetres more likely than a seam); more
 cut-pattern or rib-shape terms than a quarter of the contour nodes (each
 term then spans fewer than about four nodes: the grid cannot resolve it);
@@ -163,7 +163,7 @@ def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | Non
     if grid is not None and design and grid[0] < LIMITS["n_span"]:
         lines.append(f"the design grid has {grid[0]} span nodes, fewer than the {LIMITS['n_span']} that the "
                      "grid study found enough (on 9 the default design lands at 6.4 kPa and rib scale 0.945 "
-                     f"against 1 kPa and 1.0 on 17 or more; README, \"Inverse design\" under \"Studies\"): give --n-span "
+                     f"against 1 kPa and 1.0 on 17 or more; docs/design_studies.md): give --n-span "
                      f"{LIMITS['n_span']} or more, or --refine")
     if seam_allowance_mm is not None and seam_allowance_mm > LIMITS["seam_allowance_mm"]:
         lines.append(f"seam allowance {seam_allowance_mm:g} mm is more than {LIMITS['seam_allowance_mm']:g} mm: "

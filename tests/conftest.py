@@ -44,6 +44,11 @@ def pytest_configure(config):
     # Subprocesses read the environment; this process's JAX was imported already, so configure it.
     os.environ.update(INFLATABLE_WING_CACHE=cache, JAX_COMPILATION_CACHE_DIR=cache,
                       JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    # The command's report workers are fresh interpreters that import the report's libraries (a few
+    # seconds of CPU each, twice per run): the suite's many in-process and subprocess runs write their
+    # reports serially (the same files), and the tests of the workers themselves
+    # (tests/test_drawing.py, tests/test_cli.py) turn them back on.
+    os.environ["INFLATABLE_WING_SERIAL_FIGURES"] = "1"
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

@@ -15,6 +15,12 @@ from inverse_design.app import drawing
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(autouse=True)
+def _workers_on(monkeypatch):
+    """The suite writes reports serially (tests/conftest.py); these tests are of the workers."""
+    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
+
+
 def write_text(path, text, delay=0.0):
     """A task: ``text`` into ``path`` (after ``delay`` seconds), with the writing process's id."""
     time.sleep(delay)

@@ -38,9 +38,12 @@ busy 2-core machine OpenBLAS's waiting threads made the panels of the
 default case take 29 s instead of 0.1 s.
 
 Every Python warning of the run (an `targets.AirfoilWarning` among them) is
-shown as one ``optimise-pressure: warning: ...`` line. An error line is kept
-to what a terminal shows (`CONSOLE_WIDTH`): its first clause and its last
-(the fix); the whole text is in the summary's ``results.message`` where a
+shown as one ``optimise-pressure: warning: ...`` line. A failure line (a
+design or solve that did not succeed, whose message carries the optimiser's
+and the limits' details) is kept to `CONSOLE_WIDTH` characters, a refusal of
+bad input (exit 2) to `REFUSAL_WIDTH`, a few lines of a terminal, so that its
+reason and its fix stay whole: the first clause and the last (the fix); the
+whole text is in the summary's ``results.message`` where a
 report is written, and on stdout as ``{"error": ...}`` under ``--json``. A
 JAX platform that the machine does not have (``JAX_PLATFORMS=cuda`` on a
 machine without one) is bad input: one line, exit 2.
@@ -67,13 +70,14 @@ from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import WORKER_MODULES, run
 
-__all__ = ["CONSOLE_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
+__all__ = ["CONSOLE_WIDTH", "REFUSAL_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
 #: Exit codes of a run stopped by Ctrl-C (SIGINT) or SIGTERM: 128 + the signal number, as a shell reports it.
 EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
-#: Most characters of a message in an error line (module docstring).
+#: Most characters of a message in a failure line, and of a refusal's (module docstring).
 CONSOLE_WIDTH = 200
+REFUSAL_WIDTH = 600
 
 
 def _say(line: str, stdout: bool = False) -> None:
@@ -314,7 +318,7 @@ def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
 
 def _error(args, kind: str, text: str, after: str = "") -> None:
     """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
-    _say(f"{PROG}: {kind}: {shorten(text)}{after}")
+    _say(f"{PROG}: {kind}: {shorten(text, REFUSAL_WIDTH if kind == 'error' else CONSOLE_WIDTH)}{after}")
     if args is not None and args.json:
         _say(json.dumps({"error": " ".join(str(text).split())}), stdout=True)
 
