@@ -120,7 +120,7 @@ def inflated_strip():
     mid = sol.nodes[:, 64]
     sag = mid[:, 2].max()
     # Elongation along the strip at mid-length, measured on the grid (the bulged ends
-    # lengthen the lines, so it exceeds the prestrain; see tests/test_equilibrium.py).
+    # lengthen the lines, so it exceeds the prestrain; see tests/solver/test_equilibrium.py).
     strain_chord = strip_elongation(sol.nodes, length, PRESTRAIN[1])
     args = (width, PRESSURE, fabric.stiffness_span, fabric.stiffness_chord, fabric.poisson,
             PRESTRAIN[0], strain_chord)

@@ -45,7 +45,7 @@ or ``jax.vmap`` of the parameters they are abstract and `solve_equilibrium`
 takes the pure-JAX path of `traced` instead: the relaxation alone, under
 ``stop_gradient``, its fixed point differentiated by `implicit.implicit_nodes`
 (the same implicit rule with the iterative solver). The two agree to 1e-10
-relative on the 9x32 bay (tests/test_transforms.py). The host methods
+relative on the 9x32 bay (tests/derivatives/test_transforms.py). The host methods
 (newton, relax+newton, explicit) refuse jit and vmap with a TypeError that
 names "relax".
 

@@ -5,7 +5,7 @@ Written from eq. (10), (12)-(15) with ``np.add.at``, sharing no code with
 stretches, tensions, the forces its fibres carry along its four edges, and
 the pressure on its four quarter-cells. If the JAX kernel and this disagree,
 one of them is wrong. Slow (a Python loop over cells): for small grids, in
-the tests (`tests/test_independent_residual.py`) and the validation report
+the tests (`tests/solver/test_independent_residual.py`) and the validation report
 (`benchmarks/validation_report.py`).
 """
 

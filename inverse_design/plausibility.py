@@ -4,7 +4,7 @@ The solver runs far outside these ranges (an 80% prestrain, a 100 m bay) and
 may converge, but nothing has checked that its answer means anything there:
 the membrane law of eq. 10 assumes small strains, and the validation cases
 and the random-scene stress test (docs/validation.md;
-``tests/test_stress.py``) cover:
+``tests/reliability/test_stress.py``) cover:
 
 =====================  =================  ====================================
 quantity               range              from

@@ -2,7 +2,7 @@
 two-rib case file; the console's wording; the figures' legends, limits and titles.
 
 The command runs in this process (`cli.main` with ``--no-compilation-cache``, as in
-tests/test_wing_cli.py) on the small grid of tests/test_cli.py (5 x 32), so the two runs share
+tests/command/test_wing_cli.py) on the small grid of tests/command/test_cli.py (5 x 32), so the two runs share
 their compilations. The figure checks build figures from plain values (no solve) where they can.
 """
 
@@ -208,7 +208,7 @@ def test_the_panel_label_runs_clear_of_the_warp_arrow():
 
 def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
     # Root finding solves one scalar condition at one bay's mid-bay section: a two-rib case file is
-    # such a bay (a wing of several bays is refused, tests/test_wing_cli.py).
+    # such a bay (a wing of several bays is refused, tests/command/test_wing_cli.py).
     (tmp_path / "bay.toml").write_text(TWO_RIBS)
     code = cli.main(["--config", str(tmp_path / "bay.toml"), "--method", "root", "--variables", "pressure",
                      "--out", str(tmp_path / "out"),

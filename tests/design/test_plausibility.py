@@ -3,7 +3,7 @@ and drawing choices outside their limits (a coarse design grid, a seam allowance
 Reynolds number of the aerodynamic comparison).
 
 `check_plausibility` is pure Python (no solve); the command's use of it is
-checked in tests/test_cli.py (one bay) and tests/test_wing_cli.py (a wing).
+checked in tests/command/test_cli.py (one bay) and tests/command/test_wing_cli.py (a wing).
 """
 
 import warnings

@@ -19,7 +19,7 @@ from forward_solver.wing import Wing, solve_wing
 from inverse_design.app import cli
 from targets import AirfoilWarning, common_trailing_edge, load_airfoil, naca
 
-UIUC = Path(__file__).parent / "data" / "uiuc"
+UIUC = Path(__file__).parents[1] / "data" / "uiuc"
 OPEN = ("fx77w153", "rc0864c", "tasopt-b")  # open trailing edges, gaps 1.81e-3, 1.6e-3, 8e-4
 #: How far the section may move ahead of the blend: the resampling error of the
 #: 401-node contour the blend is applied to (3.9e-6 measured, at rc0864c's sharp nose).

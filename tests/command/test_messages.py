@@ -13,7 +13,7 @@ import pytest
 from inverse_design.app import case as case_reader, cli
 from targets import Airfoil, AirfoilWarning, load_airfoil, naca
 
-UIUC = Path(__file__).parent / "data" / "uiuc"
+UIUC = Path(__file__).parents[1] / "data" / "uiuc"
 
 
 def _write(path, points, name="shuffled"):

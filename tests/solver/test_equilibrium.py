@@ -143,7 +143,7 @@ def test_float64_without_touching_global_config(small_panel, small_reference):
     assert small_reference.nodes.dtype == np.float64
     assert small_reference.extra["precision"] == "float64"
     assert not jax.config.jax_enable_x64  # and neither did solving
-    # float32 has its own tests (tests/test_precision.py).
+    # float32 has its own tests (tests/solver/test_precision.py).
 
 
 @pytest.mark.parametrize(

@@ -25,7 +25,7 @@ and ``n_contour=N`` of a Python block becomes 5 and 48, and every
 ``optimise-pressure`` command gets ``--n-span 5 --n-contour 48``
 (the default grids take minutes; the blocks' outcomes do not depend on the
 grid). The subprocesses share one JAX compilation cache, as in
-tests/test_cli.py, but kept between sessions in pytest's cache folder
+tests/command/test_cli.py, but kept between sessions in pytest's cache folder
 (``.pytest_cache/d/readme-jax-cache``; delete it to start cold).
 """
 
@@ -40,7 +40,7 @@ import pytest
 
 from inverse_design.app import case as case_reader
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 #: The pages whose code blocks run here: the README, then the docs pages with examples.
 PAGES = (README, ROOT / "docs" / "command.md", ROOT / "docs" / "patterns.md", ROOT / "docs" / "compilation.md")

@@ -12,7 +12,7 @@ import pytest
 
 from inverse_design.app import drawing
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(autouse=True)
@@ -103,7 +103,7 @@ def test_no_workers_when_switched_off_or_on_one_core(monkeypatch):
 _EXIT_AT_ONCE = r"""
 import os, sys
 from inverse_design.app import drawing
-from tests.test_drawing import write_text
+from tests.command.test_drawing import write_text
 
 workers = drawing.ReportWorkers.start(count=1)
 workers.submit([(sys.argv[1], write_text, ("x",), {})])

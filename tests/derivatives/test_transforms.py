@@ -9,7 +9,7 @@ shared by every test (compilation dominates). Tolerances:
 * gradients: 1e-6 relative between the iterative (BiCGStab) and host-LU
   implicit derivatives, both at the same equilibrium (rtol 1e-12) with the
   Krylov solve at 1e-10; 1e-5 against central differences in float64, as
-  in tests/test_gradients.py (steps 1e-4 of the value, solves at 1e-12).
+  in tests/derivatives/test_gradients.py (steps 1e-4 of the value, solves at 1e-12).
 """
 
 import jax

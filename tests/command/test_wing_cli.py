@@ -2,7 +2,7 @@
 
 The command runs in this process (`cli.main` with ``--no-compilation-cache``,
 which leaves JAX's configuration alone), so the end-to-end run reuses the
-3-bay 9x32 compilation of tests/test_wing_design.py when both run together.
+3-bay 9x32 compilation of tests/wing/test_wing_design.py when both run together.
 Bad input never reaches JAX: it is refused while the case file is read.
 """
 
@@ -85,7 +85,7 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
                                      "bay_2_cut_pattern.csv", "rib_0.dxf", "rib_1.dxf", "rib_2.dxf",
                                      "rib_3.dxf"} | patterns
     assert {p.name for p in out.iterdir()} == set(summary["files"]) | {"rib_0.dat.orig", "wing.toml"}
-    # The patterns of every bay and rib read back clean (tests/test_patterns.py checks one bay's in depth).
+    # The patterns of every bay and rib read back clean (tests/patterns/test_patterns.py checks one bay's in depth).
     import ezdxf
 
     for name in sorted(n for n in summary["files"] if n.endswith(".dxf")):

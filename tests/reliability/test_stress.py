@@ -7,7 +7,7 @@ state with its code), never an exception, never an unbounded loop (every
 solve has a step cap). Fixed seed (``derandomize``).
 
 * Equilibrium (relaxation): 100 examples by default;
-  ``STRESS_EXAMPLES=1000 python -m pytest tests/test_stress.py`` runs the
+  ``STRESS_EXAMPLES=1000 python -m pytest tests/reliability/test_stress.py`` runs the
   long version.
 * The paper's explicit scheme with Courant coefficients up to the measured
   limit (1.0), random viscosity, aerodynamic damping and areal density: 20

@@ -35,7 +35,7 @@ from inverse_design import Constraints, optimise_pressure, optimise_wing
 from inverse_design.app.case import design_inputs, load_section, parse_arguments
 from inverse_design.optimise import AUTO, AUTO_FOR_WORST
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GRID = ("--n-span", "5", "--n-contour", "32")
 CASES = {
     "default": (),

@@ -12,7 +12,7 @@ import pytest
 from inverse_design.app import cli
 from targets import naca
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SMALL = ("--n-span", "5", "--n-contour", "32")
 
 

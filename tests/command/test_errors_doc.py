@@ -10,7 +10,7 @@ import pytest
 
 from inverse_design.app import cli
 
-PAGE = Path(__file__).parents[1] / "docs" / "errors.md"
+PAGE = Path(__file__).parents[2] / "docs" / "errors.md"
 ROW = re.compile(r"^\| [^|]+ \| `optimise-pressure (?P<args>[^`]*)` \| `(?P<message>[^`]+)` \|")
 
 

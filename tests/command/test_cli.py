@@ -24,7 +24,7 @@ import pytest
 
 from inverse_design.app import case as case_reader, cli, command, export, interrupts, resources
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SMALL = ("--n-span", "5", "--n-contour", "32")
 FOLDER = {"summary.json", "wing.npz", "equilibrium.npz", "skin.obj", "skin.stl", "bay_0_cut_pattern.csv",
           "wing_overview.png", "bay_0_mid_bay_section.png", "deviation.png", "tensions.png", "history.png",

@@ -19,7 +19,7 @@ import pytest
 from targets import Airfoil, AirfoilWarning, load_airfoil, naca
 from targets.airfoil import self_crossings
 
-DATA = Path(__file__).parent / "data" / "uiuc"
+DATA = Path(__file__).parents[1] / "data" / "uiuc"
 #: The real files that are refused for a reason of their own (tests/data/uiuc/README.md), and why.
 BROKEN = {"naca23021.dat": "expected two numbers", "mh112.dat": "not chord-normalised"}
 

@@ -21,7 +21,7 @@ from targets import AirfoilWarning, load_airfoil, naca
 from targets.dat import RENORMALISE_LIMIT
 from targets.monotone_spline import REVERSAL_TOLERANCE, limit_x_reversals
 
-DATA = Path(__file__).parent / "data" / "uiuc"
+DATA = Path(__file__).parents[1] / "data" / "uiuc"
 
 
 def load_quietly(name: str):

@@ -192,7 +192,7 @@ def test_parameters_and_loose_values_cannot_be_mixed(scene):
 
 
 def test_host_methods_under_jit_are_refused_with_a_clear_error(scene):
-    # The pure-JAX path under jit / vmap is tested in tests/test_transforms.py.
+    # The pure-JAX path under jit / vmap is tested in tests/derivatives/test_transforms.py.
     with jax.enable_x64(True), pytest.raises(TypeError, match="method='relax'"):
         jax.jit(lambda p: solve_equilibrium(scene, pressure=p, method="newton", throw=False).nodes)(2e4)
 

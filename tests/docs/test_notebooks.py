@@ -23,7 +23,7 @@ nbclient = pytest.importorskip("nbclient")
 
 pytestmark = pytest.mark.notebooks
 
-NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+NOTEBOOKS = Path(__file__).resolve().parents[2] / "notebooks"
 MARK = "NOTEBOOK_SUMMARY="
 REPORT = f"""
 import json as _json

@@ -19,7 +19,7 @@ from inverse_design.app import cli
 from inverse_design.aero import AeroUnavailable, aerodynamic_cost, alpha_range, compare_sections
 from targets import Airfoil, naca
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ALPHAS = np.arange(-4.0, 10.5, 1.0)
 RE = 1e6
 
