@@ -246,7 +246,7 @@ class Bay:
     def __getstate__(self) -> dict:
         """Pickled without the `geometry` cache (device arrays, made again on first use): a pickled
         bay loads in a process that has not started JAX's backend (the report's figure workers,
-        `inverse_design.app.drawing.ReportWorkers`)."""
+        `inverse_design.app.workers.ReportWorkers`)."""
         state = dict(self.__dict__)
         state.pop("_geometry", None)
         return state

@@ -47,7 +47,7 @@ def pytest_configure(config):
     # The command's report workers are fresh interpreters that import the report's libraries (a few
     # seconds of CPU each, twice per run): the suite's many in-process and subprocess runs write their
     # reports serially (the same files), and the tests of the workers themselves
-    # (tests/command/test_drawing.py, tests/command/test_cli.py) turn them back on.
+    # (tests/command/test_workers.py, tests/command/test_cli.py) turn them back on.
     os.environ["INFLATABLE_WING_SERIAL_FIGURES"] = "1"
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)

@@ -31,7 +31,7 @@ compiles with XLA's faster-compiling CPU loop emitters
 otherwise): about 40% less compile time, the same results; and a single
 bay's figures and DXF patterns are written by worker processes started as
 it starts, which import matplotlib and ezdxf while the design runs
-(`inverse_design.app.drawing.ReportWorkers`). BLAS runs on one thread for
+(`inverse_design.app.workers.ReportWorkers`). BLAS runs on one thread for
 the command's run (``threadpoolctl``): its solves (the flat panels' banded
 Cholesky, the sparse factors) are too small to gain from threads, and on a
 busy 2-core machine OpenBLAS's waiting threads made the panels of the
@@ -65,7 +65,7 @@ from forward_solver.xla import enable_fast_compilation
 from . import interrupts
 from .case import parse_arguments
 from .console import describe
-from .drawing import ReportWorkers
+from .workers import ReportWorkers
 from .interrupts import Terminated
 from .options import PROG, InputError
 from .command import WORKER_MODULES, run
@@ -333,7 +333,7 @@ def _main(argv: list[str] | None, started: float) -> int:
     workers = None
     try:
         # A single bay's figures and DXF patterns: workers started now import matplotlib and ezdxf while
-        # the design runs (`drawing.ReportWorkers`).
+        # the design runs (`workers.ReportWorkers`).
         if getattr(args, "wing", None) is None:
             workers = ReportWorkers.start(WORKER_MODULES)
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)

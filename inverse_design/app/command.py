@@ -38,7 +38,7 @@ def safe_point(entry=None) -> None:
 
 #: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
-#: What the report's workers (`drawing.ReportWorkers`) import while the design runs: the libraries of
+#: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
 #: the figures and of the DXF patterns they write, and the modules their tasks name.
 WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
                   "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern", "inverse_design.app.report")
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace, sources: dict | None = None, progress: bool = 
 
     ``started`` (a `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the
     start of `main`, so that it includes importing JAX. ``workers`` (a
-    `drawing.ReportWorkers`, the command's, which import `WORKER_MODULES`) write figures and
+    `workers.ReportWorkers`, the command's, which import `WORKER_MODULES`) write figures and
     DXF patterns (`report.write_report`).
 
     Raises:

@@ -229,7 +229,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         rib_templates: False leaves the ribs out (a wing writes each shared rib once).
         writer: ``writer(path, function, *args)`` writes each DXF file, as
             ``function(path, *args)`` does (the default); the report's may hand
-            it to its `drawing.ReportWorkers` instead.
+            it to its `workers.ReportWorkers` instead.
 
     Returns:
         ``(names, panels)``: the names of the files written and the `pattern.Panel` objects.

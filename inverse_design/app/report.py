@@ -55,7 +55,7 @@ ownership rules (`export.written_files`) own plain files only.
 
 Each figure is a module-level plotting function and picklable arguments, so
 that another process may build it: the command hands the figures of
-`_PORTABLE` and then the DXF patterns to its `drawing.ReportWorkers` (worker
+`_PORTABLE` and then the DXF patterns to its `workers.ReportWorkers` (worker
 processes started when it starts, which import matplotlib and ezdxf while
 the design runs); what they do not write, and every file of a library
 caller's report, is written in the calling process.
@@ -80,7 +80,7 @@ import numpy as np
 
 from forward_solver import Solution
 
-from .drawing import run_task, save_figure, saved_after
+from .workers import run_task, save_figure, saved_after
 from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
                      write_selig, write_stl)
 from .export import file_checksums
@@ -113,7 +113,7 @@ PER_BAY_PLOTS = 8
 #: 0.28 s, deviation 0.24 s; the wing overview, added later, last). Figures not named keep their place
 #: after these.
 _SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
-#: The figures a `drawing.ReportWorkers` may build: their plotting functions call no JAX and take
+#: The figures a `workers.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
 
@@ -502,7 +502,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
-        workers: `drawing.ReportWorkers` started before the design (the
+        workers: `workers.ReportWorkers` started before the design (the
             command's), to build and save the figures of `_PORTABLE` and to
             write the DXF patterns while this process writes the other
             files; what they do not write is written here. Default none:
@@ -541,7 +541,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
     with staged_folder(out) as staging:
         # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
         # workers if there are any; every other is built here (where JAX may be called), then saved
-        # after the other files are written (`drawing.saved_after`).
+        # after the other files are written (`workers.saved_after`).
         specs = [("wing_overview.png", plot_wing_overview, (_Overview(result), deviation), {})]
         for k in range(n_bays if n_bays <= PER_BAY_PLOTS else 0):
             start_rib = (result.wing.sections[k] if result.wing is not None and rib_files else None)

@@ -216,11 +216,11 @@ def test_every_png_is_an_image(default_run):
 
 _COUNTED = r"""
 import json, sys
-from inverse_design.app import cli, drawing
+from inverse_design.app import cli, workers as report_workers
 
 saved = []
-finish = drawing.ReportWorkers.finish
-drawing.ReportWorkers.finish = lambda self, *a, **k: saved.append(sorted(finish(self, *a, **k))) or set(saved[-1])
+finish = report_workers.ReportWorkers.finish
+report_workers.ReportWorkers.finish = lambda self, *a, **k: saved.append(sorted(finish(self, *a, **k))) or set(saved[-1])
 code = cli.main(sys.argv[1:])
 print(json.dumps({"code": code, "saved": saved}))
 """
@@ -236,7 +236,7 @@ def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, 
                              env=workers_on, capture_output=True, text=True, timeout=600)
     assert counted.returncode == 0, counted.stderr
     run = json.loads(counted.stdout.strip().splitlines()[-1])
-    if drawing_workers_possible():  # five figures, two panels' and two ribs' DXF: none left undone
+    if report_workers_possible():  # five figures, two panels' and two ribs' DXF: none left undone
         assert run["saved"] == [list(range(9))]
     serial = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--quiet", "--out", "serial"],
                             cwd=base, env=dict(cli_env, INFLATABLE_WING_SERIAL_FIGURES="1"), capture_output=True,
@@ -256,11 +256,11 @@ def _dxf_entities(path) -> str:
     return text[start:text.index("ENDSEC", start)]
 
 
-def drawing_workers_possible() -> bool:
+def report_workers_possible() -> bool:
     """Whether the command starts report workers here (two cores or more)."""
-    from inverse_design.app import drawing
+    from inverse_design.app import workers as report_workers
 
-    return drawing._cores() > 1
+    return report_workers._cores() > 1
 
 
 # ------------------------------------------------------------------ case files

@@ -1,4 +1,4 @@
-"""The report's worker processes (`inverse_design.app.drawing.ReportWorkers`): every task is done once,
+"""The report's worker processes (`inverse_design.app.workers.ReportWorkers`): every task is done once,
 by a worker or by the caller, and nothing of the pool outlives it."""
 
 import multiprocessing
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from inverse_design.app import drawing
+from inverse_design.app import workers as report_workers
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(autouse=True)
 def _workers_on(monkeypatch):
     """The suite writes reports serially (tests/conftest.py); these tests are of the workers."""
-    monkeypatch.delenv(drawing.SERIAL_VARIABLE, raising=False)
+    monkeypatch.delenv(report_workers.SERIAL_VARIABLE, raising=False)
 
 
 def write_text(path, text, delay=0.0):
@@ -51,7 +51,7 @@ def _tasks(tmp_path, n, delay=0.0):
 def test_workers_write_the_files_and_the_caller_those_no_worker_took(tmp_path):
     """One worker held up by its first task: the caller writes the rest itself, from the last, and
     every file is written once."""
-    workers = drawing.ReportWorkers.start(count=1)
+    workers = report_workers.ReportWorkers.start(count=1)
     try:
         started = tmp_path.parent / f"{tmp_path.name}.started"
         slow = [(tmp_path / "slow.txt", write_slowly, (started, 2.0), {})]
@@ -69,7 +69,7 @@ def test_workers_write_the_files_and_the_caller_those_no_worker_took(tmp_path):
 
 
 def test_a_failed_task_is_left_to_the_caller_and_an_unpicklable_one_is_refused(tmp_path):
-    workers = drawing.ReportWorkers.start(count=1)
+    workers = report_workers.ReportWorkers.start(count=1)
     try:
         assert workers.submit([(tmp_path / "x", fail, (tmp_path / "started",), {})])
         assert not workers.submit([(tmp_path / "y", lambda path: None, (), {})])  # (does not pickle)
@@ -82,7 +82,7 @@ def test_a_failed_task_is_left_to_the_caller_and_an_unpicklable_one_is_refused(t
 
 
 def test_closing_stops_workers_busy_or_idle(tmp_path):
-    workers = drawing.ReportWorkers.start(count=2)
+    workers = report_workers.ReportWorkers.start(count=2)
     workers.submit(_tasks(tmp_path, 2, delay=30.0))
     time.sleep(1.0)
     started = time.perf_counter()
@@ -93,19 +93,19 @@ def test_closing_stops_workers_busy_or_idle(tmp_path):
 
 
 def test_no_workers_when_switched_off_or_on_one_core(monkeypatch):
-    monkeypatch.setenv(drawing.SERIAL_VARIABLE, "1")
-    assert drawing.ReportWorkers.start() is None
-    monkeypatch.delenv(drawing.SERIAL_VARIABLE)
-    monkeypatch.setattr(drawing, "_cores", lambda: 1)
-    assert drawing.ReportWorkers.start() is None
+    monkeypatch.setenv(report_workers.SERIAL_VARIABLE, "1")
+    assert report_workers.ReportWorkers.start() is None
+    monkeypatch.delenv(report_workers.SERIAL_VARIABLE)
+    monkeypatch.setattr(report_workers, "_cores", lambda: 1)
+    assert report_workers.ReportWorkers.start() is None
 
 
 _EXIT_AT_ONCE = r"""
 import os, sys
-from inverse_design.app import drawing
-from tests.command.test_drawing import write_text
+from inverse_design.app import workers as report_workers
+from tests.command.test_workers import write_text
 
-workers = drawing.ReportWorkers.start(count=1)
+workers = report_workers.ReportWorkers.start(count=1)
 workers.submit([(sys.argv[1], write_text, ("x",), {})])
 print(sorted(workers.finish()))
 sys.stdout.flush()
@@ -127,7 +127,7 @@ def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path):
 @pytest.mark.parametrize("name", ["ctypes", "/proc", "_run_exitfuncs", "gc.freeze", "os.fork"])
 def test_the_command_carries_no_machinery_of_its_own(name):
     """The command's start, its workers and its end are the standard library's (docs/architecture.md)."""
-    for module in ("cli", "command", "drawing", "report", "interrupts"):
+    for module in ("cli", "command", "workers", "report", "interrupts"):
         path = ROOT / "inverse_design" / "app" / f"{module}.py"
         assert name not in path.read_text(), path
 
@@ -138,7 +138,7 @@ def write_policy(path):
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
 def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priority(tmp_path):
-    workers = drawing.ReportWorkers.start(count=1)
+    workers = report_workers.ReportWorkers.start(count=1)
     try:
         assert workers.submit([(tmp_path / "started", write_text, ("x",), {}),
                                (tmp_path / "policy", write_policy, (), {})])
