@@ -78,7 +78,7 @@ def main() -> None:
 
     from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
     from forward_solver.cut_field import field_values
-    from inverse_design import optimise_pressure
+    from inverse_design import SolverSettings, optimise_pressure
     from inverse_design.objectives import design_errors, section_errors
     from targets import naca
 
@@ -130,7 +130,7 @@ def main() -> None:
         bounds = {"pressure": (1e3, 1e5), **bounds}
         t = time.perf_counter()
         result = optimise_pressure(base, target, variables=variables, initial=initial, bounds=bounds,
-                                   objective="average", max_iterations=args.max_iterations)
+                                   objective="average", solver=SolverSettings(max_iterations=args.max_iterations))
         wall = time.perf_counter() - t
         designs[key] = result
         p = result.parameters
@@ -211,7 +211,7 @@ def wing_main(args) -> None:
 
     from forward_solver import Fabric
     from forward_solver.wing import Wing
-    from inverse_design import Constraints, optimise_wing
+    from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
     from inverse_design.objectives import section_errors
     from inverse_design.problem import DesignProblem
     from inverse_design.variables import DesignVariables
@@ -258,8 +258,8 @@ def wing_main(args) -> None:
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, None, variables, initial=initial,
                                bounds={"pressure": (1e3, 1e5), **bounds}, objective="average",
-                               max_iterations=args.max_iterations, n_span=args.n_span, n_contour=args.n_contour,
-                               **layout)
+                               solver=SolverSettings(max_iterations=args.max_iterations),
+                               layout=Layout(n_span=args.n_span, n_contour=args.n_contour, **layout))
         wall = time.perf_counter() - t
         sol = result.wing_solution
         solutions = [sol.bay_solution(k) for k in range(3)]

@@ -149,7 +149,7 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
-    from inverse_design import optimise_wing
+    from inverse_design import Layout, Limits, optimise_wing
     from inverse_design.app.case import EXAMPLE_CASE
 
     values = case_reader.read_config(EXAMPLE_CASE)
@@ -162,8 +162,8 @@ def design_case(fabric, variables=("pressure",)) -> dict:
                         initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
                                  "prestrain_chord": values["prestrain_chord"]},
                         bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
-                        constraints=Constraints(), n_span=values["n_span"], n_contour=values["n_contour"],
-                        method="slsqp")  # design_solves.py compares the methods
+                        method="slsqp", limits=Limits(tension=Constraints()),
+                        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"]))  # design_solves.py compares the methods
     wall = time.perf_counter() - t
     return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
             "grid": [values["n_span"], values["n_contour"]],

@@ -91,7 +91,7 @@ from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, pl
                     plot_wing_overview)
 from ..rib_design import cut_lengths
 
-__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
+__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "ReportOptions", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
            "write_report"]
 
 #: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
@@ -474,11 +474,46 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ReportOptions:
+    """What a report holds beside the design, and how it is drawn (`write_report`).
+
+    Args:
+        bounds: ``{name: (lower, upper)}`` variable bounds drawn in the
+            history plot (None: none drawn).
+        magnification: deviation factor of the section plots (None: automatic).
+        rib_limits: the `rib_design.RibLimits` a shaped rib was designed
+            with, drawn in ``rib_design.png`` (None: the defaults).
+        patterns: write the flat panels and the rib templates (DXF, SVG) of a
+            successful design (module docstring).
+        seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        inputs, warnings, aero: the run's inputs, its warning lines and each
+            bay's aerodynamic polar, recorded as `summarise` does (``aero``
+            also draws ``bay_K_aero.png``).
+        timings: seconds spent before the report (e.g. ``setup``,
+            ``optimisation``); ``report`` and, unless given, ``total`` (their
+            sum) are added.
+
+    Raises:
+        ValueError: if ``seam_allowance_mm`` is negative or not finite.
+    """
+
+    bounds: dict | None = None
+    magnification: float | None = None
+    rib_limits: object = None
+    patterns: bool = True
+    seam_allowance_mm: float = 10.0
+    inputs: dict | None = None
+    timings: dict | None = None
+    aero: object = None
+    warnings: list | None = None
+
+    def __post_init__(self):
+        check_seam_allowance(self.seam_allowance_mm)
+
+
 def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene=None, objective: str | None = None,
-                 bounds: dict | None = None, inputs: dict | None = None, timings: dict | None = None,
-                 magnification: float | None = None,
-                 aero=None, warnings: list | None = None, rib_limits=None, patterns: bool = True,
-                 seam_allowance_mm: float = 10.0, workers=None) -> dict:
+                 options: ReportOptions | None = None, workers=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
 
     Args:
@@ -490,18 +525,10 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         target, scene: a single bay's target and scene: needed with a
             `Solution`; with a `DesignResult` they must be its own (ValueError if not).
         objective: the rows a `Solution`'s errors are measured on (default "mid_bay").
-        bounds: variable bounds to draw in the history plot.
-        inputs, warnings, aero: as `summarise` (``aero`` also draws
-            ``bay_K_aero.png``).
-        timings: seconds spent before the report (e.g. ``setup``,
-            ``optimisation``); ``report`` and, unless given, ``total`` (their
-            sum) are added.
-        magnification: deviation factor of the section plots (default automatic).
-        rib_limits: the `rib_design.RibLimits` a shaped rib was designed
-            with, drawn in ``rib_design.png`` (default the defaults).
-        patterns: write the flat panels and the rib templates (DXF, SVG) of a
-            successful design (module docstring).
-        seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        options: what the report holds beside the design and how it is drawn
+            (`ReportOptions`: bounds, magnification, rib limits, patterns and
+            their seam allowance, the run's inputs, timings, aero and warnings;
+            None: the defaults).
         workers: `workers.ReportWorkers` started before the design (the
             command's), to build and save the figures of `_PORTABLE` and to
             write the DXF patterns while this process writes the other
@@ -515,11 +542,15 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
 
     Raises:
         ValueError: if ``out_dir`` cannot be written (`check_output_folder`),
-            ``seam_allowance_mm`` is negative, or ``target``/``scene`` are not the result's.
+            or ``target``/``scene`` are not the result's.
         TypeError: if ``result`` is neither a `DesignResult` nor a `Solution` (or a
             `Solution` comes without its target and scene).
     """
-    check_seam_allowance(seam_allowance_mm)
+    options = ReportOptions() if options is None else options
+    if not isinstance(options, ReportOptions):
+        raise TypeError(f"options must be a ReportOptions, got {type(options).__name__}")
+    magnification, aero, bounds, rib_limits = options.magnification, options.aero, options.bounds, options.rib_limits
+    seam_allowance_mm = options.seam_allowance_mm
     if isinstance(result, Solution):
         result = _measured(result, target, scene, objective)
     result = _checked(result)
@@ -575,13 +606,14 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
             else:
                 portable = []
         try:
-            summary = summarise(result, inputs=inputs, timings=timings, aero=aero, warnings=warnings)
+            summary = summarise(result, inputs=options.inputs, timings=options.timings, aero=aero,
+                                warnings=options.warnings)
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
             with saved_after(built, _save):
                 _write_data(staging, result, solutions, scenes, targets, deviation, files, skipped)
-                if _patterns_wanted(patterns, summary, skipped):
+                if _patterns_wanted(options.patterns, summary, skipped):
                     dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
                     writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
                     names, panels = [], []
