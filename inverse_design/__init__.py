@@ -4,7 +4,7 @@ Public names::
 
     optimise_pressure, refine_design, DesignResult, Constraints, section_errors,
     objective_residuals, design_errors, OBJECTIVES, VARIABLES, RibLimits,
-    optimise_wing, WingDesignResult (an alias of DesignResult),
+    optimise_wing, WingDesignResult (an alias of DesignResult), PerBayResults (DesignResult.per_bay),
     Limits, SolverSettings, Layout, DesignRequest (the options of a design: `settings`)
 
 One design over a wing of N >= 1 bays: ``optimise_wing`` runs a
@@ -21,6 +21,7 @@ from .objectives import design_errors as design_errors
 from .objectives import objective_residuals as objective_residuals
 from .objectives import section_errors as section_errors
 from .optimise import DesignResult as DesignResult
+from .optimise import PerBayResults as PerBayResults
 from .optimise import WingDesignResult as WingDesignResult
 from .optimise import optimise_wing as optimise_wing
 from .optimise import evaluate_design as evaluate_design
@@ -40,6 +41,7 @@ __all__ = [
     "Layout",
     "Limits",
     "OBJECTIVES",
+    "PerBayResults",
     "RibLimits",
     "VARIABLES",
     "design_errors",

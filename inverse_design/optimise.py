@@ -97,7 +97,7 @@ from .settings import (AUTO, AUTO_FOR_WORST, METHODS, ROOT_CONDITIONS, DesignReq
 from .variables import DEFAULT_START, VARIABLES, DesignVariables, concrete_rows
 
 __all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignRequest", "DesignResult", "Layout",
-           "Limits", "SolverSettings", "WingDesignResult",
+           "Limits", "PerBayResults", "SolverSettings", "WingDesignResult",
            "evaluate_design", "optimise_wing", "optimise_pressure", "refine_design"]
 
 #: Default tolerance of ``method="gauss_newton"``: the model's predicted fall of the merit, relative to
@@ -108,19 +108,58 @@ GN_TOLERANCE = 1e-4
 
 
 @dataclass(frozen=True, eq=False)
+class PerBayResults:
+    """The per-bay (and per-rib) arrays of a `DesignResult`, root to tip.
+
+    Attributes:
+        scenes: the `Scene` of each bay.
+        targets: the target section of each rib.
+        weights: ``(n_bays,)`` bay weights of the objective (planform area).
+        rms_error, max_error: ``(n_bays,)`` RMS and largest normal distance
+            of each bay's objective rows from their targets at the design,
+            fractions of the local chord.
+        initial_rms_error, initial_max_error: the same at the start (NaN
+            for a single equilibrium).
+        min_tension, max_tension: ``(n_bays,)`` smallest and largest
+            unclamped fibre tension of each bay at the design, N/m.
+        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
+            rib, else None.
+        cut_patterns: ``(n_bays, 2 K)`` cut-field coefficients of a field per
+            bay, else None.
+        rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
+            manufacturability limits (`rib_design.RibGeometry.measure`).
+    """
+
+    scenes: tuple
+    targets: tuple
+    weights: np.ndarray
+    rms_error: np.ndarray
+    max_error: np.ndarray
+    initial_rms_error: np.ndarray
+    initial_max_error: np.ndarray
+    min_tension: np.ndarray
+    max_tension: np.ndarray
+    rib_shapes: np.ndarray | None = None
+    cut_patterns: np.ndarray | None = None
+    rib_limits: list = field(default_factory=list)
+
+
+@dataclass(frozen=True, eq=False)
 class DesignResult(ParameterViews):
-    """Outcome of `optimise_wing` and `optimise_pressure`: totals, and per-bay arrays.
+    """Outcome of `optimise_wing` and `optimise_pressure`: what was found, what was asked
+    (``request``) and the per-bay arrays (``per_bay``).
 
     Attributes:
         parameters: the shared `forward_solver.Parameters` of the design
-            (with a shared rib shape its ``rib_shape``).
-        variables: the optimised names.
+            (with a shared rib shape its ``rib_shape``); ``pressure``,
+            ``prestrain`` and the other parameters read through.
         rms_error, max_error: normal distance from the target over the
             objective's sections at the design, fractions of the local chord:
             the square root of the bays' area-weighted mean squares, and the
             largest over the bays (one bay: its own).
         initial_rms_error, initial_max_error: the same at the start.
-        wing_solution: the `forward_solver.wing.WingSolution` at the design.
+        wing_solution: the `forward_solver.wing.WingSolution` at the design
+            (``solution``: one bay's `Solution`, or the wing's).
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2,
             as `objectives.mean_square` for slsqp; for "root" the
@@ -155,7 +194,8 @@ class DesignResult(ParameterViews):
             over every bay and the limits; for a shaped rib the least thickness
             ratio and radius of curvature with their limits
             (`rib_design.rib_report`).
-        method, objective: as requested.
+        method: the method that ran (``request.method`` is the one asked:
+            "auto" resolves to one); "" for a single equilibrium.
         solves: forward solves (each solves every bay once).
         wall_time: s, compilation included.
         grid_change: after `refine_design`, how the design moved from the
@@ -164,57 +204,44 @@ class DesignResult(ParameterViews):
             pressure, absolute otherwise (the largest component's for a
             vector)}, "rms_error": [coarse, fine]}``;
             None for a design on one grid.
-        weights: ``(n_bays,)`` bay weights of the objective (planform area).
-        bay_rms_error, bay_max_error: ``(n_bays,)`` RMS and largest normal
-            distance of each bay's objective rows from their targets.
-        initial_bay_rms_error, initial_bay_max_error: the same at the start.
-        bay_min_tension, bay_max_tension: ``(n_bays,)`` smallest and largest
-            unclamped fibre tension of each bay at the design, N/m.
-        targets: the target section of each rib.
-        scenes: the `Scene` of each bay.
         wing: the `forward_solver.Wing` designed (None for a flat panel).
-        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
-            rib (root to tip), else None.
-        cut_patterns: ``(n_bays, 2 K)`` cut-field coefficients of a field per
-            bay (root to tip), else None.
-        rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
-            manufacturability limits (`rib_design.RibGeometry.measure`).
+        request: what was asked (`settings.DesignRequest`: variables, start,
+            bounds, objective, method, limits).
+        per_bay: the per-bay and per-rib arrays (`PerBayResults`).
     """
 
     parameters: Parameters
-    variables: tuple
     rms_error: float
     max_error: float
     initial_rms_error: float
     initial_max_error: float
     wing_solution: WingSolution
+    request: DesignRequest
+    per_bay: PerBayResults
     history: list = field(default_factory=list)
     success: bool = False
     message: str = ""
     active_constraints: list = field(default_factory=list)
     violated_constraints: dict = field(default_factory=dict)
-    constraint_values: dict = field(default_factory=dict)
-    violated_at_start: dict = field(default_factory=dict)
     violated_where: dict = field(default_factory=dict)
+    violated_at_start: dict = field(default_factory=dict)
     violated_at_start_where: dict = field(default_factory=dict)
+    constraint_values: dict = field(default_factory=dict)
     method: str = ""
-    objective: str = ""
     solves: int = 0
     wall_time: float = 0.0
     grid_change: dict | None = None
-    weights: np.ndarray | None = None
-    bay_rms_error: np.ndarray | None = None
-    bay_max_error: np.ndarray | None = None
-    initial_bay_rms_error: np.ndarray | None = None
-    initial_bay_max_error: np.ndarray | None = None
-    bay_min_tension: np.ndarray | None = None
-    bay_max_tension: np.ndarray | None = None
-    targets: tuple = ()
-    scenes: tuple = ()
     wing: Wing | None = None
-    rib_shapes: np.ndarray | None = None
-    rib_limits: list = field(default_factory=list)
-    cut_patterns: np.ndarray | None = None
+
+    @property
+    def variables(self) -> tuple:
+        """The optimised names (``request.variables``; empty for a single equilibrium)."""
+        return self.request.variables
+
+    @property
+    def objective(self) -> str:
+        """The objective asked (``request.objective``)."""
+        return self.request.objective
 
     @property
     def values(self) -> dict:
@@ -489,40 +516,33 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
             success = False
             message = f"{message}; {'; '.join(rib_broken + broken)}{UNMET_ADVICE}"
         active, violated, report = active + rib_active, {**violated, **rib_violated}, {**report, **rib_values}
+    per_bay = PerBayResults(
+        scenes=tuple(scenes), targets=tuple(targets), weights=problem.weights,
+        rms_error=after["rms"], max_error=after["max"], initial_rms_error=before["rms"],
+        initial_max_error=before["max"], min_tension=after["min_tension"], max_tension=after["max_tension"],
+        rib_shapes=shapes, cut_patterns=fields, rib_limits=per_rib)
     return DesignResult(
         parameters=parameters,
-        variables=design.names,
         rms_error=after["wing_rms"],
         max_error=float(np.max(after["max"])),
         initial_rms_error=before["wing_rms"],
         initial_max_error=float(np.max(before["max"])),
         wing_solution=sol,
+        request=dataclasses.replace(request, variables=design.names),
+        per_bay=per_bay,
         history=problem.history,
         success=bool(success and sol.converged),
         message=message,
         active_constraints=active,
         violated_constraints=_largest(violated),
         violated_where=violated,
-        constraint_values=report,
         violated_at_start=_largest(violated_at_start),
         violated_at_start_where=violated_at_start,
+        constraint_values=report,
         method=method,
-        objective=objective,
         solves=problem.solves,
         wall_time=time.perf_counter() - start,
-        weights=problem.weights,
-        bay_rms_error=after["rms"],
-        bay_max_error=after["max"],
-        initial_bay_rms_error=before["rms"],
-        initial_bay_max_error=before["max"],
-        bay_min_tension=after["min_tension"],
-        bay_max_tension=after["max_tension"],
-        targets=tuple(targets),
-        scenes=tuple(scenes),
         wing=wing,
-        rib_shapes=shapes,
-        rib_limits=per_rib,
-        cut_patterns=fields,
     )
 
 
@@ -603,17 +623,19 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     largest = np.array([e[1] for e in errors])
     low, high = np.array([t.min() for t in tensions]), np.array([t.max() for t in tensions])
     nan = np.full(len(scenes), np.nan)
+    per_bay = PerBayResults(scenes=tuple(scenes), targets=tuple(targets), weights=weights, rms_error=rms,
+                            max_error=largest, initial_rms_error=nan, initial_max_error=nan, min_tension=low,
+                            max_tension=high)
     return DesignResult(
-        parameters=parameters.as_floats(), variables=(),
+        parameters=parameters.as_floats(),
         rms_error=float(rms[0]) if len(scenes) == 1 else float(np.sqrt(np.sum(weights * np.array(mean_squares)))),
         max_error=float(np.max(largest)), initial_rms_error=math.nan, initial_max_error=math.nan,
-        wing_solution=sol, success=bool(sol.converged),
+        wing_solution=sol, request=DesignRequest(variables=(), initial=parameters, objective=objective, method=None),
+        per_bay=per_bay, success=bool(sol.converged),
         message=("a single equilibrium (no optimisation)" if sol.converged else
                  f"a single equilibrium that did not converge: {sol.bay_solution(sol.failed_bays()[0]).message}"),
         constraint_values={"min_tension": float(low.min()), "max_tension": float(high.max())},
-        objective=objective, solves=1, wall_time=time.perf_counter() - start, weights=weights,
-        bay_rms_error=rms, bay_max_error=largest, initial_bay_rms_error=nan, initial_bay_max_error=nan,
-        bay_min_tension=low, bay_max_tension=high, targets=tuple(targets), scenes=tuple(scenes), wing=wing)
+        solves=1, wall_time=time.perf_counter() - start, wing=wing)
 
 
 def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, layout: Layout | None = None,
@@ -658,14 +680,16 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
         if layout is None or result.wing is None:
             raise ValueError("refine_design of a wing needs the finer grid as layout=Layout(n_span=..., "
                              "n_contour=...) (and a one-bay design its finer scene and target)")
-        rows = {n: v for n, v in (("rib_shape", result.rib_shapes), ("cut_pattern", result.cut_patterns))
+        rows = {n: v for n, v in (("rib_shape", result.per_bay.rib_shapes),
+                                  ("cut_pattern", result.per_bay.cut_patterns))
                 if v is not None}
         initial = result.parameters if not rows else {
             **{n: getattr(result.parameters, n) for n in VARIABLES
                if n not in rows and getattr(result.parameters, n) is not None}, **rows}
-        if result.cut_patterns is not None:
+        if result.per_bay.cut_patterns is not None:
             layout = dataclasses.replace(layout, cut_pattern="per_bay")
-        fine = optimise_wing(result.wing, result.scenes[0].fabric, list(result.targets), result.variables,
+        fine = optimise_wing(result.wing, result.per_bay.scenes[0].fabric, list(result.per_bay.targets),
+                             result.variables,
                              initial=initial, bounds=bounds, objective=result.objective, method=result.method,
                              limits=limits, solver=solver, layout=layout)
         grid = [layout.n_span, layout.n_contour]
@@ -691,7 +715,7 @@ def _largest(where: dict) -> dict:
 
 def _value(result: DesignResult, name: str):
     """A design value as a float, or a list of floats (of lists, per rib) for a vector variable."""
-    value = {"rib_shape": result.rib_shapes, "cut_pattern": result.cut_patterns}.get(name)
+    value = {"rib_shape": result.per_bay.rib_shapes, "cut_pattern": result.per_bay.cut_patterns}.get(name)
     value = getattr(result.parameters, name) if value is None else value
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
 

@@ -194,7 +194,8 @@ class DesignRequest:
             `variables.DEFAULT_BOUNDS`).
         objective: per bay "mid_bay", "average" or "worst" (`objectives`).
         method: one of `METHODS` ("auto": `AUTO`, or `AUTO_FOR_WORST` for
-            the objective "worst").
+            the objective "worst"); None for a single equilibrium
+            (`optimise.evaluate_design`: nothing is optimised).
         limits: the `Limits` the design must meet.
 
     Raises:
@@ -205,7 +206,7 @@ class DesignRequest:
     initial: object = None
     bounds: Mapping | None = None
     objective: str = "mid_bay"
-    method: str = "auto"
+    method: str | None = "auto"
     limits: Limits = Limits()
 
     def __post_init__(self):
@@ -214,7 +215,7 @@ class DesignRequest:
         else:
             object.__setattr__(self, "variables", tuple(self.variables))
         check_objective(self.objective)
-        if self.method not in METHODS:
+        if self.method is not None and self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if not isinstance(self.limits, Limits):
             raise ValueError(f"limits must be an inverse_design.Limits, got {self.limits!r}")

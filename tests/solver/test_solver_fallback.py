@@ -87,7 +87,7 @@ def test_bad_equilibrium_options_are_refused():
         SolverSettings(max_steps=0)
     with pytest.raises(ValueError, match="equilibrium_method must be one of"):
         SolverSettings(equilibrium_method="fast")
-    with pytest.raises(TypeError, match=r"solver_options -> solver=SolverSettings\(equilibrium_method=\.\.\., max_steps"):
+    with pytest.raises(TypeError, match=r"solver_options -> solver=SolverSettings\(equilibrium_method="):
         optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver_options={"max_steps": 10})
 
 

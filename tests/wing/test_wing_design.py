@@ -152,13 +152,13 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
     assert design.pressure < START["pressure"]
     assert design.bay_results == ("converged",) * 3
     scale = 0.5 * START["pressure"] * 0.9  # the tension scale: p_start times the widest bay's chord / 2
-    assert np.all(design.bay_min_tension >= -VIOLATION_TOLERANCE * scale)
+    assert np.all(design.per_bay.min_tension >= -VIOLATION_TOLERANCE * scale)
     assert "min_tension" in design.active_constraints and not design.violated_constraints
     assert design.violated_at_start == {}  # 30 kPa: a taut skin everywhere
     assert design.solves == len(design.history) and design.solves < 20
-    assert design.bay_rms_error.shape == (3,) and np.all(design.bay_rms_error > 0)
-    w = design.weights
-    assert design.rms_error == pytest.approx(float(np.sqrt(np.sum(w * design.bay_rms_error**2))), rel=1e-12)
+    assert design.per_bay.rms_error.shape == (3,) and np.all(design.per_bay.rms_error > 0)
+    w = design.per_bay.weights
+    assert design.rms_error == pytest.approx(float(np.sqrt(np.sum(w * design.per_bay.rms_error**2))), rel=1e-12)
 
 
 def test_unmeetable_limits_are_named_with_their_bay(wing):
@@ -189,7 +189,7 @@ def test_a_one_bay_wing_agrees_with_optimise_pressure():
     assert res.method == single.method == "gauss_newton"  # "auto"
     # Both stop on the same design of the same problem; the solves differ at rtol 1e-11.
     assert res.pressure == pytest.approx(single.pressure, rel=1e-6)
-    assert res.bay_rms_error[0] == pytest.approx(single.rms_error, rel=1e-6)
+    assert res.per_bay.rms_error[0] == pytest.approx(single.rms_error, rel=1e-6)
 
 
 def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
@@ -225,7 +225,7 @@ def test_every_method_designs_a_wing_or_says_why_not(wing):
     # root of their area); brentq's mid-bay condition has no meaning over several bays: refused.
     res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares",
                         solver=SolverSettings(max_iterations=4), limits=Limits(tension=None), layout=LAYOUT)
-    assert res.rms_error < res.initial_rms_error and res.bay_rms_error.shape == (3,)
+    assert res.rms_error < res.initial_rms_error and res.per_bay.rms_error.shape == (3,)
     assert res.pressure < START["pressure"] and res.solves == len(res.history)
     steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax",
                           solver=SolverSettings(max_iterations=2), limits=Limits(tension=None), layout=LAYOUT)
@@ -239,7 +239,7 @@ def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(de
     # violations one format (the largest per name, and per bay in violated_where) whether one bay or three.
     assert design.n_bays == 3 and design.solution is design.wing_solution
     assert design.solution.bay_solution(2).converged
-    assert design.max_error == pytest.approx(float(np.max(design.bay_max_error)))
+    assert design.max_error == pytest.approx(float(np.max(design.per_bay.max_error)))
 
 
 def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
