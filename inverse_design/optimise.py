@@ -47,7 +47,7 @@ constraints and their derivatives in `problem.DesignProblem`):
   error plus penalties, gradient from reverse mode, projection onto the
   bounds after every step; meant for many variables.
 * ``"root"``: `scipy.optimize.brentq` on the pressure of one bay alone, for a
-  scalar condition at mid-bay: ``root_condition="thickness"`` (maximum
+  scalar condition at mid-bay: ``SolverSettings(root_condition="thickness")`` (maximum
   thickness of the mid-bay section equal to the target's) or
   ``"mean_offset"`` (zero mean normal distance). The bracket is found by
   stepping the pressure geometrically (factor 2) from its start towards both

@@ -161,7 +161,7 @@ def test_per_bay_design_variables():
     """Layout "per_bay": one row per bay after the pressure, bounds on the local prestrain of each."""
     design = DesignVariables.build(("pressure", "cut_pattern"), BASE.replace(cut_pattern=OTHER),
                                    {"cut_pattern": (-0.02, 0.05)}, n_ribs=4, cut_pattern="per_bay")
-    assert design.size == 1 + 3 * 8 and design.per_bay.cut_patterns.shape == (3, 8)
+    assert design.size == 1 + 3 * 8 and design.cut_patterns.shape == (3, 8)
     assert design.start.cut_pattern is None  # the shared parameters carry no field
     u = design.start_vector()
     u[1 + 8 + 3] = 0.5  # bay 1, span coefficient 3: 0.5 x 0.01
