@@ -78,7 +78,7 @@ def main() -> None:
 
     from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
     from forward_solver.cut_field import field_values
-    from inverse_design import optimise_pressure
+    from inverse_design import SolverSettings, optimise_pressure
     from inverse_design.objectives import design_errors, section_errors
     from targets import naca
 
@@ -130,7 +130,7 @@ def main() -> None:
         bounds = {"pressure": (1e3, 1e5), **bounds}
         t = time.perf_counter()
         result = optimise_pressure(base, target, variables=variables, initial=initial, bounds=bounds,
-                                   objective="average", max_iterations=args.max_iterations)
+                                   objective="average", solver=SolverSettings(max_iterations=args.max_iterations))
         wall = time.perf_counter() - t
         designs[key] = result
         p = result.parameters
@@ -211,7 +211,7 @@ def wing_main(args) -> None:
 
     from forward_solver import Fabric
     from forward_solver.wing import Wing
-    from inverse_design import Constraints, optimise_wing
+    from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
     from inverse_design.objectives import section_errors
     from inverse_design.problem import DesignProblem
     from inverse_design.variables import DesignVariables
@@ -258,10 +258,10 @@ def wing_main(args) -> None:
         t = time.perf_counter()
         result = optimise_wing(wing, fabric, None, variables, initial=initial,
                                bounds={"pressure": (1e3, 1e5), **bounds}, objective="average",
-                               max_iterations=args.max_iterations, n_span=args.n_span, n_contour=args.n_contour,
-                               **layout)
+                               solver=SolverSettings(max_iterations=args.max_iterations),
+                               layout=Layout(n_span=args.n_span, n_contour=args.n_contour, **layout))
         wall = time.perf_counter() - t
-        sol = result.wing_solution
+        sol, bays = result.wing_solution, result.per_bay
         solutions = [sol.bay_solution(k) for k in range(3)]
         mids = mid_bay(result, solutions, wing.chords)
         p = result.parameters
@@ -269,17 +269,17 @@ def wing_main(args) -> None:
                "success": result.success, "message": result.message, "pressure_pa": float(p.pressure),
                "prestrain": [float(v) for v in p.prestrain], "rib_thickness_scale": float(p.rib_thickness_scale),
                "cut_pattern": None if p.cut_pattern is None else np.asarray(p.cut_pattern).tolist(),
-               "cut_patterns": None if result.cut_patterns is None else result.cut_patterns.tolist(),
-               "rib_shapes": None if result.rib_shapes is None else result.rib_shapes.tolist(),
+               "cut_patterns": None if bays.cut_patterns is None else bays.cut_patterns.tolist(),
+               "rib_shapes": None if bays.rib_shapes is None else bays.rib_shapes.tolist(),
                "grid": [args.n_span, args.n_contour], "start_wing_rms": result.initial_rms_error,
-               "wing_rms": result.rms_error, "bay_rms": result.bay_rms_error.tolist(),
-               "bay_max": result.bay_max_error.tolist(), "mid_bay_rms": [m[0] for m in mids],
+               "wing_rms": result.rms_error, "bay_rms": bays.rms_error.tolist(),
+               "bay_max": bays.max_error.tolist(), "mid_bay_rms": [m[0] for m in mids],
                "mid_bay_max": [m[1] for m in mids], "le_recession_mm": [m[2] for m in mids],
                "min_tension": result.constraint_values.get("min_tension"),
                "max_tension": result.constraint_values.get("max_tension"),
                "active": result.active_constraints, "solves": result.solves, "wall_s": wall, "finer": []}
-        given = {n: (result.rib_shapes if n == "rib_shape" and result.rib_shapes is not None else
-                     result.cut_patterns if n == "cut_pattern" and result.cut_patterns is not None else
+        given = {n: (bays.rib_shapes if n == "rib_shape" and bays.rib_shapes is not None else
+                     bays.cut_patterns if n == "cut_pattern" and bays.cut_patterns is not None else
                      getattr(p, n)) for n in variables}
         for n_span, n_contour in finer:
             with jax.enable_x64(True):

@@ -47,7 +47,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
-    from inverse_design import optimise_pressure
+    from inverse_design import SolverSettings, optimise_pressure
     from inverse_design.objectives import design_errors, section_errors
     from targets import naca
 
@@ -79,7 +79,7 @@ def main() -> None:
         bounds = {"pressure": (1e3, 1e5), **bounds}
         t = time.perf_counter()
         result = optimise_pressure(base, target, variables=variables, initial=initial, bounds=bounds,
-                                   objective="average", max_iterations=args.max_iterations)
+                                   objective="average", solver=SolverSettings(max_iterations=args.max_iterations))
         wall = time.perf_counter() - t
         mid = section_errors(result.solution, target, 1.0)
         row = {"case": label, "variables": list(variables), "success": result.success,

@@ -149,7 +149,7 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
-    from inverse_design import optimise_wing
+    from inverse_design import Layout, Limits, optimise_wing
     from inverse_design.app.case import EXAMPLE_CASE
 
     values = case_reader.read_config(EXAMPLE_CASE)
@@ -162,19 +162,20 @@ def design_case(fabric, variables=("pressure",)) -> dict:
                         initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
                                  "prestrain_chord": values["prestrain_chord"]},
                         bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
-                        constraints=Constraints(), n_span=values["n_span"], n_contour=values["n_contour"],
-                        method="slsqp")  # design_solves.py compares the methods
+                        method="slsqp", limits=Limits(tension=Constraints()),  # design_solves.py compares the methods
+                        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"]))
     wall = time.perf_counter() - t
+    bays = res.per_bay
     return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
             "grid": [values["n_span"], values["n_contour"]],
             "chords_m": list(wing.chords), "stations_m": list(wing.stations),
             "method": res.method, "success": res.success, "message": res.message, "pressure_pa": float(res.pressure),
             "solves": res.solves, "iterations": len(res.history), "wall_time_s": wall,
             "rms_before": res.initial_rms_error, "rms_after": res.rms_error,
-            "bay_rms_before": res.initial_bay_rms_error.tolist(), "bay_rms_after": res.bay_rms_error.tolist(),
-            "bay_max_after": res.bay_max_error.tolist(), "bay_results": list(res.bay_results),
-            "bay_min_tension": res.bay_min_tension.tolist(), "active": res.active_constraints,
-            "rib_shapes": None if res.rib_shapes is None else res.rib_shapes.tolist(), "rib_limits": res.rib_limits}
+            "bay_rms_before": bays.initial_rms_error.tolist(), "bay_rms_after": bays.rms_error.tolist(),
+            "bay_max_after": bays.max_error.tolist(), "bay_results": list(res.bay_results),
+            "bay_min_tension": bays.min_tension.tolist(), "active": res.active_constraints,
+            "rib_shapes": None if bays.rib_shapes is None else bays.rib_shapes.tolist(), "rib_limits": bays.rib_limits}
 
 
 def main(argv=None) -> int:

@@ -47,7 +47,7 @@ constraints and their derivatives in `problem.DesignProblem`):
   error plus penalties, gradient from reverse mode, projection onto the
   bounds after every step; meant for many variables.
 * ``"root"``: `scipy.optimize.brentq` on the pressure of one bay alone, for a
-  scalar condition at mid-bay: ``root_condition="thickness"`` (maximum
+  scalar condition at mid-bay: ``SolverSettings(root_condition="thickness")`` (maximum
   thickness of the mid-bay section equal to the target's) or
   ``"mean_offset"`` (zero mean normal distance). The bracket is found by
   stepping the pressure geometrically (factor 2) from its start towards both
@@ -81,50 +81,85 @@ import numpy as np
 from tqdm import tqdm
 
 from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing, solve_bays
-from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
 from forward_solver.wing import WingSolution, check_rib_gaps
 from targets import Airfoil
 
-from .constraints import UNMET_ADVICE, Constraints, cell_tensions, constraint_report, tension_scale
+from .constraints import UNMET_ADVICE, cell_tensions, constraint_report, tension_scale
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
 from .objectives import (bay_distances, bay_weights, check_objective, distance_errors, local_chords,
                          row_targets, same_section, station_etas)
-from .problem import DesignProblem, WingConvergenceError, check_solver_options
-from .rib_design import RibGeometry, RibLimits, rib_crossings, rib_report
+from .problem import DesignProblem, WingConvergenceError
+from .rib_design import RibGeometry, rib_crossings, rib_report
+from .settings import (AUTO, AUTO_FOR_WORST, METHODS, ROOT_CONDITIONS, DesignRequest, Layout, Limits,
+                       SolverSettings, refuse_moved)
 from .variables import DEFAULT_START, VARIABLES, DesignVariables, concrete_rows
 
-__all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignResult", "WingDesignResult",
+__all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignRequest", "DesignResult", "Layout",
+           "Limits", "PerBayResults", "SolverSettings", "WingDesignResult",
            "evaluate_design", "optimise_wing", "optimise_pressure", "refine_design"]
 
-METHODS = ("auto", "slsqp", "gauss_newton", "least_squares", "optax", "root")
-ROOT_CONDITIONS = ("thickness", "mean_offset")
 #: Default tolerance of ``method="gauss_newton"``: the model's predicted fall of the merit, relative to
 #: it (1e-4 of the mean square is 5e-5 of the rms error, far below what the grid resolves). On the 40-cell
 #: case a Gauss-Newton step near the optimum gains 1e-4 to 1e-5 of the merit per wing solve (linear
 #: convergence: the fit's residuals do not vanish); 1e-5 spent 6 more solves for 5e-4 of the error.
 GN_TOLERANCE = 1e-4
-#: What ``method="auto"`` runs (module docstring) ...
-AUTO = "gauss_newton"
-#: ... and what it runs for the objective "worst" (no sum of squares for Gauss-Newton).
-AUTO_FOR_WORST = "slsqp"
+
+
+@dataclass(frozen=True, eq=False)
+class PerBayResults:
+    """The per-bay (and per-rib) arrays of a `DesignResult`, root to tip.
+
+    Attributes:
+        scenes: the `Scene` of each bay.
+        targets: the target section of each rib.
+        weights: ``(n_bays,)`` bay weights of the objective (planform area).
+        rms_error, max_error: ``(n_bays,)`` RMS and largest normal distance
+            of each bay's objective rows from their targets at the design,
+            fractions of the local chord.
+        initial_rms_error, initial_max_error: the same at the start (NaN
+            for a single equilibrium).
+        min_tension, max_tension: ``(n_bays,)`` smallest and largest
+            unclamped fibre tension of each bay at the design, N/m.
+        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
+            rib, else None.
+        cut_patterns: ``(n_bays, 2 K)`` cut-field coefficients of a field per
+            bay, else None.
+        rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
+            manufacturability limits (`rib_design.RibGeometry.measure`).
+    """
+
+    scenes: tuple
+    targets: tuple
+    weights: np.ndarray
+    rms_error: np.ndarray
+    max_error: np.ndarray
+    initial_rms_error: np.ndarray
+    initial_max_error: np.ndarray
+    min_tension: np.ndarray
+    max_tension: np.ndarray
+    rib_shapes: np.ndarray | None = None
+    cut_patterns: np.ndarray | None = None
+    rib_limits: list = field(default_factory=list)
 
 
 @dataclass(frozen=True, eq=False)
 class DesignResult(ParameterViews):
-    """Outcome of `optimise_wing` and `optimise_pressure`: totals, and per-bay arrays.
+    """Outcome of `optimise_wing` and `optimise_pressure`: what was found, what was asked
+    (``request``) and the per-bay arrays (``per_bay``).
 
     Attributes:
         parameters: the shared `forward_solver.Parameters` of the design
-            (with a shared rib shape its ``rib_shape``).
-        variables: the optimised names.
+            (with a shared rib shape its ``rib_shape``); ``pressure``,
+            ``prestrain`` and the other parameters read through.
         rms_error, max_error: normal distance from the target over the
             objective's sections at the design, fractions of the local chord:
             the square root of the bays' area-weighted mean squares, and the
             largest over the bays (one bay: its own).
         initial_rms_error, initial_max_error: the same at the start.
-        wing_solution: the `forward_solver.wing.WingSolution` at the design.
+        wing_solution: the `forward_solver.wing.WingSolution` at the design
+            (``solution``: one bay's `Solution`, or the wing's).
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2,
             as `objectives.mean_square` for slsqp; for "root" the
@@ -159,7 +194,8 @@ class DesignResult(ParameterViews):
             over every bay and the limits; for a shaped rib the least thickness
             ratio and radius of curvature with their limits
             (`rib_design.rib_report`).
-        method, objective: as requested.
+        method: the method that ran (``request.method`` is the one asked:
+            "auto" resolves to one); "" for a single equilibrium.
         solves: forward solves (each solves every bay once).
         wall_time: s, compilation included.
         grid_change: after `refine_design`, how the design moved from the
@@ -168,57 +204,44 @@ class DesignResult(ParameterViews):
             pressure, absolute otherwise (the largest component's for a
             vector)}, "rms_error": [coarse, fine]}``;
             None for a design on one grid.
-        weights: ``(n_bays,)`` bay weights of the objective (planform area).
-        bay_rms_error, bay_max_error: ``(n_bays,)`` RMS and largest normal
-            distance of each bay's objective rows from their targets.
-        initial_bay_rms_error, initial_bay_max_error: the same at the start.
-        bay_min_tension, bay_max_tension: ``(n_bays,)`` smallest and largest
-            unclamped fibre tension of each bay at the design, N/m.
-        targets: the target section of each rib.
-        scenes: the `Scene` of each bay.
         wing: the `forward_solver.Wing` designed (None for a flat panel).
-        rib_shapes: ``(n_ribs, 2 K)`` rib-shape coefficients of a shape per
-            rib (root to tip), else None.
-        cut_patterns: ``(n_bays, 2 K)`` cut-field coefficients of a field per
-            bay (root to tip), else None.
-        rib_limits: per shaped rib, ``{"rib": k, ...}`` its measured
-            manufacturability limits (`rib_design.RibGeometry.measure`).
+        request: what was asked (`settings.DesignRequest`: variables, start,
+            bounds, objective, method, limits).
+        per_bay: the per-bay and per-rib arrays (`PerBayResults`).
     """
 
     parameters: Parameters
-    variables: tuple
     rms_error: float
     max_error: float
     initial_rms_error: float
     initial_max_error: float
     wing_solution: WingSolution
+    request: DesignRequest
+    per_bay: PerBayResults
     history: list = field(default_factory=list)
     success: bool = False
     message: str = ""
     active_constraints: list = field(default_factory=list)
     violated_constraints: dict = field(default_factory=dict)
-    constraint_values: dict = field(default_factory=dict)
-    violated_at_start: dict = field(default_factory=dict)
     violated_where: dict = field(default_factory=dict)
+    violated_at_start: dict = field(default_factory=dict)
     violated_at_start_where: dict = field(default_factory=dict)
+    constraint_values: dict = field(default_factory=dict)
     method: str = ""
-    objective: str = ""
     solves: int = 0
     wall_time: float = 0.0
     grid_change: dict | None = None
-    weights: np.ndarray | None = None
-    bay_rms_error: np.ndarray | None = None
-    bay_max_error: np.ndarray | None = None
-    initial_bay_rms_error: np.ndarray | None = None
-    initial_bay_max_error: np.ndarray | None = None
-    bay_min_tension: np.ndarray | None = None
-    bay_max_tension: np.ndarray | None = None
-    targets: tuple = ()
-    scenes: tuple = ()
     wing: Wing | None = None
-    rib_shapes: np.ndarray | None = None
-    rib_limits: list = field(default_factory=list)
-    cut_patterns: np.ndarray | None = None
+
+    @property
+    def variables(self) -> tuple:
+        """The optimised names (``request.variables``; empty for a single equilibrium)."""
+        return self.request.variables
+
+    @property
+    def objective(self) -> str:
+        """The objective asked (``request.objective``)."""
+        return self.request.objective
 
     @property
     def values(self) -> dict:
@@ -253,22 +276,11 @@ def optimise_wing(
     initial: Parameters | Mapping | None = None,
     bounds: Mapping | None = None,
     objective: str = "average",
-    constraints: Constraints | None = Constraints(),
     method: str = "auto",
-    max_iterations: int = 50,
-    tolerance: float | None = None,
-    optimiser=None,
-    rtol: float = GRADIENT_RTOL,
-    max_steps: int | None = None,
-    solver_options: Mapping | None = None,
-    rib_limits: RibLimits | None = RibLimits(),
-    rib_shape: str = "per_rib",
-    cut_pattern: str = "shared",
-    n_span: int = 17,
-    n_contour: int = 64,
-    progress: bool = False,
-    callback=None,
-    root_condition: str = "thickness",
+    limits: Limits = Limits(),
+    solver: SolverSettings = SolverSettings(),
+    layout: Layout = Layout(),
+    **moved,
 ) -> DesignResult:
     """One pressure (and prestrain, rib scales, rib shapes) for every bay of ``wing`` (module docstring).
 
@@ -281,66 +293,34 @@ def optimise_wing(
         initial: the starting `Parameters`, or ``{name: value}`` (Pa,
             fractions) over `variables.DEFAULT_START`; names that are not
             optimised stay at these values. A per-rib ``rib_shape`` start is one
-            ``(2 K,)`` row for every rib or ``(n_ribs, 2 K)``.
+            ``(2 K,)`` row for every rib or ``(n_ribs, 2 K)``; a per-bay
+            ``cut_pattern`` start one ``(2 K,)`` row for every bay or ``(n_bays, 2 K)``.
         bounds: ``{name: (lower, upper)}`` of optimised names (defaults
             `variables.DEFAULT_BOUNDS`; ``rib_shape``'s for every coefficient).
         objective: per bay "mid_bay", "average" (default) or "worst"
             (`objectives`); combined over bays weighted by planform area.
-        constraints: tension limits over every cell of every bay (`Constraints`;
-            default a wrinkle-free skin below the fabric's allowable), or None.
         method: "auto" (default: "gauss_newton", whose forward solves hardly
             grow with the number of variables; "slsqp" for the objective
             "worst"), "slsqp", "gauss_newton", "least_squares", "optax" or
             "root" (a wing of one bay only: root finding solves one scalar
             condition at its mid-bay section). ``DesignResult.method`` names
             the one that ran.
-        max_iterations: cap on iterations (SLSQP iterations, and twice that in
-            forward solves; Gauss-Newton forward solves; least-squares Jacobian evaluations; optax steps;
-            brentq iterations).
-        tolerance: convergence tolerance: SLSQP's ``ftol`` on the objective
-            relative to its starting value (default 1e-6: a change of one
-            part in a million of the mean square error, far below what the
-            grid resolves), ``ftol``/``xtol`` of least_squares (default 1e-8),
-            the relative pressure tolerance of brentq (1e-8), the model's
-            predicted fall of the merit relative to it for gauss_newton
-            (`GN_TOLERANCE`, 1e-4), the scaled
-            gradient norm of optax relative to its starting loss (1e-8; optax
-            also ends, converged, when its loss levels off: `methods.optax_descent`).
-        optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            default ``optax.adam(0.05)`` on the scaled variables, its step
-            halved whenever the loss stops falling).
-        rtol: relative residual every bay is solved to (the implicit gradient
-            is only as good as the equilibrium).
-        max_steps: step cap of each bay's relaxation (``solver_options``'s
-            ``max_steps``; default 200000).
-        solver_options: ``{"method": ..., "max_steps": ...}`` of every
-            forward solve: method "auto" (default: relax+newton, then Newton
-            from where it stopped, then Newton with load continuation; see
-            `forward_solver.fallback`), "relax", "newton" or "relax+newton".
-        rib_limits: manufacturability limits of every shaped rib against its
-            own starting section (`rib_design.RibLimits`: minimum thickness,
-            curvature bound), inequality constraints (slsqp, gauss_newton) when ``rib_shape``
-            is a variable; None leaves the shapes free within their bounds.
-        rib_shape: "per_rib" (default: one shape per rib) or "shared" (one
-            shape for every rib), when ``rib_shape`` is a variable.
-        cut_pattern: "shared" (default: one cut field for every bay) or
-            "per_bay" (one field per bay, each cell's panel cut on its own;
-            ``n_bays`` x 2 K variables), when ``cut_pattern`` is a variable. A
-            per-bay start is one ``(2 K,)`` row for every bay or ``(n_bays, 2 K)``.
-        n_span, n_contour: the grid of every bay.
-        progress: show a tqdm progress bar on stderr, one tick per wing solve
-            (off by default: library code prints nothing unless asked).
-        callback: called as ``callback(entry)`` after every iterate with the
-            new `DesignResult.history` entry; an exception it raises stops the
-            optimisation and propagates.
-        root_condition: "thickness" (default) or "mean_offset" (``method="root"``,
-            as `optimise_pressure`).
+        limits: the tension limits over every cell of every bay and the rib
+            limits of shaped ribs (`settings.Limits`; rib limits need slsqp or
+            gauss_newton).
+        solver: iteration cap, tolerance, optimiser, the forward solves'
+            tolerance, method and step cap, progress bar and callback
+            (`settings.SolverSettings`).
+        layout: a rib shape per rib or shared, a cut pattern shared or per
+            bay, and the grid of every bay (`settings.Layout`).
+        **moved: the keyword arguments that moved into ``limits``, ``solver``
+            and ``layout``: refused with a TypeError that names where each went.
 
     Returns:
         A `DesignResult`.
 
     Raises:
-        TypeError: for a target that is not a `targets.Airfoil`.
+        TypeError: for a target that is not a `targets.Airfoil`, or a keyword that moved.
         ValueError: for an unknown method, objective or variable, bad bounds,
             targets or limits, ribs too close for the grid, rib limits with a
             method other than slsqp or gauss_newton, ``method="root"`` on
@@ -351,6 +331,7 @@ def optimise_wing(
             optimisation at the best iterate whose solves converged, with
             ``success=False`` and a message naming the failed solve.
     """
+    refuse_moved("optimise_wing", moved)
     if not isinstance(wing, Wing):
         raise ValueError(f"wing must be a forward_solver.Wing, got {type(wing).__name__}")
     if targets is None:
@@ -365,15 +346,9 @@ def optimise_wing(
         for k, t in enumerate(targets):
             if not isinstance(t, Airfoil):
                 raise TypeError(f"target {k} must be a targets.Airfoil, got {type(t).__name__}")
-    solver_options = check_solver_options({**(solver_options or {}),
-                                           **({} if max_steps is None else {"max_steps": max_steps})})
-    return _optimise(wing.scenes(fabric, n_span, n_contour), targets, list(wing.sections), wing, variables,
-                     initial=initial, bounds=bounds, objective=objective, constraints=constraints, method=method,
-                     root_condition=root_condition, max_iterations=max_iterations, tolerance=tolerance,
-                     optimiser=optimiser, rtol=rtol, solver_options=solver_options, progress=progress,
-                     callback=callback, rib_limits=rib_limits, rib_shape=rib_shape, cut_pattern=cut_pattern,
-                     name="optimise_wing",
-                     check_gaps=True)
+    request = DesignRequest(variables, initial, bounds, objective, method, limits)
+    return _optimise(wing.scenes(fabric, layout.n_span, layout.n_contour), targets, list(wing.sections), wing,
+                     request, solver, layout, name="optimise_wing", check_gaps=True)
 
 
 def optimise_pressure(
@@ -384,24 +359,17 @@ def optimise_pressure(
     initial: Parameters | Mapping | None = None,
     bounds: Mapping | None = None,
     objective: str = "mid_bay",
-    constraints: Constraints | None = Constraints(),
     method: str = "auto",
-    root_condition: str = "thickness",
-    max_iterations: int = 50,
-    tolerance: float | None = None,
-    optimiser=None,
-    rtol: float = GRADIENT_RTOL,
-    progress: bool = False,
-    callback=None,
+    limits: Limits = Limits(),
+    solver: SolverSettings = SolverSettings(),
     rib=None,
-    rib_limits: RibLimits | None = RibLimits(),
-    solver_options: Mapping | None = None,
+    **moved,
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring one bay's inflated skin closest to ``target``.
 
-    The one-bay case of `optimise_wing` on ``scene`` itself (its bay, fabric
-    and physics switches), with ``target`` at both ribs and one rib shape for
-    both ribs; the arguments are `optimise_wing`'s, and:
+    The one-bay case of `optimise_wing` on ``scene`` itself (its bay, fabric,
+    physics switches and grid), with ``target`` at both ribs and one rib shape
+    for both ribs; the arguments are `optimise_wing`'s, and:
 
     Args:
         scene: bay, fabric and physics switches (`forward_solver.Scene`).
@@ -409,23 +377,23 @@ def optimise_pressure(
         objective: "mid_bay" (default), "average" or "worst".
         method: "auto" (default: "gauss_newton"; "slsqp" for the objective
             "worst"), "slsqp", "gauss_newton", "least_squares", "optax" or
-            "root".
-        root_condition: "thickness" or "mean_offset" (``method="root"``).
+            "root" (its condition: ``SolverSettings.root_condition``).
         rib: the rib's starting section (`targets.Airfoil`; default the
-            target): what ``rib_limits`` are measured against. Give it when
+            target): what ``limits.ribs`` are measured against. Give it when
             the scene's bay was built from another airfoil.
 
     Returns:
         A `DesignResult` (its ``solution`` the bay's `Solution`).
 
     Raises:
-        TypeError: if ``target`` is not a `targets.Airfoil` (None among them).
+        TypeError: if ``target`` is not a `targets.Airfoil` (None among them),
+            or for a keyword that moved into ``limits`` or ``solver``.
         ValueError: as `optimise_wing`; for ``method="root"`` also variables
-            other than the pressure, an unknown condition, or no sign change
-            inside the pressure bounds.
+            other than the pressure, or no sign change inside the pressure bounds.
         forward_solver.ConvergenceError: if the forward solve at the starting
             values fails (a later failure stops the optimisation instead).
     """
+    refuse_moved("optimise_pressure", moved)
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a forward_solver.Scene, got {type(scene).__name__}")
     if not isinstance(target, Airfoil):
@@ -434,37 +402,31 @@ def optimise_pressure(
     bay = scene.bay
     wing = Wing.from_scene(scene) if getattr(bay, "airfoil", None) is not None else None
     ribs = [target if rib is None else rib] * 2
-    return _optimise([scene], [target, target], ribs, wing, variables, initial=initial, bounds=bounds,
-                     objective=objective, constraints=constraints, method=method, root_condition=root_condition,
-                     max_iterations=max_iterations, tolerance=tolerance, optimiser=optimiser, rtol=rtol,
-                     solver_options=solver_options, progress=progress, callback=callback,
-                     rib_limits=rib_limits, rib_shape="shared", cut_pattern="shared", name="optimise_pressure",
+    request = DesignRequest(variables, initial, bounds, objective, method, limits)
+    layout = Layout(rib_shape="shared", cut_pattern="shared", n_span=bay.n_span, n_contour=bay.n_contour)
+    return _optimise([scene], [target, target], ribs, wing, request, solver, layout, name="optimise_pressure",
                      check_gaps=False)
 
 
-def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, objective, constraints, method,
-              root_condition, max_iterations, tolerance, optimiser, rtol, solver_options, progress, callback,
-              rib_limits, rib_shape, cut_pattern, name, check_gaps) -> DesignResult:
-    """The design of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
-    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`)."""
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if method == "auto":  # the method that converges on the design matrix (module docstring)
-        method = AUTO_FOR_WORST if objective == "worst" else AUTO
-    check_objective(objective)
-    solver_options = check_solver_options(None if solver_options is None else dict(solver_options))
-    if not (isinstance(max_iterations, int) and max_iterations >= 1):
-        raise ValueError(f"max_iterations must be a positive integer, got {max_iterations!r}")
-    if tolerance is not None and not (isinstance(tolerance, float | int) and 0 < tolerance < 1):
-        raise ValueError(f"tolerance must lie in (0, 1), got {tolerance!r}")
+def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: SolverSettings, layout: Layout, *,
+              name: str, check_gaps: bool) -> DesignResult:
+    """The design ``request`` of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
+    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`;
+    ``name``: the progress bar's)."""
+    if not isinstance(settings, SolverSettings):
+        raise ValueError(f"solver must be an inverse_design.SolverSettings, got {settings!r}")
+    if not isinstance(layout, Layout):
+        raise ValueError(f"layout must be an inverse_design.Layout, got {layout!r}")
+    method, objective = request.method_to_run, request.objective
+    constraints, rib_limits = request.limits.tension, request.limits.ribs
+    rtol, max_iterations = settings.rtol, settings.max_iterations
+    solver_options = settings.solver_options
     fabric = scenes[0].fabric
     if constraints is not None:
-        if not isinstance(constraints, Constraints):
-            raise ValueError(f"constraints must be an inverse_design.Constraints or None, got {constraints!r}")
         constraints.check(fabric)
     n_bays = len(scenes)
-    design = DesignVariables.build(variables, initial, bounds, n_ribs=n_bays + 1, rib_shape=rib_shape,
-                                   cut_pattern=cut_pattern)
+    design = DesignVariables.build(request.variables, request.initial, request.bounds, n_ribs=n_bays + 1,
+                                   rib_shape=layout.rib_shape, cut_pattern=layout.cut_pattern)
     if check_gaps:
         check_rib_gaps(wing, fabric, design.start, n_span=scenes[0].bay.n_span, n_contour=scenes[0].bay.n_contour,
                        rtol=rtol)
@@ -474,8 +436,6 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
                              f"wing has {n_bays} bays: use slsqp, gauss_newton, least_squares or optax")
         if design.names != ("pressure",):
             raise ValueError(f"method='root' solves for the pressure alone; got variables {design.names}")
-        if root_condition not in ROOT_CONDITIONS:
-            raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {root_condition!r}")
     geometries = []
     if method == "gauss_newton" and objective == "worst":
         raise ValueError("method='gauss_newton' fits the rows in the least-squares sense; the objective "
@@ -485,23 +445,24 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
         if method not in ("slsqp", "gauss_newton"):
             raise ValueError(f"the rib limits (minimum thickness, curvature) are constraints that only "
                              f"method='slsqp' and 'gauss_newton' enforce, got method={method!r}: use one, or pass "
-                             "rib_limits=None to leave the rib shape free within its bounds")
+                             "Limits(ribs=None) to leave the rib shape free within its bounds")
         if design.rib_shapes is not None:  # each rib against its own starting section
             geometries = [(k, RibGeometry(section, rib_limits)) for k, section in enumerate(ribs)]
         else:  # one shape: against each distinct starting section
             firsts = [k for k, section in enumerate(ribs)
                       if not any(same_section(section, ribs[j]) for j in range(k))]
             geometries = [(k, RibGeometry(ribs[k], rib_limits)) for k in firsts]
+    tolerance = settings.tolerance
     if tolerance is None:
         tolerance = {"slsqp": 1e-6, "gauss_newton": GN_TOLERANCE}.get(method, 1e-8)
     start = time.perf_counter()
     cap = SLSQP_EVALUATIONS_PER_ITERATION * max_iterations if method == "slsqp" else max_iterations
-    with jax.enable_x64(True), _progress_bar(progress, cap, name) as bar:
+    with jax.enable_x64(True), _progress_bar(settings.progress, cap, name) as bar:
         problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol,
                                 solver_options=solver_options,
                                 rib_geometries=[g for _, g in geometries],
                                 rib_indices=[k for k, _ in geometries])
-        problem.on_record = _notify(bar, callback, method)
+        problem.on_record = _notify(bar, settings.callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.start_vector()
         if method == "slsqp":
@@ -522,7 +483,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             **rib_report(geometries, start_parameters, start_shapes)[1]}
         try:
             if method == "root":
-                u, success, message = root(problem, root_condition, max_iterations, tolerance)
+                u, success, message = root(problem, settings.root_condition, max_iterations, tolerance)
             elif method == "slsqp":
                 u, success, message = slsqp(problem, u0, max_iterations, tolerance)
             elif method == "gauss_newton":
@@ -530,7 +491,7 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             elif method == "least_squares":
                 u, success, message = least_squares(problem, u0, max_iterations, tolerance)
             else:
-                u, success, message = optax_descent(problem, u0, max_iterations, tolerance, optimiser)
+                u, success, message = optax_descent(problem, u0, max_iterations, tolerance, settings.optimiser)
         except WingConvergenceError as failure:
             # Stop at the best iterate whose forward solves converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
@@ -555,45 +516,38 @@ def _optimise(scenes, targets, ribs, wing, variables, *, initial, bounds, object
             success = False
             message = f"{message}; {'; '.join(rib_broken + broken)}{UNMET_ADVICE}"
         active, violated, report = active + rib_active, {**violated, **rib_violated}, {**report, **rib_values}
+    per_bay = PerBayResults(
+        scenes=tuple(scenes), targets=tuple(targets), weights=problem.weights,
+        rms_error=after["rms"], max_error=after["max"], initial_rms_error=before["rms"],
+        initial_max_error=before["max"], min_tension=after["min_tension"], max_tension=after["max_tension"],
+        rib_shapes=shapes, cut_patterns=fields, rib_limits=per_rib)
     return DesignResult(
         parameters=parameters,
-        variables=design.names,
         rms_error=after["wing_rms"],
         max_error=float(np.max(after["max"])),
         initial_rms_error=before["wing_rms"],
         initial_max_error=float(np.max(before["max"])),
         wing_solution=sol,
+        request=dataclasses.replace(request, variables=design.names),
+        per_bay=per_bay,
         history=problem.history,
         success=bool(success and sol.converged),
         message=message,
         active_constraints=active,
         violated_constraints=_largest(violated),
         violated_where=violated,
-        constraint_values=report,
         violated_at_start=_largest(violated_at_start),
         violated_at_start_where=violated_at_start,
+        constraint_values=report,
         method=method,
-        objective=objective,
         solves=problem.solves,
         wall_time=time.perf_counter() - start,
-        weights=problem.weights,
-        bay_rms_error=after["rms"],
-        bay_max_error=after["max"],
-        initial_bay_rms_error=before["rms"],
-        initial_bay_max_error=before["max"],
-        bay_min_tension=after["min_tension"],
-        bay_max_tension=after["max_tension"],
-        targets=tuple(targets),
-        scenes=tuple(scenes),
         wing=wing,
-        rib_shapes=shapes,
-        rib_limits=per_rib,
-        cut_patterns=fields,
     )
 
 
 def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = None, *, objective: str = "mid_bay",
-                    wing: Wing | None = None, rtol: float = 1e-8, solver_options: Mapping | None = None,
+                    wing: Wing | None = None, solver: SolverSettings | None = None,
                     solution: Solution | WingSolution | None = None) -> DesignResult:
     """One equilibrium of N >= 1 bays at ``parameters``, measured as a design is (no variables, no history).
 
@@ -612,14 +566,13 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             `variables.DEFAULT_START` (Pa, fractions).
         objective: the rows measured, as `optimise_wing`.
         wing: the `forward_solver.Wing` the scenes belong to (for the report's stations).
-        rtol: relative residual every bay is solved to (default
-            `forward_solver.solve_equilibrium`'s).
-        solver_options: ``{"method": ..., "max_steps": ...}`` of the solve
-            (`problem.check_solver_options`).
+        solver: the solve's ``rtol``, ``equilibrium_method`` and
+            ``max_steps`` (`settings.SolverSettings`; None: the defaults with
+            ``rtol`` 1e-8, `forward_solver.solve_equilibrium`'s).
         solution: an equilibrium of the bays solved already (a `Solution`
             of one bay, or a `WingSolution`): measured as it is, not solved
-            again (``parameters``, ``rtol`` and ``solver_options`` are then
-            not used; one that did not converge gives ``success`` False).
+            again (``parameters`` and ``solver`` are then not used; one that
+            did not converge gives ``success`` False).
 
     Returns:
         A `DesignResult` with no variables and an empty history; its
@@ -628,7 +581,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     Raises:
         forward_solver.ConvergenceError: if a bay's solve does not converge (a
             `WingConvergenceError` naming the bay for several bays).
-        ValueError: for an unknown objective or bad solver options.
+        ValueError: for an unknown objective.
     """
     scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
     targets = [targets] * (len(scenes) + 1) if hasattr(targets, "distance") else list(targets)
@@ -649,11 +602,11 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             tension_only=scenes[0].tension_only, solutions=[solution], scenes=scenes)
     with jax.enable_x64(True):
         if solution is None:
-            options = check_solver_options(None if solver_options is None else dict(solver_options))
+            solver = SolverSettings(rtol=1e-8) if solver is None else solver
             if not isinstance(parameters, Parameters):
                 parameters = DEFAULT_START.replace(**dict(parameters or {}))
-            sol = solve_bays(scenes, parameters, rtol=rtol, max_steps=options["max_steps"], method=options["method"],
-                             sequencing=bays[0].n_contour > 128)
+            sol = solve_bays(scenes, parameters, rtol=solver.rtol, max_steps=solver.max_steps,
+                             method=solver.equilibrium_method, sequencing=bays[0].n_contour > 128)
             if not sol.converged:  # (one bay: its own failure, as solve_equilibrium's)
                 raise (WingConvergenceError(sol, sol.failed_bays()[0]) if len(scenes) > 1
                        else ConvergenceError(sol.bay_solution(0)))
@@ -670,37 +623,41 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     largest = np.array([e[1] for e in errors])
     low, high = np.array([t.min() for t in tensions]), np.array([t.max() for t in tensions])
     nan = np.full(len(scenes), np.nan)
+    per_bay = PerBayResults(scenes=tuple(scenes), targets=tuple(targets), weights=weights, rms_error=rms,
+                            max_error=largest, initial_rms_error=nan, initial_max_error=nan, min_tension=low,
+                            max_tension=high)
     return DesignResult(
-        parameters=parameters.as_floats(), variables=(),
+        parameters=parameters.as_floats(),
         rms_error=float(rms[0]) if len(scenes) == 1 else float(np.sqrt(np.sum(weights * np.array(mean_squares)))),
         max_error=float(np.max(largest)), initial_rms_error=math.nan, initial_max_error=math.nan,
-        wing_solution=sol, success=bool(sol.converged),
+        wing_solution=sol, request=DesignRequest(variables=(), initial=parameters, objective=objective, method=None),
+        per_bay=per_bay, success=bool(sol.converged),
         message=("a single equilibrium (no optimisation)" if sol.converged else
                  f"a single equilibrium that did not converge: {sol.bay_solution(sol.failed_bays()[0]).message}"),
         constraint_values={"min_tension": float(low.min()), "max_tension": float(high.max())},
-        objective=objective, solves=1, wall_time=time.perf_counter() - start, weights=weights,
-        bay_rms_error=rms, bay_max_error=largest, initial_bay_rms_error=nan, initial_bay_max_error=nan,
-        bay_min_tension=low, bay_max_tension=high, targets=tuple(targets), scenes=tuple(scenes), wing=wing)
+        solves=1, wall_time=time.perf_counter() - start, wing=wing)
 
 
-def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, n_span: int | None = None,
-                  n_contour: int | None = None, **options) -> DesignResult:
+def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, layout: Layout | None = None,
+                  bounds: Mapping | None = None, limits: Limits = Limits(), solver: SolverSettings = SolverSettings(),
+                  rib=None) -> DesignResult:
     """Confirm and polish a design on a finer grid, and record how far it moved.
 
     Runs the design again on the finer grid from ``result``'s design, with its
     variables, objective and method: one bay by `optimise_pressure` on
     ``scene`` (the same case on a finer grid) with ``target``; a wing by
-    `optimise_wing` on ``n_span`` x ``n_contour`` with the result's wing,
-    fabric and targets. A design that is converged in the grid moves little
-    (and the method, starting at the optimum, stops in a few iterates); the move
-    is the design's discretisation error, recorded in `DesignResult.grid_change`.
+    `optimise_wing` on ``layout``'s grid with the result's wing, fabric and
+    targets. A design that is converged in the grid moves little (and the
+    method, starting at the optimum, stops in a few iterates); the move is
+    the design's discretisation error, recorded in `DesignResult.grid_change`.
 
     Args:
         result: the design on the coarser grid.
         scene, target: one bay's finer scene and its target, as for the coarse design.
-        n_span, n_contour: a wing's finer grid.
-        **options: further arguments of the design (bounds, constraints,
-            max_iterations, ...), as for the coarse design.
+        layout: a wing's finer grid (`settings.Layout`; its ``cut_pattern``
+            is the result's: "per_bay" when it has a cut pattern per bay).
+        bounds, limits, solver: as for the coarse design.
+        rib: one bay's starting rib section, as for the coarse design.
 
     Returns:
         The fine grid's `DesignResult` with ``grid_change`` filled in; its
@@ -710,29 +667,32 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
 
     Raises:
         ValueError: for a one-bay design without ``scene`` and ``target``, or
-            a wing without ``n_span`` and ``n_contour``.
+            a wing without ``layout``.
     """
     if result.n_bays == 1 and scene is not None:
         if target is None:
             raise ValueError("refine_design of a one-bay design needs the finer scene and its target")
-        fine = optimise_pressure(scene, target, result.variables, initial=result.parameters,
-                                 objective=result.objective, method=result.method, **options)
+        fine = optimise_pressure(scene, target, result.variables, initial=result.parameters, bounds=bounds,
+                                 objective=result.objective, method=result.method, limits=limits, solver=solver,
+                                 rib=rib)
         grid = [scene.bay.n_span, scene.bay.n_contour]
     else:
-        if n_span is None or n_contour is None or result.wing is None:
-            raise ValueError("refine_design of a wing needs the finer grid as n_span and n_contour (and a "
-                             "one-bay design its finer scene and target)")
-        rows = {n: v for n, v in (("rib_shape", result.rib_shapes), ("cut_pattern", result.cut_patterns))
+        if layout is None or result.wing is None:
+            raise ValueError("refine_design of a wing needs the finer grid as layout=Layout(n_span=..., "
+                             "n_contour=...) (and a one-bay design its finer scene and target)")
+        rows = {n: v for n, v in (("rib_shape", result.per_bay.rib_shapes),
+                                  ("cut_pattern", result.per_bay.cut_patterns))
                 if v is not None}
         initial = result.parameters if not rows else {
             **{n: getattr(result.parameters, n) for n in VARIABLES
                if n not in rows and getattr(result.parameters, n) is not None}, **rows}
-        if result.cut_patterns is not None:
-            options.setdefault("cut_pattern", "per_bay")
-        fine = optimise_wing(result.wing, result.scenes[0].fabric, list(result.targets), result.variables,
-                             initial=initial, objective=result.objective, method=result.method, n_span=n_span,
-                             n_contour=n_contour, **options)
-        grid = [n_span, n_contour]
+        if result.per_bay.cut_patterns is not None:
+            layout = dataclasses.replace(layout, cut_pattern="per_bay")
+        fine = optimise_wing(result.wing, result.per_bay.scenes[0].fabric, list(result.per_bay.targets),
+                             result.variables,
+                             initial=initial, bounds=bounds, objective=result.objective, method=result.method,
+                             limits=limits, solver=solver, layout=layout)
+        grid = [layout.n_span, layout.n_contour]
     coarse_grid = list(np.shape(result.wing_solution.nodes)[1:3])
     values = {n: [_value(result, n), _value(fine, n)] for n in result.variables}
     change = {n: (b - a) / a if n == "pressure" else float(np.max(np.abs(np.subtract(b, a))))
@@ -755,7 +715,7 @@ def _largest(where: dict) -> dict:
 
 def _value(result: DesignResult, name: str):
     """A design value as a float, or a list of floats (of lists, per rib) for a vector variable."""
-    value = {"rib_shape": result.rib_shapes, "cut_pattern": result.cut_patterns}.get(name)
+    value = {"rib_shape": result.per_bay.rib_shapes, "cut_pattern": result.per_bay.cut_patterns}.get(name)
     value = getattr(result.parameters, name) if value is None else value
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
 

@@ -10,6 +10,7 @@ result to the report writer, for one bay or a wing alike. No physics lives here.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import os
 import sys
@@ -128,8 +129,9 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     from forward_solver.wing import check_rib_gaps, default_strategy
 
     from ..optimise import evaluate_design, optimise_pressure, optimise_wing, refine_design
+    from ..settings import Layout, Limits, SolverSettings
     from .export import check_output_folder
-    from .report import write_report
+    from .report import ReportOptions, write_report
 
     out = check_output_folder(args.out, replaces=report_may_write(args))  # before the long work, not after it
     check_equilibrium_method(args, default_strategy())
@@ -137,10 +139,12 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    solver_options = {"method": args.equilibrium_method, "max_steps": args.max_steps}
-    options = dict(bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
-                   tolerance=args.tolerance, progress=progress, rib_limits=rib_limits, callback=safe_point,
-                   solver_options=solver_options, root_condition=args.root_condition)
+    solver = None if args.evaluate else SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+                            equilibrium_method=args.equilibrium_method, max_steps=args.max_steps,
+                            root_condition=args.root_condition, progress=progress, callback=safe_point)
+    # (a single equilibrium is solved to solve_equilibrium's default residual, not the gradients')
+    equilibrium = SolverSettings(rtol=1e-8, equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
+    options = dict(bounds=bounds, limits=Limits(tension=constraints, ribs=rib_limits), solver=solver)
     inputs = {"wing": None, **vars(args), "sources": sources}  # (the same keys for a bay and a case file's ribs)
     if wing_ribs is None:
         def scene_on(n_span: int) -> Scene:
@@ -159,7 +163,7 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
 
         def evaluate():
             return evaluate_design(scene, target, initial, objective=args.objective, wing=Wing.from_scene(scene),
-                                   solver_options=solver_options)
+                                   solver=equilibrium)
     else:
         try:
             wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in wing_ribs),
@@ -170,18 +174,18 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         # Ribs too close for the grid are refused before any warning about the inputs is shown.
         check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
         bays = [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1])) for k in range(len(chords) - 1)]
+        layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
 
         def design():
             return optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
-                                 method=args.method, n_span=args.n_span, n_contour=args.n_contour,
-                                 cut_pattern=args.cut_pattern_layout, **options)
+                                 method=args.method, layout=layout, **options)
 
         def refine(result):
-            return refine_design(result, n_span=2 * args.n_span - 1, n_contour=args.n_contour, **options)
+            return refine_design(result, layout=dataclasses.replace(layout, n_span=2 * args.n_span - 1), **options)
 
         def evaluate():
             return evaluate_design(wing.scenes(fabric, args.n_span, args.n_contour), targets, initial,
-                                   objective=args.objective, wing=wing, solver_options=solver_options)
+                                   objective=args.objective, wing=wing, solver=equilibrium)
     notes = plausibility(args, fabric, initial, bays, None if args.evaluate else bounds, sources)
     if not args.no_patterns:  # (before the design: the report would fail after it)
         check_flat_panels([scene] if wing_ribs is None else wing.scenes(fabric, n_span=args.n_span,
@@ -199,9 +203,11 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result, alphas, timings)
     interrupts.check()
-    return write_report(out, result, bounds=None if args.evaluate else bounds, inputs=inputs, timings=timings,
-                        magnification=args.magnification, aero=aero, warnings=notes, rib_limits=rib_limits,
-                        patterns=not args.no_patterns, seam_allowance_mm=args.seam_allowance, workers=workers)
+    report = ReportOptions(bounds=None if args.evaluate else bounds, magnification=args.magnification,
+                           rib_limits=rib_limits, patterns=not args.no_patterns,
+                           seam_allowance_mm=args.seam_allowance, inputs=inputs, timings=timings, aero=aero,
+                           warnings=notes)
+    return write_report(out, result, options=report, workers=workers)
 
 
 def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds, sources: dict | None = None) -> list[str]:

@@ -91,8 +91,8 @@ from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, pl
                     plot_wing_overview)
 from ..rib_design import cut_lengths
 
-__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
-           "write_report"]
+__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "ReportOptions", "mid_bay_targets", "summarise", "wing_deviation",
+           "wing_nodes", "write_report"]
 
 #: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
 #: ``bays`` and ``constraints.violated_where``; 3 is one layout for any number of bays: ``case.ribs``
@@ -192,7 +192,7 @@ def summarise(result: DesignResult, *, inputs: dict | None = None, timings: dict
     result = _checked(result)
     design = bool(result.variables)
     sol = result.wing_solution
-    fabric = sol.fabric if sol.fabric is not None else result.scenes[0].fabric
+    fabric = sol.fabric if sol.fabric is not None else result.per_bay.scenes[0].fabric
     params = result.parameters.resolved(fabric).as_dict()
     specs = [r.get("section") for r in (inputs or {}).get("wing") or []]  # the case file's section specs
     solutions = [sol.bay_solution(k) for k in range(result.n_bays)]
@@ -207,7 +207,8 @@ def summarise(result: DesignResult, *, inputs: dict | None = None, timings: dict
         "case": {
             "n_bays": result.n_bays,
             "ribs": [{"section": section, "target": t.name, "chord_m": c, "station_m": y}
-                     for section, t, c, y in zip(_rib_names(result), result.targets, *_chords_and_stations(result))],
+                     for section, t, c, y in zip(_rib_names(result), result.per_bay.targets,
+                                                 *_chords_and_stations(result))],
             "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
             "trailing_edge": None if wing is None else {
                 "option": wing.trailing_edge, "unit": "chord",
@@ -227,10 +228,11 @@ def summarise(result: DesignResult, *, inputs: dict | None = None, timings: dict
                        "stiffness_span_n_per_m": params["stiffness_span"],
                        "stiffness_chord_n_per_m": params["stiffness_chord"],
                        "rib_shape": params["rib_shape"], "cut_pattern": params["cut_pattern"]},
-            "rib_shapes": None if result.rib_shapes is None else np.asarray(result.rib_shapes).tolist(),
+            "rib_shapes": None if result.per_bay.rib_shapes is None else np.asarray(result.per_bay.rib_shapes).tolist(),
             "rib_shape_max_abs": _largest_coefficient(result),
-            "rib_limits": list(result.rib_limits),
-            "cut_patterns": None if result.cut_patterns is None else np.asarray(result.cut_patterns).tolist(),
+            "rib_limits": list(result.per_bay.rib_limits),
+            "cut_patterns": (None if result.per_bay.cut_patterns is None
+                             else np.asarray(result.per_bay.cut_patterns).tolist()),
             "cut_pattern_local": _local_prestrain_range(result),
             "variables": list(result.variables), "method": result.method if design else None,
             "iterations": len(result.history), "forward_solves": result.solves,
@@ -299,28 +301,28 @@ def _equilibrium(solutions: list) -> dict:
 
 
 def _largest_coefficient(result: DesignResult) -> float | None:
-    shapes = result.rib_shapes if result.rib_shapes is not None else result.parameters.rib_shape
+    shapes = result.per_bay.rib_shapes if result.per_bay.rib_shapes is not None else result.parameters.rib_shape
     return None if shapes is None else float(np.max(np.abs(np.asarray(shapes))))
 
 
 def _rib_entry(result: DesignResult) -> dict | None:
     """``summary["rib"]`` of a shaped rib (one shape for every rib, or one per rib), else None."""
     shared = result.parameters.rib_shape
-    if result.rib_shapes is None and shared is None:
+    if result.per_bay.rib_shapes is None and shared is None:
         return None
-    coefficients = np.asarray(shared if result.rib_shapes is None else result.rib_shapes, np.float64)
-    return {"layout": "shared" if result.rib_shapes is None else "per_rib",
+    coefficients = np.asarray(shared if result.per_bay.rib_shapes is None else result.per_bay.rib_shapes, np.float64)
+    return {"layout": "shared" if result.per_bay.rib_shapes is None else "per_rib",
             "coefficients": coefficients.tolist(), "terms_per_surface": int(coefficients.shape[-1]) // 2,
             "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
                                "upper-surface coefficients, then lower (forward_solver.rib_shape)",
-            "limits": list(result.rib_limits), "files": _rib_files(result)}
+            "limits": list(result.per_bay.rib_limits), "files": _rib_files(result)}
 
 
 def _rib_files(result: DesignResult) -> list:
     """The designed ribs' Selig files: ``rib.dat`` for one shape on ribs of one section, else ``rib_K.dat``."""
-    if result.wing is None or (result.rib_shapes is None and result.parameters.rib_shape is None):
+    if result.wing is None or (result.per_bay.rib_shapes is None and result.parameters.rib_shape is None):
         return []
-    if result.rib_shapes is None and _same_sections(result):
+    if result.per_bay.rib_shapes is None and _same_sections(result):
         return ["rib.dat"]
     return [f"rib_{k}.dat" for k in range(len(result.wing.sections))]
 
@@ -335,7 +337,7 @@ def mid_bay_targets(result: DesignResult) -> list:
     (`objectives.row_targets`; the rib's own when both ribs have the same target)."""
     out = []
     for k, bay in enumerate(result.wing_solution.bays):
-        root, tip = result.targets[k], result.targets[k + 1]
+        root, tip = result.per_bay.targets[k], result.per_bay.targets[k + 1]
         out.append(root if same_section(root, tip) else
                    row_targets(root, tip, bay.chord_root, bay.chord_tip, [0.5])[0])
     return out
@@ -350,12 +352,13 @@ def _mid_bay_errors(result: DesignResult) -> dict:
     with jax.enable_x64(True):
         for k, bay in enumerate(sol.bays):
             etas = np.array([0.5])
-            rows = row_targets(result.targets[k], result.targets[k + 1], bay.chord_root, bay.chord_tip, etas)
+            rows = row_targets(result.per_bay.targets[k], result.per_bay.targets[k + 1], bay.chord_root,
+                               bay.chord_tip, etas)
             d = np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas)))
             r, m = distance_errors(d, "mid_bay")
             rms.append(r)
             largest.append(m)
-    weights = np.asarray(result.weights, np.float64)
+    weights = np.asarray(result.per_bay.weights, np.float64)
     return {"rms": float(np.sqrt(np.sum(weights * np.square(rms)))), "max": float(np.max(largest))}
 
 
@@ -366,18 +369,19 @@ def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
     design = bool(result.variables)
     entries = []
     for k, bay in enumerate(sol.bays):
-        cuts = cut_lengths(sol.scene(k) if sol.fabric is not None else result.scenes[k], solutions[k].parameters)
+        cuts = cut_lengths(sol.scene(k) if sol.fabric is not None else result.per_bay.scenes[k],
+                           solutions[k].parameters)
         mid_row = bay.n_span // 2
         entry = {
             "bay": k, "ribs": [k, k + 1], "span_m": [stations[k], stations[k + 1]],
-            "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.weights[k],
-            "targets": [result.targets[k].name, result.targets[k + 1].name],
+            "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.per_bay.weights[k],
+            "targets": [result.per_bay.targets[k].name, result.per_bay.targets[k + 1].name],
             "result": result.bay_results[k], "steps": int(np.asarray(sol.steps)[k]),
             "relative_residual": float(np.asarray(sol.residual)[k]),
-            "errors_before": ({"rms": result.initial_bay_rms_error[k], "max": result.initial_bay_max_error[k]}
+            "errors_before": ({"rms": result.per_bay.initial_rms_error[k], "max": result.per_bay.initial_max_error[k]}
                               if design else None),
-            "errors_after": {"rms": result.bay_rms_error[k], "max": result.bay_max_error[k]},
-            "min_tension_n_per_m": result.bay_min_tension[k], "max_tension_n_per_m": result.bay_max_tension[k],
+            "errors_after": {"rms": result.per_bay.rms_error[k], "max": result.per_bay.max_error[k]},
+            "min_tension_n_per_m": result.per_bay.min_tension[k], "max_tension_n_per_m": result.per_bay.max_tension[k],
             "wrinkled_fraction": solutions[k].wrinkled_fraction,
             "cut_lengths": {
                 "unit": "m", "file": f"bay_{k}_cut_pattern.csv",
@@ -393,8 +397,8 @@ def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
 
 def _shared_names(result: DesignResult) -> tuple:
     """The design's variables shared by every bay (not per-rib shapes, not per-bay fields)."""
-    return tuple(n for n in result.variables if not (n == "rib_shape" and result.rib_shapes is not None)
-                 and not (n == "cut_pattern" and result.cut_patterns is not None))
+    return tuple(n for n in result.variables if not (n == "rib_shape" and result.per_bay.rib_shapes is not None)
+                 and not (n == "cut_pattern" and result.per_bay.cut_patterns is not None))
 
 
 def _local_prestrain_range(result: DesignResult) -> dict | None:
@@ -403,7 +407,7 @@ def _local_prestrain_range(result: DesignResult) -> dict | None:
     from forward_solver.cut_field import field_values
 
     p = result.parameters
-    rows = [p.cut_pattern] if result.cut_patterns is None else list(np.asarray(result.cut_patterns))
+    rows = [p.cut_pattern] if result.per_bay.cut_patterns is None else list(np.asarray(result.per_bay.cut_patterns))
     if rows[0] is None:
         return None
     s = np.linspace(0.0, 1.0, 401)
@@ -419,8 +423,9 @@ class _Overview:
     def __init__(self, result: DesignResult):
         self.wing = SimpleNamespace(stations=tuple(float(y) for y in _chords_and_stations(result)[1]))
         self.parameters = SimpleNamespace(pressure=float(result.parameters.pressure))
-        for name in ("initial_bay_rms_error", "bay_rms_error", "bay_max_error", "bay_min_tension", "bay_max_tension"):
-            setattr(self, name, np.asarray(getattr(result, name), np.float64))
+        for name in ("initial_rms_error", "rms_error", "max_error", "min_tension", "max_tension"):  # per bay
+            setattr(self, name.replace("initial_", "initial_bay_") if "initial" in name else f"bay_{name}",
+                    np.asarray(getattr(result.per_bay, name), np.float64))
         self.constraint_values = dict(result.constraint_values)
         self.success, self.variables, self.method, self.solves = (bool(result.success), tuple(result.variables),
                                                                   result.method, int(result.solves))
@@ -459,7 +464,7 @@ def wing_deviation(result: DesignResult) -> np.ndarray:
     fractions of the local chord (positive outside; `objectives` module docstring)."""
     import jax
 
-    sol, targets = result.wing_solution, result.targets
+    sol, targets = result.wing_solution, result.per_bay.targets
     out = []
     with jax.enable_x64(True):
         for k, bay in enumerate(sol.bays):
@@ -474,11 +479,46 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class ReportOptions:
+    """What a report holds beside the design, and how it is drawn (`write_report`).
+
+    Args:
+        bounds: ``{name: (lower, upper)}`` variable bounds drawn in the
+            history plot (None: none drawn).
+        magnification: deviation factor of the section plots (None: automatic).
+        rib_limits: the `rib_design.RibLimits` a shaped rib was designed
+            with, drawn in ``rib_design.png`` (None: the defaults).
+        patterns: write the flat panels and the rib templates (DXF, SVG) of a
+            successful design (module docstring).
+        seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        inputs, warnings, aero: the run's inputs, its warning lines and each
+            bay's aerodynamic polar, recorded as `summarise` does (``aero``
+            also draws ``bay_K_aero.png``).
+        timings: seconds spent before the report (e.g. ``setup``,
+            ``optimisation``); ``report`` and, unless given, ``total`` (their
+            sum) are added.
+
+    Raises:
+        ValueError: if ``seam_allowance_mm`` is negative or not finite.
+    """
+
+    bounds: dict | None = None
+    magnification: float | None = None
+    rib_limits: object = None
+    patterns: bool = True
+    seam_allowance_mm: float = 10.0
+    inputs: dict | None = None
+    timings: dict | None = None
+    aero: object = None
+    warnings: list | None = None
+
+    def __post_init__(self):
+        check_seam_allowance(self.seam_allowance_mm)
+
+
 def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene=None, objective: str | None = None,
-                 bounds: dict | None = None, inputs: dict | None = None, timings: dict | None = None,
-                 magnification: float | None = None,
-                 aero=None, warnings: list | None = None, rib_limits=None, patterns: bool = True,
-                 seam_allowance_mm: float = 10.0, workers=None) -> dict:
+                 options: ReportOptions | None = None, workers=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
 
     Args:
@@ -490,18 +530,10 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         target, scene: a single bay's target and scene: needed with a
             `Solution`; with a `DesignResult` they must be its own (ValueError if not).
         objective: the rows a `Solution`'s errors are measured on (default "mid_bay").
-        bounds: variable bounds to draw in the history plot.
-        inputs, warnings, aero: as `summarise` (``aero`` also draws
-            ``bay_K_aero.png``).
-        timings: seconds spent before the report (e.g. ``setup``,
-            ``optimisation``); ``report`` and, unless given, ``total`` (their
-            sum) are added.
-        magnification: deviation factor of the section plots (default automatic).
-        rib_limits: the `rib_design.RibLimits` a shaped rib was designed
-            with, drawn in ``rib_design.png`` (default the defaults).
-        patterns: write the flat panels and the rib templates (DXF, SVG) of a
-            successful design (module docstring).
-        seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        options: what the report holds beside the design and how it is drawn
+            (`ReportOptions`: bounds, magnification, rib limits, patterns and
+            their seam allowance, the run's inputs, timings, aero and warnings;
+            None: the defaults).
         workers: `workers.ReportWorkers` started before the design (the
             command's), to build and save the figures of `_PORTABLE` and to
             write the DXF patterns while this process writes the other
@@ -515,16 +547,20 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
 
     Raises:
         ValueError: if ``out_dir`` cannot be written (`check_output_folder`),
-            ``seam_allowance_mm`` is negative, or ``target``/``scene`` are not the result's.
+            or ``target``/``scene`` are not the result's.
         TypeError: if ``result`` is neither a `DesignResult` nor a `Solution` (or a
             `Solution` comes without its target and scene).
     """
-    check_seam_allowance(seam_allowance_mm)
+    options = ReportOptions() if options is None else options
+    if not isinstance(options, ReportOptions):
+        raise TypeError(f"options must be a ReportOptions, got {type(options).__name__}")
+    magnification, aero, bounds, rib_limits = options.magnification, options.aero, options.bounds, options.rib_limits
+    seam_allowance_mm = options.seam_allowance_mm
     if isinstance(result, Solution):
         result = _measured(result, target, scene, objective)
     result = _checked(result)
-    if target is not None and not all(same_section(target, t) for t in result.targets):
-        raise ValueError(f"target {target.name} is not the design's ({result.targets[0].name})")
+    if target is not None and not all(same_section(target, t) for t in result.per_bay.targets):
+        raise ValueError(f"target {target.name} is not the design's ({result.per_bay.targets[0].name})")
     if scene is not None and (result.n_bays != 1 or scene.bay.n_span != result.wing_solution.bays[0].n_span):
         raise ValueError("scene is not the design's bay (give the result alone: it carries its bays)")
     start = time.perf_counter()
@@ -532,7 +568,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
     sol = result.wing_solution
     n_bays = result.n_bays
     solutions = [_without_factors(sol.bay_solution(k)) for k in range(n_bays)]
-    scenes = [sol.scene(k) if sol.fabric is not None else result.scenes[k] for k in range(n_bays)]
+    scenes = [sol.scene(k) if sol.fabric is not None else result.per_bay.scenes[k] for k in range(n_bays)]
     targets = mid_bay_targets(result)
     stations = _chords_and_stations(result)[1]
     deviation = wing_deviation(result)
@@ -575,13 +611,14 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
             else:
                 portable = []
         try:
-            summary = summarise(result, inputs=inputs, timings=timings, aero=aero, warnings=warnings)
+            summary = summarise(result, inputs=options.inputs, timings=options.timings, aero=aero,
+                                warnings=options.warnings)
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
             with saved_after(built, _save):
                 _write_data(staging, result, solutions, scenes, targets, deviation, files, skipped)
-                if _patterns_wanted(patterns, summary, skipped):
+                if _patterns_wanted(options.patterns, summary, skipped):
                     dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
                     writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
                     names, panels = [], []
@@ -632,20 +669,21 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
             tension_span=np.stack([s.tension_span for s in solutions]),
             tension_chord=np.stack([s.tension_chord for s in solutions]),
             wrinkled=np.stack([np.asarray(s.wrinkled, bool) for s in solutions]),
-            deviation=deviation, weights=np.asarray(result.weights),
+            deviation=deviation, weights=np.asarray(result.per_bay.weights),
             stations=np.asarray(_chords_and_stations(result)[1], np.float64),
             chords=np.asarray(_chords_and_stations(result)[0], np.float64),
             result=np.asarray(sol.result), residual=np.asarray(sol.residual, np.float64),
             pressure=np.float64(params.pressure), prestrain=np.array(params.prestrain, np.float64),
             rib_thickness_scale=np.float64(params.rib_thickness_scale),
             rib_chord_scale=np.float64(params.rib_chord_scale),
-            target_names=np.array([t.name for t in result.targets], dtype=str),
+            target_names=np.array([t.name for t in result.per_bay.targets], dtype=str),
             variables=np.array(list(shared), dtype=str),
             history_objective=np.array([h["objective"] for h in result.history], np.float64),
             history_values=(np.array([np.concatenate([np.ravel(h["values"][n]) for n in shared])
                                       for h in result.history], np.float64) if result.history else np.zeros((0, 0))),
-            rib_shapes=np.zeros((0, 0)) if result.rib_shapes is None else np.asarray(result.rib_shapes),
-            cut_patterns=np.zeros((0, 0)) if result.cut_patterns is None else np.asarray(result.cut_patterns)))
+            rib_shapes=np.zeros((0, 0)) if result.per_bay.rib_shapes is None else np.asarray(result.per_bay.rib_shapes),
+            cut_patterns=(np.zeros((0, 0)) if result.per_bay.cut_patterns is None
+                          else np.asarray(result.per_bay.cut_patterns))))
     joined = wing_nodes(result)
     periodic = sol.bays[0].periodic
     write_obj(staging / "skin.obj", joined, periodic, name="wing" if result.n_bays > 1 else sol.bays[0].name)
@@ -663,7 +701,8 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
     if names:
         from forward_solver import rib_section
 
-        rows = np.asarray(result.rib_shapes) if result.rib_shapes is not None else [params.rib_shape] * len(names)
+        rows = (np.asarray(result.per_bay.rib_shapes) if result.per_bay.rib_shapes is not None
+                else [params.rib_shape] * len(names))
         crossed = result.violated_where.get("rib_crossing", {})  # (a rib that cannot be made is not drawn)
         if crossed:
             skipped["rib.dat" if names == ["rib.dat"] else "rib_K.dat"] = (

@@ -25,6 +25,7 @@ from inverse_design import optimise_pressure, optimise_wing
 from inverse_design.app.export import write_cut_pattern
 from inverse_design.rib_design import cut_lengths
 from inverse_design.variables import DesignVariables
+from inverse_design.settings import Layout, SolverSettings
 from targets import naca
 
 BASE = Parameters(pressure=2e4, prestrain_span=0.01, prestrain_chord=0.005)
@@ -190,19 +191,20 @@ def test_a_per_bay_design_from_the_shared_field(scene):
     wing = Wing(airfoils=(target,) * 3, chords=(1.0, 0.9, 0.6), stations=(0.0, 0.25, 0.5))
     start = {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.0, "cut_pattern": np.zeros(8)}
     bounds = {"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)}
-    options = dict(variables=("pressure", "cut_pattern"), bounds=bounds, max_iterations=20, n_span=5,
-                   n_contour=32)
-    shared = optimise_wing(wing, Fabric(), initial=start, **options)
+    options = dict(variables=("pressure", "cut_pattern"), bounds=bounds, solver=SolverSettings(max_iterations=20))
+    shared = optimise_wing(wing, Fabric(), initial=start, layout=Layout(n_span=5, n_contour=32), **options)
     best = {**start, "pressure": shared.parameters.pressure, "cut_pattern": shared.parameters.cut_pattern}
-    per_bay = optimise_wing(wing, Fabric(), initial=best, cut_pattern="per_bay", **options)
-    assert shared.success and per_bay.success, (shared.message, per_bay.message)
-    assert shared.cut_patterns is None and per_bay.cut_patterns.shape == (2, 8)
-    assert per_bay.rms_error <= shared.rms_error * (1 + 1e-9)
-    assert np.abs(per_bay.cut_patterns[0] - per_bay.cut_patterns[1]).max() > 1e-4  # the bays differ
-    for k, row in enumerate(per_bay.cut_patterns):
+    separate = optimise_wing(wing, Fabric(), initial=best, layout=Layout(cut_pattern="per_bay", n_span=5,
+                                                                         n_contour=32), **options)
+    assert shared.success and separate.success, (shared.message, separate.message)
+    assert shared.per_bay.cut_patterns is None and separate.per_bay.cut_patterns.shape == (2, 8)
+    assert separate.rms_error <= shared.rms_error * (1 + 1e-9)
+    rows = separate.per_bay.cut_patterns
+    assert np.abs(rows[0] - rows[1]).max() > 1e-4  # the bays differ
+    for k, row in enumerate(rows):
         local = field_values(np.linspace(0, 1, 201), 0.02, 0.0, row)
         assert min(v.min() for v in local) >= -0.02 - 1e-9 and max(v.max() for v in local) <= 0.05 + 1e-9
-        assert per_bay.wing_solution.bay_parameters(k).cut_pattern.tolist() == row.tolist()
+        assert separate.wing_solution.bay_parameters(k).cut_pattern.tolist() == row.tolist()
 
 
 def test_a_cut_pattern_design_from_the_best_uniform_cut(scene):
@@ -216,11 +218,12 @@ def test_a_cut_pattern_design_from_the_best_uniform_cut(scene):
     start = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.0, cut_pattern=np.zeros(4))
     bounds = {"pressure": (1e3, 1e5), "prestrain_span": (-0.02, 0.05), "prestrain_chord": (-0.02, 0.05)}
     uniform = optimise_pressure(scene, target, variables=("pressure", "prestrain_span", "prestrain_chord"),
-                                initial=start, objective="average", max_iterations=30, bounds=bounds)
+                                initial=start, objective="average", bounds=bounds,
+                                solver=SolverSettings(max_iterations=30))
     best = uniform.parameters.replace(stiffness_span=None, stiffness_chord=None)
     field = optimise_pressure(scene, target, variables=("pressure", "cut_pattern"), initial=best,
-                              objective="average", max_iterations=30,
-                              bounds={"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)})
+                              objective="average", bounds={"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)},
+                              solver=SolverSettings(max_iterations=30))
     assert uniform.success and field.success
     assert uniform.parameters.prestrain_chord < -0.005  # the best uniform cut has the contour fabric cut long
     assert field.rms_error <= uniform.rms_error * (1 + 1e-9)

@@ -5,6 +5,7 @@ import pytest
 
 from forward_solver import Bay, ConvergenceError, Fabric, Scene
 from inverse_design import optimise_pressure
+from inverse_design.settings import Limits, SolverSettings
 from targets import naca
 
 START = {"pressure": 1e4, "prestrain_span": 0.005, "prestrain_chord": 0.005}
@@ -24,7 +25,7 @@ def test_a_failed_forward_solve_stops_the_design_and_says_so(soft_scene):
     # pressure the fabric cannot hold. The result is the best iterate that solved.
     res = optimise_pressure(soft_scene, naca("2412"), ("pressure",), initial=START,
                             bounds={"pressure": (1e4, 1e6)}, method="root",
-                            root_condition="mean_offset", constraints=None)
+                            solver=SolverSettings(root_condition="mean_offset"), limits=Limits(tension=None))
     assert not res.success
     assert "forward solve at pressure" in res.message and "diverged" in res.message
     assert res.solution.converged and np.isfinite(res.solution.nodes).all()
@@ -37,4 +38,4 @@ def test_a_failed_start_raises(soft_scene):
     # Nothing to return when the starting point itself has no equilibrium.
     with pytest.raises(ConvergenceError, match="diverged"):
         optimise_pressure(soft_scene, naca("2412"), ("pressure",), initial={**START, "pressure": 5e5},
-                          bounds={"pressure": (1e4, 1e6)}, method="least_squares", constraints=None)
+                          bounds={"pressure": (1e4, 1e6)}, method="least_squares", limits=Limits(tension=None))

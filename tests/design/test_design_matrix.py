@@ -34,6 +34,7 @@ from forward_solver import Bay, Fabric, Scene, Wing
 from inverse_design import Constraints, optimise_pressure, optimise_wing
 from inverse_design.app.case import design_inputs, load_section, parse_arguments
 from inverse_design.optimise import AUTO, AUTO_FOR_WORST
+from inverse_design.settings import Layout, Limits, SolverSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 GRID = ("--n-span", "5", "--n-contour", "32")
@@ -78,17 +79,20 @@ def command_design(argv, **changes):
     args, _ = parse_arguments(list(argv))
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    options = dict(initial=initial, bounds=bounds, constraints=constraints, max_iterations=args.max_iterations,
-                   tolerance=args.tolerance, rib_limits=rib_limits, objective=args.objective, method=args.method,
-                   solver_options={"method": args.equilibrium_method, "max_steps": args.max_steps})
+    options = dict(initial=initial, bounds=bounds, objective=args.objective, method=args.method,
+                   limits=Limits(tension=constraints, ribs=rib_limits),
+                   solver=SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+                                         equilibrium_method=args.equilibrium_method, max_steps=args.max_steps))
     options.update(changes)
     ribs = getattr(args, "wing", None)
     if ribs is not None:
         sections = [load_section(r["section"], "section") for r in ribs]
         wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
                     stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-        return optimise_wing(wing, fabric, sections, variables, n_span=args.n_span, n_contour=args.n_contour,
-                             cut_pattern=args.cut_pattern_layout, **options), options
+        return optimise_wing(wing, fabric, sections, variables,
+                             layout=Layout(n_span=args.n_span, n_contour=args.n_contour,
+                                           cut_pattern=args.cut_pattern_layout),
+                             **options), options
     target = load_section(args.target, "--target")
     bay = Bay.from_airfoil(target, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
                            n_contour=args.n_contour)
@@ -112,7 +116,8 @@ def test_the_default_method_converges(case, variables):
 
 def test_the_worst_objective_runs_slsqp():
     # Gauss-Newton needs a sum of squares: "auto" runs SLSQP for the smooth maximum (one iteration shows it).
-    res, _ = command_design(["--objective", "worst", "--variables", "pressure", *GRID], max_iterations=1)
+    res, _ = command_design(["--objective", "worst", "--variables", "pressure", *GRID],
+                            solver=SolverSettings(max_iterations=1))
     assert res.method == AUTO_FOR_WORST == "slsqp" and res.solves >= 1
 
 
@@ -124,8 +129,8 @@ INFEASIBLE_CEILING = 1000.0  # N/m
 
 @pytest.mark.parametrize("method", ["auto", "slsqp"])
 def test_an_infeasible_ceiling_fails_and_names_the_limit(method):
-    res, options = command_design(["--variables", "pressure", "--method", method, *GRID],
-                                  constraints=Constraints(min_tension=None, max_tension=INFEASIBLE_CEILING))
+    limits = Limits(tension=Constraints(min_tension=None, max_tension=INFEASIBLE_CEILING))
+    res, options = command_design(["--variables", "pressure", "--method", method, *GRID], limits=limits)
     assert not res.success
     assert set(res.violated_constraints) == {"max_tension"}
     excess = res.constraint_values["max_tension"] - INFEASIBLE_CEILING

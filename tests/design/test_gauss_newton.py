@@ -14,9 +14,11 @@ from inverse_design import Constraints, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
 from inverse_design.problem import DesignProblem
 from inverse_design.variables import DesignVariables
+from inverse_design.settings import Layout, Limits, SolverSettings
 from targets import naca
 
 GRID = dict(n_span=5, n_contour=32)
+LAYOUT = Layout(**GRID)
 START = {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.02}
 BOUNDS = {"pressure": (1e3, 1e5), "prestrain_span": (0.0, 0.05)}
 VARIABLES = ("pressure", "prestrain_span")
@@ -31,7 +33,8 @@ def wing():
 @pytest.fixture(scope="module")
 def designs(wing):
     return {m: optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, bounds=BOUNDS, method=m,
-                             max_iterations=40, **GRID) for m in ("gauss_newton", "slsqp")}
+                             solver=SolverSettings(max_iterations=40), layout=LAYOUT)
+            for m in ("gauss_newton", "slsqp")}
 
 
 def test_forward_mode_jacobian_matches_central_differences(wing):
@@ -76,7 +79,8 @@ def test_same_optimum_as_slsqp_in_fewer_solves(designs):
 def test_a_limit_no_design_meets_is_a_failure_with_the_amount(wing):
     # A ceiling of 100 N/m: the hoop tension p c / 2 alone is 500 N/m at the lowest pressure, 1 kPa.
     res = optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, bounds=BOUNDS, method="gauss_newton",
-                        constraints=Constraints(max_tension=100.0), max_iterations=15, **GRID)
+                        limits=Limits(tension=Constraints(max_tension=100.0)),
+                        solver=SolverSettings(max_iterations=15), layout=LAYOUT)
     assert not res.success
     assert "max_tension violated" in res.message
     amount = res.violated_constraints["max_tension"]
@@ -87,8 +91,8 @@ def test_a_limit_no_design_meets_is_a_failure_with_the_amount(wing):
 def test_the_worst_objective_is_refused(wing):
     with pytest.raises(ValueError, match="gauss_newton.*'worst'"):
         optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, objective="worst",
-                      method="gauss_newton", **GRID)
+                      method="gauss_newton", layout=LAYOUT)
     # The default ("auto") picks slsqp for it instead of refusing (one SLSQP iteration suffices to see).
     res = optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, bounds=BOUNDS, objective="worst",
-                        max_iterations=1, **GRID)
+                        solver=SolverSettings(max_iterations=1), layout=LAYOUT)
     assert res.method == "slsqp" and res.solves >= 1

@@ -11,7 +11,7 @@ import optax
 import pytest
 
 from forward_solver import Bay, Scene, solve_equilibrium
-from inverse_design import Constraints, optimise_pressure, refine_design
+from inverse_design import Constraints, Layout, Limits, RibLimits, SolverSettings, optimise_pressure, refine_design
 from targets import Airfoil, naca
 
 TRUE = {"pressure": 2e4, "prestrain_span": 0.004, "prestrain_chord": 0.006}
@@ -34,8 +34,8 @@ def generated(scene):
 
 def test_least_squares_recovers_pressure_and_both_prestrains(scene, generated):
     start = {name: 1.5 * TRUE[name] for name in NAMES}  # 50% away
-    res = optimise_pressure(scene, generated, NAMES, initial=start, objective="mid_bay",
-                            method="least_squares", max_iterations=40)
+    res = optimise_pressure(scene, generated, NAMES, initial=start, objective="mid_bay", method="least_squares",
+                            solver=SolverSettings(max_iterations=40))
     assert res.success, res.message
     for name in NAMES:
         assert abs(res.values[name] / TRUE[name] - 1.0) < 1e-4, (name, res.values[name])
@@ -64,8 +64,8 @@ def test_root_without_a_bracket_says_so(scene):
 
 def test_ribs_equal_to_target_put_the_best_pressure_on_its_lower_bound(scene):
     res = optimise_pressure(scene, naca("2412"), ("pressure",), initial={"pressure": 1e4},
-                            bounds={"pressure": (5e3, 2e4)}, method="least_squares",
-                            constraints=None, max_iterations=20)
+                            bounds={"pressure": (5e3, 2e4)}, method="least_squares", limits=Limits(tension=None),
+                            solver=SolverSettings(max_iterations=20))
     assert res.pressure == pytest.approx(5e3, rel=1e-6)
     assert "pressure>=lower" in res.active_constraints
     assert res.rms_error < res.initial_rms_error
@@ -75,7 +75,7 @@ def test_slsqp_recovers_pressure_and_both_prestrains(scene, generated):
     start = {name: 1.5 * TRUE[name] for name in NAMES}  # 50% away
     # An inverse crime drives the objective to zero: ask SLSQP for a tight ftol.
     res = optimise_pressure(scene, generated, NAMES, initial=start, objective="mid_bay", method="slsqp",
-                            tolerance=1e-14)
+                            solver=SolverSettings(tolerance=1e-14))
     assert res.success, res.message
     for name in NAMES:
         assert abs(res.values[name] / TRUE[name] - 1.0) < 1e-4, (name, res.values[name])
@@ -97,8 +97,8 @@ def test_allowable_tension_is_a_constraint_that_holds(scene, generated, true_pea
     ceiling = 0.9 * true_peak_tension
     start = {"pressure": 1.5e4, "prestrain_span": TRUE["prestrain_span"],
              "prestrain_chord": TRUE["prestrain_chord"]}
-    res = optimise_pressure(scene, generated, ("pressure",), initial=start,
-                            constraints=Constraints(max_tension=ceiling), method="slsqp")
+    res = optimise_pressure(scene, generated, ("pressure",), initial=start, method="slsqp",
+                            limits=Limits(tension=Constraints(max_tension=ceiling)))
     assert res.success, res.message
     assert "max_tension" in res.active_constraints and res.violated_constraints == {}
     assert res.constraint_values["max_tension"] <= ceiling * (1 + 1e-3)
@@ -116,8 +116,8 @@ def test_a_start_that_breaks_a_limit_is_recorded_with_the_amount(scene, generate
              "prestrain_chord": TRUE["prestrain_chord"]}
     at_start = solve_equilibrium(scene, start["pressure"], (start["prestrain_span"], start["prestrain_chord"]))
     peak = float(max(at_start.tension_span.max(), at_start.tension_chord.max()))
-    res = optimise_pressure(scene, generated, ("pressure",), initial=start,
-                            constraints=Constraints(max_tension=ceiling), method="slsqp")
+    res = optimise_pressure(scene, generated, ("pressure",), initial=start, method="slsqp",
+                            limits=Limits(tension=Constraints(max_tension=ceiling)))
     assert res.success and res.violated_constraints == {}, res.message
     assert set(res.violated_at_start) == {"max_tension"}
     assert res.violated_at_start["max_tension"] == pytest.approx(peak - ceiling, rel=1e-3)
@@ -133,8 +133,9 @@ def test_a_ceiling_no_design_can_meet_is_a_failure_with_the_amount(scene, genera
     start = {"pressure": 2e4, "prestrain_span": TRUE["prestrain_span"],
              "prestrain_chord": TRUE["prestrain_chord"]}
     res = optimise_pressure(scene, generated, ("pressure",), initial=start, bounds={"pressure": (1.5e4, 3e4)},
-                            constraints=Constraints(max_tension=ceiling, min_tension=None), method=method,
-                            max_iterations=20)
+                            method=method,
+                            limits=Limits(tension=Constraints(max_tension=ceiling, min_tension=None)),
+                            solver=SolverSettings(max_iterations=20))
     assert not res.success
     over = res.constraint_values["max_tension"] - ceiling
     assert res.violated_constraints["max_tension"] == pytest.approx(over) and over > 0
@@ -144,14 +145,15 @@ def test_a_ceiling_no_design_can_meet_is_a_failure_with_the_amount(scene, genera
 def test_contradictory_tension_limits_are_bad_input(scene, generated):
     with pytest.raises(ValueError, match="inconsistent tension limits"):
         optimise_pressure(scene, generated, ("pressure",),
-                          constraints=Constraints(min_tension=5000.0, max_tension=100.0))
+                          limits=Limits(tension=Constraints(min_tension=5000.0, max_tension=100.0)))
 
 
 def test_optax_reduces_the_error(scene, generated):
     start = {"pressure": 1.5e4, "prestrain_span": TRUE["prestrain_span"],
              "prestrain_chord": TRUE["prestrain_chord"]}
     res = optimise_pressure(scene, generated, ("pressure",), initial=start, method="optax",
-                            optimiser=optax.adam(0.05), constraints=None, max_iterations=6)
+                            solver=SolverSettings(optimiser=optax.adam(0.05), max_iterations=6),
+                            limits=Limits(tension=None))
     # Six Adam steps of 0.05 (in units of the starting pressure) move 1.5e4 Pa
     # most of the way to 2e4 Pa.
     assert res.rms_error < 0.5 * res.initial_rms_error
@@ -168,12 +170,34 @@ def test_optax_reduces_the_error(scene, generated):
         (dict(variables=("pressure",), bounds={"pressure": (2e4, 3e4)}), "outside its bounds"),
         (dict(variables=("pressure",), bounds={"prestrain_span": (0, 0.1)}), "not among the variables"),
         (dict(variables=("pressure", "prestrain_span"), method="root"), "pressure alone"),
-        (dict(variables=("pressure",), tolerance=0.0), "tolerance must lie"),
     ],
 )
 def test_bad_input_raises_a_clear_error(scene, kwargs, match):
     with pytest.raises(ValueError, match=match):
         optimise_pressure(scene, naca("2412"), initial={"pressure": 1e4}, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "build, match",
+    [
+        (lambda: SolverSettings(tolerance=0.0), "tolerance must lie in"),
+        (lambda: SolverSettings(max_iterations=0), "max_iterations must be a positive integer"),
+        (lambda: SolverSettings(root_condition="area"), "root_condition must be one of"),
+        (lambda: SolverSettings(rtol=2.0), "rtol .* must lie in"),
+        (lambda: Layout(cut_pattern="per_rib"), "cut_pattern layout must be one of"),
+        (lambda: Layout(n_span=1), "n_span must be an integer >= 2"),
+        (lambda: Limits(tension=0.0), "Limits.tension must be an inverse_design.Constraints"),
+        (lambda: Limits(ribs=RibLimits(min_thickness=1.5)), "min_thickness is a fraction"),
+    ],
+)
+def test_bad_options_are_refused_when_built(build, match):
+    with pytest.raises(ValueError, match=match):
+        build()
+
+
+def test_an_old_keyword_names_the_object_that_holds_it_now(scene):
+    with pytest.raises(TypeError, match=r"max_iterations -> solver=SolverSettings\(max_iterations=\.\.\.\)"):
+        optimise_pressure(scene, naca("2412"), max_iterations=3)
 
 
 def test_design_errors_are_float64_whatever_the_callers_jax_setting(scene, generated):
@@ -206,9 +230,10 @@ def test_refine_design_reports_the_move_between_grids(scene):
     target = Airfoil(*np.concatenate([section, section[:1]]).T, name="generated on 17x32")
     start = {"pressure": 1.5e4, "prestrain_span": TRUE["prestrain_span"],
              "prestrain_chord": TRUE["prestrain_chord"]}
-    coarse = optimise_pressure(scene, target, ("pressure",), initial=start, constraints=None,
-                               tolerance=1e-14)
-    refined = refine_design(coarse, fine, target, constraints=None, tolerance=1e-14)
+    coarse = optimise_pressure(scene, target, ("pressure",), initial=start, limits=Limits(tension=None),
+                               solver=SolverSettings(tolerance=1e-14))
+    refined = refine_design(coarse, fine, target, limits=Limits(tension=None),
+                            solver=SolverSettings(tolerance=1e-14))
     assert coarse.success and refined.success, (coarse.message, refined.message)
     change = refined.grid_change
     assert change["grids"] == [[9, 32], [17, 32]]

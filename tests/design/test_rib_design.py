@@ -21,8 +21,9 @@ from forward_solver import Bay, Fabric, Parameters, Scene, rib_section
 from forward_solver.rib_shape import class_function
 from inverse_design import optimise_pressure
 from inverse_design.rib_design import RibGeometry, RibLimits, curvature, cut_lengths
-from inverse_design.app.report import write_report
+from inverse_design.app.report import ReportOptions, write_report
 from inverse_design.variables import DesignVariables
+from inverse_design.settings import Limits, SolverSettings
 from targets import load_airfoil, naca
 
 TARGET = naca("2412")
@@ -38,8 +39,8 @@ def scene():
 @pytest.fixture(scope="module")
 def shaped_design(scene):
     return optimise_pressure(scene, TARGET, variables=("pressure", "rib_shape"),
-                             initial=START.replace(rib_shape=np.zeros(4)), bounds=BOUNDS,
-                             objective="average", max_iterations=40)
+                             initial=START.replace(rib_shape=np.zeros(4)), bounds=BOUNDS, objective="average",
+                             solver=SolverSettings(max_iterations=40))
 
 
 def test_vector_design_variables_round_trip():
@@ -99,7 +100,7 @@ def test_cut_lengths_closed_forms(scene):
 def test_the_shaped_rib_beats_pressure_and_thickness_scale(scene, shaped_design):
     scaled = optimise_pressure(scene, TARGET, variables=("pressure", "rib_thickness_scale"), initial=START,
                                bounds={**BOUNDS, "rib_thickness_scale": (0.7, 1.0)}, objective="average",
-                               max_iterations=40)
+                               solver=SolverSettings(max_iterations=40))
     assert scaled.success and shaped_design.success, shaped_design.message
     # The rib shape spans the thickness scale's offset nearly (K = 2 cannot copy it exactly), so
     # the design must do at least as well; on this case it does 10% better or more.
@@ -117,7 +118,8 @@ def test_an_unreachable_rib_limit_is_a_failure_with_its_amount(scene):
     res = optimise_pressure(scene, TARGET, variables=("pressure", "rib_shape"),
                             initial=START.replace(pressure=1e3, rib_shape=np.zeros(4)),
                             bounds={**BOUNDS, "rib_shape": (-1e-4, 1e-4)}, objective="average",
-                            max_iterations=10, rib_limits=RibLimits(min_radius=0.03))
+                            solver=SolverSettings(max_iterations=10),
+                            limits=Limits(ribs=RibLimits(min_radius=0.03)))
     assert not res.success
     assert "rib_min_radius violated" in res.message
     assert res.violated_constraints["rib_min_radius"] == pytest.approx(0.03 - 0.0158, abs=1e-3)
@@ -130,7 +132,8 @@ def test_rib_limits_need_slsqp(scene):
 
 
 def test_the_report_writes_the_rib_and_the_cut_pattern(scene, shaped_design, tmp_path):
-    summary = write_report(tmp_path / "out", shaped_design, TARGET, scene=scene, bounds=BOUNDS)
+    summary = write_report(tmp_path / "out", shaped_design, TARGET, scene=scene,
+                           options=ReportOptions(bounds=BOUNDS))
     out = tmp_path / "out"
     assert {"rib.dat", "rib_design.png", "bay_0_cut_pattern.csv"} <= set(summary["files"])
     written = load_airfoil(out / "rib.dat")

@@ -10,6 +10,7 @@ import inverse_design.optimise
 from forward_solver import Bay, ConvergenceError, Fabric, Result, Scene, solve_equilibrium
 from inverse_design import optimise_pressure
 from inverse_design.app import case as case_reader, cli, command
+from inverse_design.settings import Limits, SolverSettings
 from targets import naca
 
 
@@ -66,7 +67,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         pass
 
     def fake(*args, **kwargs):
-        seen["solver_options"] = kwargs["solver_options"]
+        seen["solver_options"] = kwargs["solver"].solver_options
         raise Stop
 
     monkeypatch.setattr(inverse_design.optimise, "optimise_pressure", fake)
@@ -83,9 +84,11 @@ def test_bad_equilibrium_options_are_refused():
         case_reader.parse_arguments(["--equilibrium-method", "fast"])
     bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
-        optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver_options={"max_steps": 0})
-    with pytest.raises(ValueError, match="unknown key"):
-        optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver_options={"steps": 10})
+        SolverSettings(max_steps=0)
+    with pytest.raises(ValueError, match="equilibrium_method must be one of"):
+        SolverSettings(equilibrium_method="fast")
+    with pytest.raises(TypeError, match=r"solver_options -> solver=SolverSettings\(equilibrium_method="):
+        optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver_options={"max_steps": 10})
 
 
 def test_design_loop_uses_the_solver_options(monkeypatch):
@@ -100,11 +103,12 @@ def test_design_loop_uses_the_solver_options(monkeypatch):
 
     monkeypatch.setattr(bays, "solve_equilibrium", spy)
     bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
-    optimise_pressure(Scene(bay, Fabric()), naca("2412"), max_iterations=1, constraints=None,
-                      solver_options={"method": "newton", "max_steps": 999})
+    optimise_pressure(Scene(bay, Fabric()), naca("2412"), limits=Limits(tension=None),
+                      solver=SolverSettings(max_iterations=1, equilibrium_method="newton", max_steps=999))
     assert seen and set(seen) == {("newton", 999)}
     seen.clear()
-    optimise_pressure(Scene(bay, Fabric()), naca("2412"), max_iterations=1, constraints=None)
+    optimise_pressure(Scene(bay, Fabric()), naca("2412"), solver=SolverSettings(max_iterations=1),
+                      limits=Limits(tension=None))
     assert seen and set(seen) == {("auto", 200_000)}
 
 
@@ -120,7 +124,8 @@ def test_optax_levels_off_on_the_default_case():
     bay = Bay.from_airfoil(target, chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32)
     options = dict(variables=("pressure", "rib_thickness_scale"), objective="average",
                    initial=dict(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02),
-                   bounds={"pressure": (1e3, 1e5), "rib_thickness_scale": (0.7, 1.0)}, max_iterations=50)
+                   bounds={"pressure": (1e3, 1e5), "rib_thickness_scale": (0.7, 1.0)},
+                   solver=SolverSettings(max_iterations=50))
     res = optimise_pressure(Scene(bay, Fabric()), target, method="optax", **options)
     assert res.success, res.message
     assert "levelled off" in res.message or "gradient" in res.message

@@ -152,7 +152,7 @@ def test_rib_crossings_names_where_and_how_deep():
 
 def test_a_design_whose_rib_crosses_itself_is_a_failure_with_the_amount():
     from forward_solver import Bay, Fabric, Scene
-    from inverse_design import optimise_pressure
+    from inverse_design import Limits, SolverSettings, optimise_pressure
 
     section = naca("2412")
     bay = Bay.from_airfoil(section, chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
@@ -162,8 +162,8 @@ def test_a_design_whose_rib_crosses_itself_is_a_failure_with_the_amount():
     result = optimise_pressure(scene, section, variables=("rib_shape",),
                                initial={"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.02,
                                         "rib_shape": CROSSING_SHAPE},
-                               bounds={"rib_shape": (-0.3, -0.2)}, rib_limits=None, method="least_squares",
-                               max_iterations=1)
+                               bounds={"rib_shape": (-0.3, -0.2)}, method="least_squares",
+                               limits=Limits(ribs=None), solver=SolverSettings(max_iterations=1))
     assert not result.success
     amount = float(result.violated_constraints["rib_crossing"])
     assert amount > 0.01

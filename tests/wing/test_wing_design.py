@@ -19,9 +19,11 @@ from inverse_design.objectives import bay_distances, bay_weights, row_targets
 from inverse_design.problem import DesignProblem, WingConvergenceError
 from inverse_design.rib_design import RibGeometry, RibLimits
 from inverse_design.variables import DesignVariables
+from inverse_design.settings import Layout, Limits, SolverSettings
 from targets import naca
 
 GRID = dict(n_span=9, n_contour=32)
+LAYOUT = Layout(**GRID)
 START = {"pressure": 3e4, "prestrain_span": 0.02, "prestrain_chord": 0.02}
 BOUNDS = {"pressure": (1e3, 1e5)}
 
@@ -34,7 +36,8 @@ def wing():
 
 @pytest.fixture(scope="module")
 def design(wing):
-    return optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, max_iterations=30, **GRID)
+    return optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=30),
+                         layout=LAYOUT)
 
 
 def test_objective_and_constraint_gradients_match_central_differences(wing):
@@ -149,19 +152,19 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
     assert design.pressure < START["pressure"]
     assert design.bay_results == ("converged",) * 3
     scale = 0.5 * START["pressure"] * 0.9  # the tension scale: p_start times the widest bay's chord / 2
-    assert np.all(design.bay_min_tension >= -VIOLATION_TOLERANCE * scale)
+    assert np.all(design.per_bay.min_tension >= -VIOLATION_TOLERANCE * scale)
     assert "min_tension" in design.active_constraints and not design.violated_constraints
     assert design.violated_at_start == {}  # 30 kPa: a taut skin everywhere
     assert design.solves == len(design.history) and design.solves < 20
-    assert design.bay_rms_error.shape == (3,) and np.all(design.bay_rms_error > 0)
-    w = design.weights
-    assert design.rms_error == pytest.approx(float(np.sqrt(np.sum(w * design.bay_rms_error**2))), rel=1e-12)
+    assert design.per_bay.rms_error.shape == (3,) and np.all(design.per_bay.rms_error > 0)
+    w = design.per_bay.weights
+    assert design.rms_error == pytest.approx(float(np.sqrt(np.sum(w * design.per_bay.rms_error**2))), rel=1e-12)
 
 
 def test_unmeetable_limits_are_named_with_their_bay(wing):
     # A ceiling of 50 N/m: at the lowest pressure, 1 kPa, the hoop tension is ~400 N/m.
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, max_iterations=3,
-                        constraints=Constraints(min_tension=None, max_tension=50.0), **GRID)
+    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=3),
+                        limits=Limits(tension=Constraints(min_tension=None, max_tension=50.0)), layout=LAYOUT)
     assert not res.success
     assert set(res.violated_constraints) == {"max_tension"}
     assert set(res.violated_where["max_tension"]) == {0, 1, 2}
@@ -177,15 +180,16 @@ def test_unmeetable_limits_are_named_with_their_bay(wing):
 def test_a_one_bay_wing_agrees_with_optimise_pressure():
     af = naca("2412")
     wing = Wing(airfoils=(af, af), chords=(1.0, 1.0), stations=(0.0, 0.25))
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, max_iterations=30, **GRID)
+    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=30),
+                        layout=LAYOUT)
     scene = Scene(Bay.from_airfoil(af, chord=1.0, rib_spacing=0.25, **GRID))
     single = optimise_pressure(scene, af, ("pressure",), initial=START, bounds=BOUNDS, objective="average",
-                               max_iterations=30)
+                               solver=SolverSettings(max_iterations=30))
     assert res.success and single.success, (res.message, single.message)
     assert res.method == single.method == "gauss_newton"  # "auto"
     # Both stop on the same design of the same problem; the solves differ at rtol 1e-11.
     assert res.pressure == pytest.approx(single.pressure, rel=1e-6)
-    assert res.bay_rms_error[0] == pytest.approx(single.rms_error, rel=1e-6)
+    assert res.per_bay.rms_error[0] == pytest.approx(single.rms_error, rel=1e-6)
 
 
 def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
@@ -207,27 +211,27 @@ def test_bad_wing_designs_are_refused(wing):
     with pytest.raises(ValueError, match=r"rib_shape start must be one row of 2K coefficients for every rib "
                                          r"or an \(4, 2K\) array"):
         optimise_wing(wing, Fabric(), variables=("pressure", "rib_shape"),
-                      initial={**START, "rib_shape": np.zeros((3, 8))}, **GRID)
+                      initial={**START, "rib_shape": np.zeros((3, 8))}, layout=LAYOUT)
     with pytest.raises(ValueError, match="one target section per rib: the wing has 4 ribs, got 2"):
-        optimise_wing(wing, Fabric(), targets=[naca("2412")] * 2, **GRID)
+        optimise_wing(wing, Fabric(), targets=[naca("2412")] * 2, layout=LAYOUT)
     with pytest.raises(ValueError, match="objective must be one of"):
-        optimise_wing(wing, Fabric(), objective="tip", **GRID)
+        optimise_wing(wing, Fabric(), objective="tip", layout=LAYOUT)
     with pytest.raises(ValueError, match="unknown design variable"):
-        optimise_wing(wing, Fabric(), variables=("stiffness_span",), **GRID)
+        optimise_wing(wing, Fabric(), variables=("stiffness_span",), layout=LAYOUT)
 
 
 def test_every_method_designs_a_wing_or_says_why_not(wing):
     # least_squares and optax run on the wing as on a bay (the bays' residuals weighted by the square
     # root of their area); brentq's mid-bay condition has no meaning over several bays: refused.
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares", max_iterations=4,
-                        constraints=None, **GRID)
-    assert res.rms_error < res.initial_rms_error and res.bay_rms_error.shape == (3,)
+    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares",
+                        solver=SolverSettings(max_iterations=4), limits=Limits(tension=None), layout=LAYOUT)
+    assert res.rms_error < res.initial_rms_error and res.per_bay.rms_error.shape == (3,)
     assert res.pressure < START["pressure"] and res.solves == len(res.history)
-    steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax", max_iterations=2,
-                          constraints=None, **GRID)
+    steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax",
+                          solver=SolverSettings(max_iterations=2), limits=Limits(tension=None), layout=LAYOUT)
     assert len(steps.history) == 2 and steps.pressure != START["pressure"]
     with pytest.raises(ValueError, match="method='root' solves one scalar condition at one bay's mid-bay"):
-        optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="root", **GRID)
+        optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="root", layout=LAYOUT)
 
 
 def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(design):
@@ -235,7 +239,7 @@ def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(de
     # violations one format (the largest per name, and per bay in violated_where) whether one bay or three.
     assert design.n_bays == 3 and design.solution is design.wing_solution
     assert design.solution.bay_solution(2).converged
-    assert design.max_error == pytest.approx(float(np.max(design.bay_max_error)))
+    assert design.max_error == pytest.approx(float(np.max(design.per_bay.max_error)))
 
 
 def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
@@ -245,7 +249,8 @@ def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
     # fine design is itself a success.
     from inverse_design import refine_design
 
-    fine = refine_design(design, n_span=17, n_contour=32, bounds=BOUNDS, max_iterations=30)
+    fine = refine_design(design, bounds=BOUNDS, layout=Layout(n_span=17, n_contour=32),
+                         solver=SolverSettings(max_iterations=30))
     change = fine.grid_change
     assert change["grids"] == [[9, 32], [17, 32]]
     assert change["values"]["pressure"][0] == pytest.approx(design.pressure, rel=1e-12)
