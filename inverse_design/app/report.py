@@ -88,7 +88,7 @@ from .pattern import write_bay_patterns
 from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
-                    plot_wing_overview)
+                    plot_tolerance, plot_wing_overview)
 from ..rib_design import cut_lengths
 
 __all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
@@ -478,7 +478,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                  bounds: dict | None = None, inputs: dict | None = None, timings: dict | None = None,
                  magnification: float | None = None,
                  aero=None, warnings: list | None = None, rib_limits=None, patterns: bool = True,
-                 seam_allowance_mm: float = 10.0, workers=None) -> dict:
+                 seam_allowance_mm: float = 10.0, workers=None, tolerance=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
 
     Args:
@@ -507,6 +507,9 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
             write the DXF patterns while this process writes the other
             files; what they do not write is written here. Default none:
             every file is written here.
+        tolerance: an `inverse_design.tolerance.ToleranceAnalysis` of the
+            result: ``summary["tolerance"]``, ``tolerance.png`` and, with
+            samples, ``tolerance_samples.csv`` (docs/tolerances.md).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -564,6 +567,9 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                 chord = scenes[0].bay.chord * float(result.parameters.rib_chord_scale)
                 specs.append(("rib_design.png", plot_rib_design, (
                     result.parameters, result.wing.sections[0], chord, rib_limits), {}))
+        if tolerance is not None:
+            sampled = [r["rms"] for r in tolerance.samples] if tolerance.samples else None
+            specs.append(("tolerance.png", plot_tolerance, (tolerance.summary(), tolerance.linear_rms, sampled), {}))
         to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
                          else len(_SAVE_ORDER))
         sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
@@ -576,6 +582,11 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                 portable = []
         try:
             summary = summarise(result, inputs=inputs, timings=timings, aero=aero, warnings=warnings)
+            if tolerance is not None:
+                summary["tolerance"] = tolerance.summary()
+                if tolerance.samples:
+                    _write_samples(staging / "tolerance_samples.csv", tolerance)
+                    files.append("tolerance_samples.csv")
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
@@ -677,6 +688,21 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
                                                     name=f"{airfoil.name} {label}"),
                         comment=f"chord {chord * float(params.rib_chord_scale):g} m")
             files.append(name)
+
+
+def _write_samples(path: Path, tolerance) -> None:
+    """``tolerance_samples.csv``: the rows the run streamed (copied), or written from the analysis."""
+    import csv
+    import shutil
+
+    if tolerance.samples_file:
+        shutil.copyfile(tolerance.samples_file, path)
+        return
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(tolerance.samples[0]))
+        writer.writeheader()
+        for row in tolerance.samples:
+            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def _without_factors(value):
