@@ -78,7 +78,7 @@ from .constraints import cell_tensions
 from .objectives import bay_distances, local_chords, row_targets, station_etas
 
 __all__ = ["DEFAULT_TOLERANCES", "LINEAR_SAMPLES", "SOURCES", "SOURCE_UNITS", "Tolerance", "ToleranceAnalysis",
-           "parse_tolerance", "parse_tolerances", "solve_sample", "tolerance_analysis"]
+           "parse_tolerance", "parse_tolerances", "solve_sample", "tolerance_analysis", "wing_outputs"]
 
 #: The tolerance sources, in the order of the parameter vector.
 SOURCES = ("pressure", "stiffness_span", "stiffness_chord", "cut_span", "cut_chord", "rib_station", "rib_profile")
@@ -690,6 +690,16 @@ def _monte_carlo(model: _Model, analysis: ToleranceAnalysis, nominal, count: int
     sampled = _summary_of({key: np.concatenate([m[key] for m in measures]) for key in measures[0]})
     sampled.update(count=count, failed=len({f["sample"] for f in failures}))
     analysis.sampled = sampled
+
+
+def wing_outputs(result, tolerances, deviations, *, rtol: float = GRADIENT_RTOL) -> tuple[list, list]:
+    """The wing at ``deviations`` (``(size,)``, in the units of `ToleranceAnalysis.columns`), every bay
+    solved cold: per bay its normal distances (mm, the objective's rows) and cell tensions (N/m), NaN
+    where a bay failed. The map of the first-order analysis, for checks (central differences)."""
+    with jax.enable_x64(True):
+        model = _Model(result, _as_tolerances(tolerances))
+    d, t, _ = _solve_wing(model, np.asarray(deviations, np.float64), None, rtol)
+    return d, t
 
 
 def solve_sample(result, tolerances, values: dict, *, rtol: float = GRADIENT_RTOL) -> dict:
