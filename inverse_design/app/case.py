@@ -245,9 +245,15 @@ def ignored_options(args: argparse.Namespace, sources: dict) -> list[str]:
     """Options given that the run does not use: one warning line each (docs/errors.md).
 
     ``--variables`` with ``--evaluate`` (the equilibrium is solved at the
-    given values; its fields are refused, `check_option_combinations`).
+    given values; its fields are refused, `check_option_combinations`);
+    ``--shape-spec``, ``--samples`` or ``--seed`` without tolerances.
     """
     lines = []
+    if not getattr(args, "tolerances", None):
+        for name in ("shape_spec", "samples", "seed"):
+            if name in sources:
+                lines.append(f"{_given(name, sources)} is ignored without tolerances (--tolerance NAME=VALUE or a "
+                             "[tolerances] table), which turn on the tolerance analysis")
     if args.evaluate and "variables" in sources:
         lines.append(f"{_given('variables', sources)} {args.variables} is ignored with "
                      f"{_given('evaluate', sources)}, which solves the equilibrium at the given values "

@@ -98,3 +98,24 @@ def test_the_case_file_table_and_the_command_line_merge(tmp_path):
     case.write_text('tolerance = "pressure=2%"\n')
     with pytest.raises(InputError, match=r"\[tolerances\] table"):
         parse_arguments(["--config", str(case)])
+
+
+@pytest.mark.parametrize("argv, writes, never", [
+    ([], [], ["tolerance.png", "tolerance_samples.csv"]),
+    (["--tolerance", "defaults"], ["tolerance.png"], ["tolerance_samples.csv"]),
+    (["--tolerance", "defaults", "--samples", "4"], ["tolerance.png", "tolerance_samples.csv"], []),
+], ids=["none", "first order", "samples"])
+def test_what_a_run_with_tolerances_may_write(argv, writes, never):
+    from inverse_design.app import case as case_reader
+
+    args, _ = case_reader.parse_arguments(argv)
+    may = case_reader.report_may_write(args)
+    assert all(may(name) for name in writes) and not any(may(name) for name in never)
+
+
+def test_the_analysis_options_without_tolerances_are_said_to_be_ignored():
+    from inverse_design.app import case as case_reader
+
+    args, sources = case_reader.parse_arguments(["--samples", "10", "--shape-spec", "3"])
+    lines = case_reader.ignored_options(args, sources)
+    assert [line.split(" is ignored")[0] for line in lines] == ["--shape-spec", "--samples"]
