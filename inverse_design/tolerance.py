@@ -165,7 +165,7 @@ def parse_tolerance(name: str, spec) -> Tolerance:
         raise ValueError(f"tolerance {name}={spec}: {name} is a length in mm (a rib has no nominal "
                          f"{name.split('_')[1]} to take a percentage of); give it in mm, e.g. "
                          f"{DEFAULT_TOLERANCES[name]}")
-    if relative and name.startswith("stiffness") and value * (math.sqrt(3) if uniform else 1) >= 100:
+    if relative and name.startswith("stiffness") and value >= 100:  # (a standard deviation or a half-width)
         raise ValueError(f"tolerance {name}={spec}: a stiffness scatter of 100% or more gives fabric of "
                          "zero or negative stiffness; give less than 100%")
     return Tolerance(name, value, relative, uniform)
@@ -536,7 +536,7 @@ def _budget(model: _Model, spec: float, a: float, b: np.ndarray, q: np.ndarray, 
         scale = largest_scale(mask)
         if scale is not None and s.startswith("stiffness"):  # a scatter of the whole stiffness is no budget
             nominal = min(v for c, v in zip(model.columns, model.nominal_values) if c.source == s)
-            if t.scaled(scale).spread(nominal) * (math.sqrt(3.0) if t.uniform else 1.0) >= nominal:
+            if t.scaled(scale).spread(nominal) >= nominal:
                 scale = None
         sources[s] = {"scale": scale, "value": None if scale is None else t.value * scale,
                       "text": None if scale is None else t.scaled(scale).text,
@@ -583,10 +583,10 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples
     start = time.perf_counter()
     with jax.enable_x64(True):
         model = _Model(result, tolerances)
-        for c, v, s in zip(model.columns, model.nominal_values, model.std):
-            if c.source.startswith("stiffness") and s * (1 if model.tolerances[c.source].uniform else 1) >= v:
+        for c, v, spread in zip(model.columns, model.nominal_values, model.spread):
+            if c.source.startswith("stiffness") and spread >= v:
                 raise ValueError(f"tolerance {c.source}={model.tolerances[c.source].text}: a stiffness scatter of "
-                                 f"{s:g} N/m reaches the nominal {v:g} N/m (100% or more); give less")
+                                 f"{spread:g} N/m reaches the nominal {v:g} N/m (100% or more); give less")
         nominal = _nominal_solutions(model, rtol)
         d0, t0, jd, jt = [], [], [], []
         nd = model.n_distances

@@ -44,7 +44,7 @@ def check_tolerance_options(args: argparse.Namespace, fabric) -> dict | None:
     for name in ("stiffness_span", "stiffness_chord"):
         t = tolerances.get(name)
         nominal = getattr(fabric, name)
-        if t is not None and not t.relative and t.spread(nominal) * (3 ** 0.5 if t.uniform else 1) >= nominal:
+        if t is not None and not t.relative and t.spread(nominal) >= nominal:
             raise InputError(f"--tolerance {name}={t.text} {SOURCE_UNITS[name]} is a scatter of 100% or more of "
                              f"the fabric's {nominal:g} N/m (zero or negative stiffness): give less")
     return tolerances
