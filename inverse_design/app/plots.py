@@ -592,15 +592,19 @@ def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
     if budget is not None:
         names = list(budget["sources"]) + ["all together"]
         scales = [budget["sources"][n]["scale"] for n in budget["sources"]] + [budget["common_scale"]]
-        cap = max([s for s in scales if s is not None] + [1.0]) * 1.2
-        shown = [cap if s is None else s for s in scales]
+        known = [s for s in scales if s is not None and s > 0] + [1.0]
+        cap, base = max(known) * 2.0, min(known) / 3.0  # (a log axis: the bars start at base)
+        shown = [cap if s is None else max(s, base) for s in scales]
         colours = ["C2" if s is None or s >= 1 else "C3" for s in scales]
-        bars = left.barh(names, shown, color=colours)
-        for bar, name, scale in zip(bars, names, scales):
-            text = "no limit" if scale is None else f"x{scale:.3g}"
-            left.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {text}", va="center", fontsize="small")
+        bars = left.barh(names, [v - base for v in shown], left=base, color=colours)
+        left.set_xscale("log")
+        for bar, scale in zip(bars, scales):
+            text = "no limit" if scale is None else "none" if scale == 0 else f"x{scale:.3g}"
+            left.text(bar.get_x() + bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {text}", va="center",
+                      fontsize="small")
         left.axvline(1.0, color="black", lw=1.0, ls="--", label="as given")
-        left.set_xlabel("largest multiple of the given tolerance")
+        left.set_xlim(base, cap * 3.0)
+        left.set_xlabel("largest multiple of the given tolerance (red: tighten)")
         left.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms", fontsize="medium")
         left.legend(fontsize="small", loc="lower right")
         left.invert_yaxis()
