@@ -105,7 +105,7 @@ def test_a_sample_resolved_alone_reproduces_its_row(two_bays):
     tolerances = {"pressure": "2%", "stiffness_span": "10%", "cut_chord": "uniform:1", "rib_station": 1.0,
                   "rib_profile": 0.5}
     rows = []
-    tolerance_analysis(two_bays, tolerances, samples=2, seed=7, rtol=1e-11, on_sample=rows.append)
+    tolerance_analysis(two_bays, tolerances, samples=2, seed=7, sample_rtol=1e-11, on_sample=rows.append)
     row = rows[1]
     assert set(row) >= {"sample", "pressure", "stiffness_span_bay_1", "cut_chord_bay_0", "rib_station_rib_2",
                         "rib_profile_rib_1", "rms", "max", "min_tension", "converged"}
