@@ -51,8 +51,8 @@ tolerance that meets the spec is found by bisection without a solve.
 
 Monte Carlo (``samples``): draws wings from the stated distributions and
 solves each bay warm from the nominal equilibrium (chord Newton with its
-kept factor, the fallbacks of `forward_solver.fallback` where not), in this
-process. A sample whose solve fails is counted and named, never dropped.
+kept factor, the fallbacks of `forward_solver.fallback` where not) to
+`SAMPLE_RTOL`, in this process. A sample whose solve fails is counted and named, never dropped.
 
 Wrinkling onset makes the least tension non-smooth: where a cell's tension
 crosses zero within the scatter the linear prediction of the least tension

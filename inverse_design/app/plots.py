@@ -604,8 +604,13 @@ def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
                       fontsize="small")
         left.axvline(1.0, color="black", lw=1.0, ls="--", label="as given")
         left.set_xlim(base, cap * 3.0)
+        from matplotlib.ticker import FuncFormatter, NullFormatter
+
+        left.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        left.xaxis.set_minor_formatter(NullFormatter())
         left.set_xlabel("largest multiple of the given tolerance (red: tighten)")
-        left.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms", fontsize="medium")
+        missed = "" if budget["met_at_nominal"] else " (the nominal design misses it)"
+        left.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms{missed}", fontsize="medium")
         left.legend(fontsize="small", loc="lower right")
         left.invert_yaxis()
     else:
