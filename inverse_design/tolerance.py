@@ -493,12 +493,11 @@ def _nominal_solutions(model: _Model, rtol: float) -> list:
     return out
 
 
-def _shares(model: _Model, jd: np.ndarray, jt: np.ndarray, q_diag: np.ndarray, d0, t0) -> dict:
+def _shares(model: _Model, at_max: np.ndarray, at_min: np.ndarray, q_diag: np.ndarray) -> dict:
     """Each source's share of the mean-square increase (rms), of the largest distance's and of the least
-    tension's linearised variance (at the nominal's largest point and least cell)."""
+    tension's linearised variance (``at_max``, ``at_min``: their Jacobian rows at the nominal's largest
+    point and least cell)."""
     var = model.std**2
-    at_max = jd[int(np.argmax(np.abs(d0)))]
-    at_min = jt[int(np.argmin(t0))]
     out = {}
     for key, parts in (("rms", q_diag * var), ("max", at_max**2 * var), ("min_tension", at_min**2 * var)):
         total = float(parts.sum())
@@ -513,8 +512,9 @@ def _budget(model: _Model, spec: float, a: float, b: np.ndarray, q: np.ndarray, 
     multiple of its given tolerance, others exact) and all together (one common factor)."""
 
     def largest_scale(mask: np.ndarray) -> float | None:
-        v = draws * (model.spread * mask)[None, :]
-        lin, quad = v @ b, np.einsum("mi,ij,mj->m", v, q, v)
+        on = np.flatnonzero(mask)  # (the columns scaled; the others are exact)
+        v = draws[:, on] * model.spread[on][None, :]
+        lin, quad = v @ b[on], np.einsum("mi,ij,mj->m", v, q[np.ix_(on, on)], v)
 
         def p95(scale):
             return _p95(a + scale * lin + scale**2 * quad)
@@ -598,24 +598,28 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples
         for k in range(model.n_bays):
             y, jac = _bay_jacobian(model, k, nominal[k], rtol)
             d0.append(y[:nd]), t0.append(y[nd:]), jd.append(jac[:nd]), jt.append(jac[nd:])
-    # the wing's mean square as a quadratic in e: a + b.e + e^T Q e
-    a = sum(w * float(d @ d) / d.size for w, d in zip(model.weights, d0))
-    b = sum(w * 2.0 * (j.T @ d) / d.size for w, d, j in zip(model.weights, d0, jd))
-    q = sum(w * (j.T @ j) / d.size for w, d, j in zip(model.weights, d0, jd))
-    b, q = np.atleast_1d(np.asarray(b, np.float64)), np.atleast_2d(np.asarray(q, np.float64))
+    # the wing's mean square as a quadratic in e: a + b.e + e^T Q e (each bay on its own columns)
+    size = model.size
+    a, b, q = 0.0, np.zeros(size), np.zeros((size, size))
+    for w, d, j, cols in zip(model.weights, d0, jd, model.touching):
+        jc = j[:, cols]
+        a += w * float(d @ d) / d.size
+        b[cols] += w * 2.0 * (jc.T @ d) / d.size
+        q[np.ix_(cols, cols)] += w * (jc.T @ jc) / d.size
     rng = np.random.default_rng([seed, 1])  # the linear model's stream, apart from the samples'
     draws = _unit_draws(model, rng, linear_samples)
     linear_measures = _linear_measures(model, d0, t0, jd, jt, draws)
     linear = _summary_of(linear_measures)
     cov = model.std**2
     rms_squared_mean = float(a + np.sum(np.diag(q) * cov))
-    all_d, all_t = np.concatenate(d0), np.concatenate(t0)
-    all_jd, all_jt = np.vstack(jd), np.vstack(jt)
-    shares = _shares(model, all_jd, all_jt, np.diag(q), all_d, all_t)
+    # the nominal's largest distance and least tension: their bay and row
+    far = max(range(model.n_bays), key=lambda k: np.max(np.abs(d0[k])))
+    at_max = jd[far][int(np.argmax(np.abs(d0[far])))] * np.sign(d0[far][int(np.argmax(np.abs(d0[far])))])
+    low = min(range(model.n_bays), key=lambda k: np.min(t0[k]))
+    at_min = jt[low][int(np.argmin(t0[low]))]
+    shares = _shares(model, at_max, at_min, np.diag(q))
     sensitivities = {c.name: {"unit": SOURCE_UNITS[c.source], "rms_distance": float(math.sqrt(max(q[i, i], 0.0))),
-                              "max_distance": float(all_jd[int(np.argmax(np.abs(all_d))), i]
-                                                    * np.sign(all_d[int(np.argmax(np.abs(all_d)))])),
-                              "min_tension": float(all_jt[int(np.argmin(all_t)), i])}
+                              "max_distance": float(at_max[i]), "min_tension": float(at_min[i])}
                      for i, c in enumerate(model.columns)}
     budget = None if spec is None else _budget(model, float(spec), a, b, q, draws)
     analysis = ToleranceAnalysis(
@@ -632,11 +636,12 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples
     return analysis
 
 
-def _reach(model: _Model, jac: np.ndarray) -> np.ndarray:
-    """How far each row of ``jac @ e`` can go over the draws: 6 standard deviations of the normal
-    columns plus the whole reach of the uniform ones."""
-    normal = np.sqrt(((jac * np.where(model.uniform, 0.0, model.std)[None, :]) ** 2).sum(axis=1))
-    uniform = (np.abs(jac) * np.where(model.uniform, model.spread, 0.0)[None, :]).sum(axis=1)
+def _reach(model: _Model, jac: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """How far each row of ``jac @ e`` (``jac`` on the columns ``cols``) can go over the draws: 6
+    standard deviations of the normal columns plus the whole reach of the uniform ones."""
+    uniform, std, spread = model.uniform[cols], model.std[cols], model.spread[cols]
+    normal = np.sqrt(((jac * np.where(uniform, 0.0, std)[None, :]) ** 2).sum(axis=1))
+    uniform = (np.abs(jac) * np.where(uniform, spread, 0.0)[None, :]).sum(axis=1)
     return 6.0 * normal + uniform
 
 
@@ -647,16 +652,16 @@ def _linear_measures(model: _Model, d0, t0, jd, jt, draws: np.ndarray) -> dict:
     others' worst is never the extreme), so a 17x64 bay's 3000 rows become a few dozen."""
     e = draws * model.spread[None, :]
     ms, largest, least = [], [], []
-    for d, j, t, k in zip(d0, jd, t0, jt):
-        n = d.size
+    for d, j, t, k, cols in zip(d0, jd, t0, jt, model.touching):
+        n, ec, j, k = d.size, e[:, cols], j[:, cols], k[:, cols]  # (a bay's own columns)
         b, q = 2.0 * (j.T @ d) / n, (j.T @ j) / n
-        ms.append(float(d @ d) / n + e @ b + np.einsum("mi,ij,mj->m", e, q, e))
-        reach = _reach(model, j)
+        ms.append(float(d @ d) / n + ec @ b + np.einsum("mi,ij,mj->m", ec, q, ec))
+        reach = _reach(model, j, cols)
         keep = np.abs(d) + reach >= np.max(np.abs(d) - reach)
-        largest.append(np.max(np.abs(d[keep][None, :] + e @ j[keep].T), axis=1))
-        reach = _reach(model, k)
+        largest.append(np.max(np.abs(d[keep][None, :] + ec @ j[keep].T), axis=1))
+        reach = _reach(model, k, cols)
         keep = t - reach <= np.min(t + reach)
-        least.append(np.min(t[keep][None, :] + e @ k[keep].T, axis=1))
+        least.append(np.min(t[keep][None, :] + ec @ k[keep].T, axis=1))
     ms, largest, least = (np.stack(x, axis=1) for x in (ms, largest, least))
     return {"bay_rms": np.sqrt(np.maximum(ms, 0.0)), "bay_max": largest, "bay_min_tension": least,
             "rms": np.sqrt(np.maximum(ms @ model.weights, 0.0)), "max": largest.max(axis=1),
