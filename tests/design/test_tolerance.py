@@ -160,3 +160,16 @@ def test_parsing_forms():
     assert t["pressure"].std(1e4) == pytest.approx(300 / math.sqrt(3))
     assert t["cut_span"].value == 0.0 and t["stiffness_chord"].text == "10%"
     assert parse_tolerance("rib_profile", "default").value == 0.5
+
+
+def test_a_failed_sample_is_counted_named_and_kept(one_bay):
+    """A pressure scatter of uniform:150% draws negative pressures (a third of the wings): their solves
+    are refused, and each such sample is counted, named with its bay and why, and kept as a row."""
+    rows = []
+    analysis = tolerance_analysis(one_bay, {"pressure": "uniform:150%"}, samples=6, seed=0, on_sample=rows.append)
+    failed = [row for row in rows if not row["converged"]]
+    assert len(rows) == 6 and failed and analysis.sampled["failed"] == len(failed)
+    assert all(row["pressure"] <= 0 and math.isnan(row["rms"]) for row in failed)
+    assert [f["sample"] for f in analysis.failures] == [row["sample"] for row in failed]
+    assert all(f["bay"] == 0 and "pressure must be a positive" in f["message"] for f in analysis.failures)
+    assert analysis.sampled["rms"]["mean"] == pytest.approx(np.mean([r["rms"] for r in rows if r["converged"]]))
