@@ -292,7 +292,7 @@ class _Model:
                          if SOURCE_SCOPE[c.source] == "wing" or (SOURCE_SCOPE[c.source] == "bay" and c.index == k)
                          or (SOURCE_SCOPE[c.source] == "rib" and c.index in (k, k + 1))], dtype=int)
 
-    def deviation(self, k: int, e, source: str, index: int):
+    def deviation(self, e, source: str, index: int):
         """The entry of ``e`` (deviations in the sources' units) of ``source`` at ``index``, or 0."""
         for i, c in enumerate(self.columns):
             if c.source == source and c.index == index:
@@ -304,7 +304,7 @@ class _Model:
         values allowed): the module docstring's map."""
         p = self.nominal[k]
         def dev(source, index=k):
-            return self.deviation(k, e, source, index)
+            return self.deviation(e, source, index)
 
         changes = {}
         if "pressure" in self.tolerances:
@@ -404,6 +404,11 @@ class ToleranceAnalysis:
             from the linearised model and from the Monte Carlo samples
             (None without samples).
         shares: ``{"rms" | "max" | "min_tension": {source: fraction}}``.
+        sensitivities: per column, ``rms_distance`` (the rms over the rows of
+            the distances' change, mm per unit), ``max_distance`` (the change
+            of the nominal's largest distance, outward positive, mm per unit)
+            and ``min_tension`` (of the nominal's least cell tension, N/m per
+            unit), with the column's ``unit``.
         budget: None without a spec, else the spec (mm), each source's
             largest tolerance that alone keeps 95% of wings within it, and
             the common scale factor of all (`_budget`).
