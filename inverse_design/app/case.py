@@ -42,6 +42,7 @@ from .options import OPTION_SPECS, PROG, InputError, build_parser
 
 __all__ = ["EXAMPLE_CASE", "RIB_KEYS", "case_path", "check_equilibrium_method", "check_option_combinations",
            "design_inputs", "ignored_options", "load_section", "parse_arguments", "read_config", "read_ribs",
+           "read_tolerances",
            "report_may_write", "variable_names"]
 
 #: Keys of a ``[[rib]]`` table: required, then optional.
@@ -116,12 +117,41 @@ def read_config(path) -> dict:
 
             values["wing"] = read_ribs(str(path), value)
             continue
+        if key == "tolerances" and isinstance(value, dict):
+            values["tolerances"] = read_tolerances(str(path), value)
+            continue
         if dest in values:
             raise InputError(f"{path}: {key!r} is given twice (with - and _)")
         values[dest] = _toml_value(str(path), key, value)
+        if dest == "tolerance" and isinstance(values[dest], str):
+            raise InputError(f"{path}: tolerance is the optimiser's convergence tolerance, a number; give "
+                             "manufacturing tolerances in a [tolerances] table (pressure = \"2%\", ...)")
         if dest in ("target", "rib"):
             values[dest] = case_path(path, values[dest])
     return values
+
+
+def read_tolerances(path: str, table: dict) -> list[str]:
+    """A case file's ``[tolerances]`` table as ``NAME=VALUE`` items (``defaults = true``: every source at
+    its default first); the names and values are checked with the command line's before any solve
+    (`inverse_design.tolerance.parse_tolerances`).
+
+    Raises:
+        InputError: for a value that is neither a number nor a string.
+    """
+    items = []
+    for name, value in table.items():
+        if name == "defaults":
+            if value is not True:
+                raise InputError(f"{path}: [tolerances] defaults must be true (every source at its default), "
+                                 f"got {value!r}")
+            items.insert(0, "defaults")
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise InputError(f"{path}: [tolerances] {name} must be a number (the standard deviation) or a string "
+                             f"such as \"2%\" or \"uniform:0.5\", got {value!r}")
+        items.append(f"{name}={value}")
+    return items
 
 
 def case_path(case_file, spec: str) -> str:
@@ -155,6 +185,8 @@ def parse_arguments(argv: list[str] | None = None) -> tuple[argparse.Namespace, 
     defaults = vars(build_parser().parse_args([]))
     config = read_config(given["config"]) if given.get("config") else {}
     merged = {**defaults, **config, **given}
+    # tolerances: the case file's table, then the command line's (a name given on both: the command line's)
+    merged["tolerances"] = [*(config.get("tolerances") or []), *(given.get("tolerances") or [])] or None
     sources = {**{k: "config" for k in config}, **{k: "command line" for k in given}}
     args = argparse.Namespace(**merged)
     check_option_combinations(args, sources)
@@ -213,9 +245,15 @@ def ignored_options(args: argparse.Namespace, sources: dict) -> list[str]:
     """Options given that the run does not use: one warning line each (docs/errors.md).
 
     ``--variables`` with ``--evaluate`` (the equilibrium is solved at the
-    given values; its fields are refused, `check_option_combinations`).
+    given values; its fields are refused, `check_option_combinations`);
+    ``--shape-spec``, ``--samples`` or ``--seed`` without tolerances.
     """
     lines = []
+    if not getattr(args, "tolerances", None):
+        for name in ("shape_spec", "samples", "seed"):
+            if name in sources:
+                lines.append(f"{_given(name, sources)} is ignored without tolerances (--tolerance NAME=VALUE or a "
+                             "[tolerances] table), which turn on the tolerance analysis")
     if args.evaluate and "variables" in sources:
         lines.append(f"{_given('variables', sources)} {args.variables} is ignored with "
                      f"{_given('evaluate', sources)}, which solves the equilibrium at the given values "
@@ -249,6 +287,8 @@ _NEVER = {
     "unshaped": r"rib(_[0-9]+)?\.dat|rib_design\.png",
     "no_aero": r"(bay_[0-9]+_)?aero\.png",
     "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
+    "no_tolerances": r"tolerance\.png|tolerance_samples\.csv",
+    "no_samples": r"tolerance_samples\.csv",
 }
 
 
@@ -274,6 +314,10 @@ def report_may_write(args: argparse.Namespace):
         never.append(_NEVER["no_aero"])
     if args.no_patterns:
         never.append(_NEVER["no_patterns"])
+    if not getattr(args, "tolerances", None):
+        never.append(_NEVER["no_tolerances"])
+    elif not args.samples:
+        never.append(_NEVER["no_samples"])
     excluded = re.compile("|".join(f"(?:{n})" for n in never))
     return lambda name: excluded.fullmatch(name) is None
 

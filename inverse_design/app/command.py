@@ -21,6 +21,7 @@ from . import interrupts
 from .case import check_equilibrium_method, design_inputs, ignored_options, load_section, report_may_write
 from .options import PROG, InputError
 from .resources import check_flat_panels, check_grid
+from .tolerance import check_tolerance_options, run_tolerance
 
 __all__ = ["NOT_FOR_A_WING", "WORKER_MODULES", "plausibility", "run", "safe_point"]
 
@@ -139,6 +140,7 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         _import_report_modules_meanwhile()
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
+    tolerances = check_tolerance_options(args, fabric)  # (before any solve)
     solver = None if args.evaluate else SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
                             equilibrium_method=args.equilibrium_method, max_steps=args.max_steps,
                             root_condition=args.root_condition, progress=progress, callback=safe_point)
@@ -202,12 +204,17 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
             result = refine(result)
         timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result, alphas, timings)
+    tolerance = run_tolerance(args, result, tolerances, timings) if tolerances else None
     interrupts.check()
     report = ReportOptions(bounds=None if args.evaluate else bounds, magnification=args.magnification,
                            rib_limits=rib_limits, patterns=not args.no_patterns,
                            seam_allowance_mm=args.seam_allowance, inputs=inputs, timings=timings, aero=aero,
-                           warnings=notes)
-    return write_report(out, result, options=report, workers=workers)
+                           warnings=notes, tolerance=tolerance)
+    try:
+        return write_report(out, result, options=report, workers=workers)
+    finally:
+        if tolerance is not None and tolerance.samples_file:
+            os.unlink(tolerance.samples_file)
 
 
 def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds, sources: dict | None = None) -> list[str]:

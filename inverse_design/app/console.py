@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["describe", "number_text", "refined_line", "start_violation_line"]
+__all__ = ["describe", "number_text", "refined_line", "start_violation_line", "tolerance_lines"]
 
 #: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
 _VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
@@ -150,9 +150,38 @@ def describe(summary: dict) -> list[str]:
             lines.append(f"  aerodynamics{where} at Re {aero['reynolds']:.3g}, {alphas[0]:g} to {alphas[-1]:g} deg: "
                          f"mid-bay max |dCL| {worst['cl']:.3g}, |dCD| {worst['cd']:.3g}, |dCM| {worst['cm']:.3g} "
                          f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
+    if summary.get("tolerance"):
+        lines += tolerance_lines(summary["tolerance"])
     wrinkled = res["equilibrium"]["wrinkled_fraction"]
     if wrinkled:
         lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
     lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines
+
+
+def tolerance_lines(section: dict) -> list[str]:
+    """Two lines of the tolerance analysis (`inverse_design.tolerance.ToleranceAnalysis.summary`): the
+    rms distance and least tension to first order (and sampled), then the budget or the main sources."""
+    lin = section["linear"]
+    text = (f"  tolerances: rms distance {lin['rms']['mean']:.3g} +- {lin['rms']['std']:.2g} mm, p95 "
+            f"{lin['rms']['p95']:.3g} mm (first order)")
+    sampled = section.get("sampled")
+    if sampled:
+        failed = f", {sampled['failed']} failed" if sampled["failed"] else ""
+        text += f", {sampled['rms']['p95']:.3g} mm ({sampled['count']} samples{failed})"
+    text += f"; least tension p5 {lin['min_tension']['p5']:.4g} N/m"
+    budget = section.get("budget")
+    if budget is None:
+        shares = sorted(section["shares"]["rms"].items(), key=lambda item: -item[1])
+        second = "  scatter of the rms from: " + ", ".join(f"{name} {100 * v:.0f}%" for name, v in shares[:3])
+    elif not budget["met_at_nominal"]:
+        second = (f"  budget: the nominal design's rms {budget['nominal_rms']:.3g} mm already misses the spec "
+                  f"{budget['spec']:g} mm; no tolerance meets it")
+    else:
+        common = budget["common_scale"]
+        scale = "any scale" if common is None else f"x{common:.3g}"
+        alone = ", ".join(f"{name} {entry['text'] or 'any'}" for name, entry in budget["sources"].items())
+        second = (f"  budget for 95% within {budget['spec']:g} mm rms: all tolerances {scale}; each alone up to "
+                  f"{alone}")
+    return [text, second]

@@ -68,6 +68,25 @@ def _folder(text):
     return text
 
 
+def _tolerance_value(text):
+    """``--tolerance``: a number (the optimiser's tolerance, positive), or NAME=VALUE / defaults (a
+    manufacturing tolerance, checked by `inverse_design.tolerance.parse_tolerances` before any solve)."""
+    text = str(text).strip()
+    if "=" in text or text == "defaults":
+        return text
+    return _number(positive=True)(text)
+
+
+class _Tolerance(argparse.Action):
+    """``--tolerance``: a number sets the optimiser's tolerance; NAME=VALUE appends to ``tolerances``."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        if isinstance(value, str):
+            namespace.tolerances = [*(getattr(namespace, "tolerances", None) or []), value]
+        else:
+            setattr(namespace, self.dest, value)
+
+
 def _whole(text):
     try:
         return int(text)
@@ -202,10 +221,24 @@ OPTIONS = (
                                            "(default thickness)")),
     ("optimiser", "--max-iterations", dict(type=_whole, default=50, metavar="N",
                                            help="cap on the optimiser's iterations (default 50)")),
-    ("optimiser", "--tolerance", dict(type=_number(positive=True), default=None, metavar="TOL",
-                                      help="convergence tolerance of the optimiser (default: slsqp 1e-6 "
-                                      "of the starting objective, gauss_newton 1e-4 of the merit (the model's predicted "
-                                      "fall), the others 1e-8)")),
+    ("optimiser", "--tolerance", dict(type=_tolerance_value, action=_Tolerance, default=None, metavar="TOL",
+                                      help="a number: the convergence tolerance of the optimiser (default: slsqp "
+                                      "1e-6 of the starting objective, gauss_newton 1e-4 of the merit (the model's "
+                                      "predicted fall), the others 1e-8); NAME=VALUE (repeatable): a manufacturing "
+                                      "tolerance, the standard deviation of pressure (Pa), stiffness_span, "
+                                      "stiffness_chord (N/m, per bay), cut_span, cut_chord (mm, per bay), "
+                                      "rib_station, rib_profile (mm, per rib), or 2%% of the nominal, or "
+                                      "uniform:VALUE, or default; 'defaults' sets every one at its default "
+                                      "(docs/tolerances.md); turns on the tolerance analysis after the design")),
+    ("optimiser", "--shape-spec", dict(type=_number("mm", positive=True), default=None, metavar="MM",
+                                       help="with tolerances: the shape specification, 95%% of wings within this "
+                                       "rms distance from the target, mm; the report gives the tolerance budget "
+                                       "that meets it")),
+    ("optimiser", "--samples", dict(type=_whole, default=0, metavar="N",
+                                    help="with tolerances: Monte Carlo wings solved to check the first-order "
+                                    "analysis (default 0: first order only); tolerance_samples.csv")),
+    ("optimiser", "--seed", dict(type=_whole, default=0, metavar="N",
+                                 help="seed of the Monte Carlo draws (default 0: the same wings every run)")),
     ("optimiser", "--refine", dict(action="store_true",
                                    help="confirm and polish the design on a grid with twice the span "
                                    "resolution (2 n-span - 1 nodes) and report how far it moved")),

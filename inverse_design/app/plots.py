@@ -30,6 +30,7 @@ __all__ = [
     "plot_rib_design",
     "plot_section",
     "plot_tensions",
+    "plot_tolerance",
     "plot_wing_overview",
 ]
 
@@ -564,4 +565,74 @@ def plot_wing_overview(result, deviation: np.ndarray):
     else:
         what = f"rms {result.rms_error:.3e} of the local chord (a single equilibrium)"
     fig.suptitle(f"{bays} at {_kpa(float(result.parameters.pressure))}: {what}")
+    return fig
+
+
+def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
+    """The tolerance analysis: the budget (or each source's share) and the distribution of the rms.
+
+    Left: with a shape spec, the largest multiple of each given tolerance that
+    alone keeps 95% of wings within the spec, and the common multiple of all
+    (1 is the tolerance as given; a bar past 1 has room to spare); without
+    one, each source's share of the rms's variance. Right: the linearised
+    model's distribution of the wing's rms distance (mm), the Monte Carlo
+    samples' histogram beside it, the spec and the nominal.
+
+    Args:
+        section: ``summary["tolerance"]`` (`inverse_design.tolerance.ToleranceAnalysis.summary`).
+        linear_rms: draws of the rms from the linearised model, mm.
+        sampled_rms: the Monte Carlo samples' rms, mm (None: none).
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    fig = _figure(11.0, 4.2)
+    left, right = fig.subplots(1, 2)
+    budget = section.get("budget")
+    if budget is not None:
+        names = list(budget["sources"]) + ["all together"]
+        scales = [budget["sources"][n]["scale"] for n in budget["sources"]] + [budget["common_scale"]]
+        known = [s for s in scales if s is not None and s > 0] + [1.0]
+        cap, base = max(known) * 2.0, min(known) / 3.0  # (a log axis: the bars start at base)
+        shown = [cap if s is None else max(s, base) for s in scales]
+        colours = ["C2" if s is None or s >= 1 else "C3" for s in scales]
+        bars = left.barh(names, [v - base for v in shown], left=base, color=colours)
+        left.set_xscale("log")
+        for bar, scale in zip(bars, scales):
+            text = "no limit" if scale is None else "none" if scale == 0 else f"x{scale:.3g}"
+            left.text(bar.get_x() + bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {text}", va="center",
+                      fontsize="small")
+        left.axvline(1.0, color="black", lw=1.0, ls="--", label="as given")
+        left.set_xlim(base, cap * 3.0)
+        from matplotlib.ticker import FuncFormatter, NullFormatter
+
+        left.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        left.xaxis.set_minor_formatter(NullFormatter())
+        left.set_xlabel("largest multiple of the given tolerance (red: tighten)")
+        missed = "" if budget["met_at_nominal"] else " (the nominal design misses it)"
+        left.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms{missed}", fontsize="medium")
+        left.legend(fontsize="small", loc="lower right")
+        left.invert_yaxis()
+    else:
+        shares = section["shares"]["rms"]
+        left.barh(list(shares), [100 * v for v in shares.values()], color="C0")
+        left.set_xlabel("share of the rms distance's variance, %")
+        left.set_title("sources of scatter", fontsize="medium")
+        left.invert_yaxis()
+    linear_rms = np.asarray(linear_rms, np.float64)
+    values = [linear_rms] + ([] if sampled_rms is None else [np.asarray(sampled_rms, np.float64)])
+    finite = np.concatenate([v[np.isfinite(v)] for v in values])
+    bins = np.linspace(finite.min(), finite.max(), 41) if finite.size and np.ptp(finite) > 0 else 20
+    right.hist(linear_rms, bins=bins, density=True, histtype="step", color="C0", lw=1.6,
+               label=f"first order (p95 {section['linear']['rms']['p95']:.3g} mm)")
+    if sampled_rms is not None and np.isfinite(values[1]).any():
+        right.hist(values[1][np.isfinite(values[1])], bins=bins, density=True, alpha=0.4, color="C1",
+                   label=f"{section['samples']} samples (p95 {section['sampled']['rms']['p95']:.3g} mm)")
+    if budget is not None:
+        right.axvline(budget["spec"], color="C3", lw=1.4, label=f"spec {budget['spec']:g} mm")
+        right.axvline(budget["nominal_rms"], color="black", lw=1.0, ls=":", label="nominal")
+    right.set_xlabel("rms distance of the wing from its target, mm")
+    right.set_ylabel("density")
+    right.legend(fontsize="small", loc="best")
+    right.grid(alpha=0.3)
     return fig

@@ -88,7 +88,7 @@ from .pattern import write_bay_patterns
 from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
-                    plot_wing_overview)
+                    plot_tolerance, plot_wing_overview)
 from ..rib_design import cut_lengths
 
 __all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "ReportOptions", "mid_bay_targets", "summarise", "wing_deviation",
@@ -498,6 +498,9 @@ class ReportOptions:
         timings: seconds spent before the report (e.g. ``setup``,
             ``optimisation``); ``report`` and, unless given, ``total`` (their
             sum) are added.
+        tolerance: an `inverse_design.tolerance.ToleranceAnalysis` of the
+            result (None: none): ``summary["tolerance"]``, ``tolerance.png``
+            and, with samples, ``tolerance_samples.csv`` (docs/tolerances.md).
 
     Raises:
         ValueError: if ``seam_allowance_mm`` is negative or not finite.
@@ -512,6 +515,7 @@ class ReportOptions:
     timings: dict | None = None
     aero: object = None
     warnings: list | None = None
+    tolerance: object = None
 
     def __post_init__(self):
         check_seam_allowance(self.seam_allowance_mm)
@@ -555,7 +559,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
     if not isinstance(options, ReportOptions):
         raise TypeError(f"options must be a ReportOptions, got {type(options).__name__}")
     magnification, aero, bounds, rib_limits = options.magnification, options.aero, options.bounds, options.rib_limits
-    seam_allowance_mm = options.seam_allowance_mm
+    seam_allowance_mm, tolerance = options.seam_allowance_mm, options.tolerance
     if isinstance(result, Solution):
         result = _measured(result, target, scene, objective)
     result = _checked(result)
@@ -600,6 +604,9 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                 chord = scenes[0].bay.chord * float(result.parameters.rib_chord_scale)
                 specs.append(("rib_design.png", plot_rib_design, (
                     result.parameters, result.wing.sections[0], chord, rib_limits), {}))
+        if tolerance is not None:
+            sampled = [r["rms"] for r in tolerance.samples] if tolerance.samples else None
+            specs.append(("tolerance.png", plot_tolerance, (tolerance.summary(), tolerance.linear_rms, sampled), {}))
         to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
                          else len(_SAVE_ORDER))
         sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
@@ -613,6 +620,11 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         try:
             summary = summarise(result, inputs=options.inputs, timings=options.timings, aero=aero,
                                 warnings=options.warnings)
+            if tolerance is not None:
+                summary["tolerance"] = tolerance.summary()
+                if tolerance.samples:
+                    _write_samples(staging / "tolerance_samples.csv", tolerance)
+                    files.append("tolerance_samples.csv")
             handed = {path.name for path, *_ in portable}
             built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
                      if name not in handed]
@@ -716,6 +728,21 @@ def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: li
                                                     name=f"{airfoil.name} {label}"),
                         comment=f"chord {chord * float(params.rib_chord_scale):g} m")
             files.append(name)
+
+
+def _write_samples(path: Path, tolerance) -> None:
+    """``tolerance_samples.csv``: the rows the run streamed (copied), or written from the analysis."""
+    import csv
+    import shutil
+
+    if tolerance.samples_file:
+        shutil.copyfile(tolerance.samples_file, path)
+        return
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(tolerance.samples[0]))
+        writer.writeheader()
+        for row in tolerance.samples:
+            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def _without_factors(value):
