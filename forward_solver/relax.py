@@ -47,7 +47,6 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
 
 from __future__ import annotations
 
-from functools import partial
 from typing import NamedTuple
 
 import jax
