@@ -36,7 +36,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 WING = "inverse_design/cases/wing_40_cells.toml"
 
 
-def _run(tree: Path, cache: Path, work: Path, extra: list[str]) -> float:
+def _run(tree: Path, cache: Path, work: Path, extra: list[str]) -> tuple[float, dict]:
     out = Path(tempfile.mkdtemp(dir=work))
     env = dict(os.environ, PYTHONPATH=str(tree), INFLATABLE_WING_CACHE=str(cache))
     started = time.perf_counter()
@@ -45,16 +45,26 @@ def _run(tree: Path, cache: Path, work: Path, extra: list[str]) -> float:
     wall = time.perf_counter() - started
     if ran.returncode != 0:
         raise RuntimeError(f"{tree}: exit {ran.returncode}: {ran.stderr[-2000:]}")
-    return wall
+    return wall, json.loads((out / "o" / "summary.json").read_text())["timings_s"]
 
 
-def _alternate(trees: dict, caches: dict, work: Path, extra: list[str], repeats: int) -> dict:
-    times = {label: [] for label in trees}
+def _alternate(trees: dict, caches: dict, work: Path, extra: list[str], repeats: int) -> tuple[dict, dict, list]:
+    """Wall times and summary timings (``timings_s``) per checkout, and the load averages after each run."""
+    times, phases, loads = {label: [] for label in trees}, {label: [] for label in trees}, []
     for _ in range(repeats):
         for label, tree in trees.items():
-            times[label].append(_run(tree, caches[label], work, extra))
-            print(label, extra, f"{times[label][-1]:.2f} s", flush=True)
-    return times
+            wall, timings = _run(tree, caches[label], work, extra)
+            times[label].append(wall)
+            phases[label].append(timings)
+            loads.append(os.getloadavg()[0])
+            print(label, extra, f"{wall:.2f} s", timings, f"load {loads[-1]:.1f}", flush=True)
+    return times, phases, loads
+
+
+def _phases(timings: list) -> str:
+    """Median seconds of the design's phases over runs (summary.json ``timings_s``)."""
+    return ", ".join(f"{name} {statistics.median(t[name] for t in timings):.2f}"
+                     for name in ("setup", "optimisation", "report") if all(name in t for t in timings))
 
 
 def main(argv=None) -> None:
@@ -75,7 +85,7 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         caches = {label: work / f"cache-{label}" for label in trees}
-        rows = []
+        rows, notes = [], []
         cases = [("default case, cached", [], args.repeats),
                  ("default case, cold (--no-compilation-cache)", ["--no-compilation-cache"], args.cold_repeats),
                  ("40-cell wing, its first run with that cache", ["--config", WING], args.wing_repeats)]
@@ -84,11 +94,14 @@ def main(argv=None) -> None:
         for name, extra, repeats in cases:
             if repeats < 1:
                 continue
-            times = _alternate(trees, caches, work, extra, repeats)
+            times, phases, loads = _alternate(trees, caches, work, extra, repeats)
             new, base = statistics.median(times["new"]), statistics.median(times[args.base_label])
             rows.append([name, repeats, round(new, 2), round(base, 2), round(new / base, 3),
                          " ".join(f"{t:.2f}" for t in times["new"]),
-                         " ".join(f"{t:.2f}" for t in times[args.base_label])])
+                         " ".join(f"{t:.2f}" for t in times[args.base_label]),
+                         f"{min(loads):.1f}-{max(loads):.1f}"])
+            notes.append(f"{name}: median phases (summary.json timings_s, s): new {_phases(phases['new'])}; "
+                         f"{args.base_label} {_phases(phases[args.base_label])}")
     result = {
         "title": f"Start-up: the command against {args.base_label}, alternating runs",
         "command": f"python -m benchmarks.startup --base {args.base} --base-label {args.base_label} "
@@ -97,9 +110,10 @@ def main(argv=None) -> None:
                    f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
         "date": datetime.date.today().isoformat(),
         "columns": ["case", "runs each", "new median s", f"{args.base_label} median s", "ratio new/base",
-                    "new runs s", f"{args.base_label} runs s"],
+                    "new runs s", f"{args.base_label} runs s", "load average after the runs"],
         "rows": rows,
-        "notes": ["each run a fresh process, each checkout with its own compilation cache folder; medians"],
+        "notes": ["each run a fresh process, each checkout with its own compilation cache folder; medians",
+                  *notes],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")

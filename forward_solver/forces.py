@@ -35,6 +35,7 @@ import jax.numpy as jnp
 
 from .cut_field import local_prestrain
 from .rib_shape import rib_offsets
+from .programs import stored
 
 __all__ = [
     "Geometry",
@@ -251,11 +252,11 @@ def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
 
 
 #: `prepare` as one compiled program (eagerly, each of its operations compiles on its own).
-prepare_compiled = jax.jit(prepare, static_argnames=("physics",))
+prepare_compiled = stored(prepare, static_argnames=("physics",))
 
 #: `mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and dispatched one
 #: by one, on every cold start and on every bay of every wing solve).
-mounted_compiled = jax.jit(mounted_nodes)
+mounted_compiled = stored(mounted_nodes)
 
 
 def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:

@@ -15,24 +15,26 @@ differentiable N-bay forward solve ``forward_solver.solve_bays``;
 mid-bay condition). The packages and the data flow: ``docs/architecture.md``.
 """
 
-from .constraints import Constraints as Constraints
-from .objectives import OBJECTIVES as OBJECTIVES
-from .objectives import design_errors as design_errors
-from .objectives import objective_residuals as objective_residuals
-from .objectives import section_errors as section_errors
-from .optimise import DesignResult as DesignResult
-from .optimise import PerBayResults as PerBayResults
-from .optimise import WingDesignResult as WingDesignResult
-from .optimise import optimise_wing as optimise_wing
-from .optimise import evaluate_design as evaluate_design
-from .optimise import optimise_pressure as optimise_pressure
-from .optimise import refine_design as refine_design
-from .rib_design import RibLimits as RibLimits
-from .settings import DesignRequest as DesignRequest
-from .settings import Layout as Layout
-from .settings import Limits as Limits
-from .settings import SolverSettings as SolverSettings
-from .variables import VARIABLES as VARIABLES
+import importlib
+
+#: Each public name and the submodule that defines it: imported on first use (PEP 562), so that a
+#: process that needs only a JAX-free submodule (the report's workers: `app.workers`, `app.pattern`)
+#: does not import JAX and the solver.
+_PUBLIC = {"Constraints": "constraints", "OBJECTIVES": "objectives", "design_errors": "objectives",
+           "objective_residuals": "objectives", "section_errors": "objectives", "DesignResult": "optimise",
+           "WingDesignResult": "optimise", "optimise_wing": "optimise", "evaluate_design": "optimise",
+           "optimise_pressure": "optimise", "refine_design": "optimise", "PerBayResults": "optimise",
+           "RibLimits": "rib_design", "DesignRequest": "settings", "Layout": "settings", "Limits": "settings",
+           "SolverSettings": "settings", "VARIABLES": "variables"}
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        value = getattr(importlib.import_module(f".{_PUBLIC[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "Constraints",

@@ -269,10 +269,13 @@ def use_compilation_cache(path: Path) -> bool:
         return False
     import jax
 
+    from forward_solver.programs import use_program_store
+
     jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    use_program_store(path / "programs")  # (the solver's largest programs, exported: `forward_solver.programs`)
     return True
 
 

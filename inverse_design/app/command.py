@@ -42,8 +42,7 @@ def safe_point(entry=None) -> None:
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
 #: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
 #: the figures and of the DXF patterns they write, and the modules their tasks name.
-WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
-                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern", "inverse_design.app.report")
+WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf", "inverse_design.app.pattern")
 
 
 def _import_report_modules() -> None:
@@ -136,8 +135,7 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
 
     out = check_output_folder(args.out, replaces=report_may_write(args))  # before the long work, not after it
     check_equilibrium_method(args, default_strategy())
-    if workers is None:  # (the workers import them in their own processes)
-        _import_report_modules_meanwhile()
+    _import_report_modules_meanwhile()  # (the figures are built here, also when workers save them)
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
     tolerances = check_tolerance_options(args, fabric)  # (before any solve)

@@ -53,12 +53,12 @@ are replaced, nothing else in the folder is touched. The pattern files are
 plain names in the folder (not a ``patterns/`` subfolder): the staging and
 ownership rules (`export.written_files`) own plain files only.
 
-Each figure is a module-level plotting function and picklable arguments, so
-that another process may build it: the command hands the figures of
-`_PORTABLE` and then the DXF patterns to its `workers.ReportWorkers` (worker
-processes started when it starts, which import matplotlib and ezdxf while
-the design runs); what they do not write, and every file of a library
-caller's report, is written in the calling process.
+Each figure is built in the calling process (where JAX may be called); the
+command hands the built figures (pickled `matplotlib.figure.Figure` objects,
+in `_SAVE_ORDER`) and then the DXF patterns to its `workers.ReportWorkers`
+(worker processes started when it starts, which import matplotlib and ezdxf,
+not JAX, while the design runs) to save; what they do not write, and every
+file of a library caller's report, is written in the calling process.
 
 A design that failed (``success`` false) gets no pattern files (the panels of
 a design that breaks its limits or did not converge are not to be cut);
@@ -108,14 +108,13 @@ _PNG_COMPRESSION = 3
 #: A wing of at most this many bays also gets one mid-bay section plot per bay (more: only
 #: ``wing_overview.png``, which shows every bay; a plot per bay took 0.3 s each and 15 s of a 40-bay report).
 PER_BAY_PLOTS = 8
+#: `matplotlib.figure.Figure.savefig`'s options for the PNG figures.
+_SAVE_OPTIONS = {"dpi": _DPI, "pil_kwargs": {"compress_level": _PNG_COMPRESSION}}
 #: The order in which the figures are handed to the workers, the slowest first (saving each on the
 #: 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay section
 #: 0.28 s, deviation 0.24 s; the wing overview, added later, last). Figures not named keep their place
 #: after these.
 _SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
-#: The figures a `workers.ReportWorkers` may build: their plotting functions call no JAX and take
-#: picklable NumPy-only arguments.
-_PORTABLE = frozenset(_SAVE_ORDER)
 
 
 # ------------------------------------------------------------------ summary
@@ -476,7 +475,7 @@ def wing_deviation(result: DesignResult) -> np.ndarray:
 
 # ------------------------------------------------------------------ the folder
 def _save(fig, path) -> None:
-    fig.savefig(path, dpi=_DPI, pil_kwargs={"compress_level": _PNG_COMPRESSION})
+    save_figure(path, fig, **_SAVE_OPTIONS)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -539,7 +538,7 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
             their seam allowance, the run's inputs, timings, aero and warnings;
             None: the defaults).
         workers: `workers.ReportWorkers` started before the design (the
-            command's), to build and save the figures of `_PORTABLE` and to
+            command's), to save the figures built here and to
             write the DXF patterns while this process writes the other
             files; what they do not write is written here. Default none:
             every file is written here.
@@ -579,9 +578,9 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
     files, skipped = [], {}
     rib_files = _rib_files(result)
     with staged_folder(out) as staging:
-        # Each figure is a plotting function and its arguments. Those of `_PORTABLE` go to the report's
-        # workers if there are any; every other is built here (where JAX may be called), then saved
-        # after the other files are written (`workers.saved_after`).
+        # Each figure is a plotting function and its arguments, built here; the report's workers, if
+        # there are any, save them, else they are saved after the other files are written
+        # (`workers.saved_after`).
         specs = [("wing_overview.png", plot_wing_overview, (_Overview(result), deviation), {})]
         for k in range(n_bays if n_bays <= PER_BAY_PLOTS else 0):
             start_rib = (result.wing.sections[k] if result.wing is not None and rib_files else None)
@@ -609,15 +608,15 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
             specs.append(("tolerance.png", plot_tolerance, (tolerance.summary(), tolerance.linear_rms, sampled), {}))
         to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
                          else len(_SAVE_ORDER))
-        sent, portable = [], []  # the tasks handed to the workers, in order; the figures among them
-        if workers is not None and workers.submitted == 0:
-            portable = [(staging / name, save_figure, (_save, function, args, kwargs), {})
-                        for name, function, args, kwargs in to_save if name in _PORTABLE]
-            if workers.submit(portable):
-                sent += portable
-            else:
-                portable = []
+        sent, built = [], []  # the tasks handed to the workers, in order; the figures saved here
         try:
+            for name, function, args, kwargs in to_save:  # (a worker saves one while the next is built)
+                path, figure = staging / name, function(*args, **kwargs)
+                task = (path, save_figure, (figure,), _SAVE_OPTIONS)
+                if workers is not None and workers.submitted == len(sent) and workers.submit([task]):
+                    sent.append(task)
+                else:
+                    built.append((path, figure))
             summary = summarise(result, inputs=options.inputs, timings=options.timings, aero=aero,
                                 warnings=options.warnings)
             if tolerance is not None:
@@ -625,9 +624,6 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                 if tolerance.samples:
                     _write_samples(staging / "tolerance_samples.csv", tolerance)
                     files.append("tolerance_samples.csv")
-            handed = {path.name for path, *_ in portable}
-            built = [(staging / name, function(*args, **kwargs)) for name, function, args, kwargs in to_save
-                     if name not in handed]
             with saved_after(built, _save):
                 _write_data(staging, result, solutions, scenes, targets, deviation, files, skipped)
                 if _patterns_wanted(options.patterns, summary, skipped):

@@ -147,3 +147,17 @@ def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priori
     finally:
         workers.close()
     assert int((tmp_path / "policy").read_text()) == os.sched_getscheduler(0) == os.SCHED_OTHER
+
+
+def test_a_worker_imports_neither_jax_nor_the_solver():
+    """What a worker imports (`command.WORKER_MODULES`, then the workers module for its tasks) leaves
+    JAX, SciPy and the solver out: the report builds the figures and hands them over built."""
+    from inverse_design.app.command import WORKER_MODULES
+
+    code = (f"import importlib, sys\nfor name in {WORKER_MODULES + ('inverse_design.app.workers',)!r}:\n"
+            "    importlib.import_module(name)\n"
+            "print(sorted(m for m in ('jax', 'scipy', 'forward_solver', 'targets') if m in sys.modules))")
+    ran = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                         capture_output=True, text=True, timeout=120)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.strip() == "[]"
