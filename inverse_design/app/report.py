@@ -91,8 +91,8 @@ from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, pl
                     plot_wing_overview)
 from ..rib_design import cut_lengths
 
-__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "summarise", "wing_deviation", "wing_nodes",
-           "write_report"]
+__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "peak_memory_mb", "summarise", "wing_deviation",
+           "wing_nodes", "write_report"]
 
 #: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
 #: ``bays`` and ``constraints.violated_where``; 3 is one layout for any number of bays: ``case.ribs``
@@ -612,11 +612,25 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         times = dict(summary["timings_s"])
         times["report"] = time.perf_counter() - start
         times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
+        times["peak_memory_mb"] = peak_memory_mb()  # (not a time: after the total)
         summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
         summary["checksums"] = file_checksums(staging, files)  # (`export.changed_files` compares them)
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def peak_memory_mb() -> float:
+    """The largest resident memory of this process so far, or of its largest child process that has
+    ended (the report's workers), whichever is larger, in MB (10**6 bytes): ``resource.getrusage``'s
+    ``ru_maxrss`` (kB on Linux, bytes on macOS); NaN where it is not available (Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return math.nan
+    unit = 1.0 if platform.system() == "Darwin" else 1024.0
+    largest = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return round(largest * unit / 1e6, 1)
 
 
 def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: list, targets: list,
