@@ -346,10 +346,9 @@ def _main(argv: list[str] | None, started: float) -> int:
     progress = sys.stderr is not None and sys.stderr.isatty() and not (args.quiet or args.json)
     workers = None
     try:
-        # A single bay's figures and DXF patterns: workers started now import matplotlib and ezdxf while
+        # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf while
         # the design runs (`workers.ReportWorkers`).
-        if getattr(args, "wing", None) is None:
-            workers = ReportWorkers.start(WORKER_MODULES)
+        workers = ReportWorkers.start(WORKER_MODULES)
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
 
         check_platform()

@@ -26,6 +26,8 @@ The folder, for any number of bays::
                                  rib), metres
     wing_overview.png            every bay in one figure: the deviation over the whole skin,
                                  each bay's errors and tensions (`plots.plot_wing_overview`)
+    cut_pattern_overview.png     a cut field per bay: every bay's local prestrain along the contour,
+                                 span and contour fibres (`plots.plot_cut_fields`)
     bay_K_mid_bay_section.png    bay K's mid-bay section against its root rib and its target (for
                                  at most `PER_BAY_PLOTS` bays)
     bay_K_aero.png               with an aerodynamic comparison: bay K's lift, drag and moment
@@ -87,8 +89,8 @@ from .export import file_checksums
 from .pattern import write_bay_patterns
 from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
-from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
-                    plot_wing_overview)
+from .plots import (plot_aero, plot_cut_fields, plot_deviation, plot_history, plot_rib_design, plot_section,
+                    plot_tensions, plot_wing_overview)
 from ..rib_design import cut_lengths
 
 __all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "mid_bay_targets", "peak_memory_mb", "summarise", "wing_deviation",
@@ -112,7 +114,8 @@ PER_BAY_PLOTS = 8
 #: 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay section
 #: 0.28 s, deviation 0.24 s; the wing overview, added later, last). Figures not named keep their place
 #: after these.
-_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
+_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png",
+               "cut_pattern_overview.png")
 #: The figures a `workers.ReportWorkers` may build: their plotting functions call no JAX and take
 #: picklable NumPy-only arguments.
 _PORTABLE = frozenset(_SAVE_ORDER)
@@ -550,6 +553,8 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                                rib_stations=(stations[k], stations[k + 1]))))
             if aero is not None:
                 specs.append((f"bay_{k}_aero.png", plot_aero, (aero[k],), {}))
+        if result.cut_patterns is not None:  # a cut field per bay: every bay's in one image
+            specs.append(("cut_pattern_overview.png", plot_cut_fields, _cut_fields(scenes, solutions), {}))
         if n_bays > PER_BAY_PLOTS:
             skipped["bay_K_mid_bay_section.png"] = (f"{n_bays} bays: more than {PER_BAY_PLOTS}, so "
                                                     "wing_overview.png shows every bay in one figure")
@@ -592,11 +597,14 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                                                               writer=writer)
                         names += more
                         panels += bay_panels
-                    if dxf and workers.submit(dxf):
-                        sent += dxf
-                    else:
-                        for task in dxf:
-                            run_task(task)
+                        # each bay's DXF files handed over at once: the workers write them while this
+                        # process lays out the next bays' panels
+                        if dxf and workers.submit(dxf):
+                            sent += dxf
+                        else:
+                            for task in dxf:
+                                run_task(task)
+                        dxf.clear()
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
             if sent:  # the workers' files; any they did not write is written here
@@ -618,6 +626,24 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def _cut_fields(scenes: list, solutions: list) -> tuple:
+    """`plots.plot_cut_fields`'s arguments: every bay's contour arc (fraction of its root rib's cut
+    perimeter, from the trailing edge), the local prestrain of its span fibres and of its contour edges
+    at each contour node, ``(n_bays, n_contour)`` each, and the leading edge's mean arc fraction."""
+    arcs, spans, contours, leading = [], [], [], []
+    for scene, solution in zip(scenes, solutions):
+        cuts = cut_lengths(scene, solution.parameters)
+        n = scene.bay.n_contour
+        edges = cuts["contour_edge_cut_m"][0]
+        arc = np.concatenate([[0.0], np.cumsum(edges)])[:n] / np.sum(edges)
+        arcs.append(arc)
+        spans.append(np.broadcast_to(cuts["span_prestrain"], (n,)))
+        contour = np.asarray(cuts["contour_prestrain"])
+        contours.append(np.concatenate([contour, contour[-1:]])[:n])  # (a flat panel: its last edge's)
+        leading.append(arc[int(np.argmin(np.asarray(scene.bay.contour_root)[:, 0]))])
+    return np.stack(arcs), np.stack(spans), np.stack(contours), float(np.mean(leading))
 
 
 def peak_memory_mb() -> float:

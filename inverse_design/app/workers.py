@@ -64,8 +64,8 @@ def _cores() -> int:
 
 
 #: Most tasks one `ReportWorkers` takes (a single bay's report hands over four figures and four DXF
-#: files); more are left to the caller.
-MAX_TASKS = 64
+#: files, a 40-bay wing's its figures and 121 DXF files); more are left to the caller.
+MAX_TASKS = 256
 _CLAIMED = None  # in a worker: the pool's shared claims (`multiprocessing.Array`), one flag per task
 
 
