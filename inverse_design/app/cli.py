@@ -33,8 +33,8 @@ command never creates a user's home) or whose entries JAX cannot read gets
 one ``warning:`` line, and the run goes on without the cache. It also
 compiles with XLA's faster-compiling CPU loop emitters
 (`forward_solver.xla.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
-otherwise): about 40% less compile time, the same results; and a single
-bay's figures and DXF patterns are written by worker processes started as
+otherwise): about 40% less compile time, the same results; and the
+report's figures and DXF patterns are written by worker processes started as
 it starts, which import matplotlib and ezdxf while the design runs
 (`inverse_design.app.workers.ReportWorkers`). BLAS runs on one thread for
 the command's run (``threadpoolctl``): its solves (the flat panels' banded

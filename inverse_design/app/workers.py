@@ -27,7 +27,7 @@ the workers before the staging folder is removed; the workers ignore
 SIGINT themselves, so a Ctrl-C sent to the process group ends the run with
 the caller's one line.
 
-Used by the ``optimise-pressure`` command for a single bay's report
+Used by the ``optimise-pressure`` command for its report (one bay or a wing)
 (`inverse_design.app.report.write_report` takes its ``workers``); a library
 caller writes every file in its own process. ``INFLATABLE_WING_SERIAL_FIGURES=1``
 keeps the command from starting workers (the same files either way).
