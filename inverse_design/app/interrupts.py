@@ -27,12 +27,17 @@ moving into place) is waited for instead: the folder is then complete.
 
 Whether the main thread can take the signal while the work computes depends
 on the call releasing Python's lock (GIL). Measured on the 2-core development
-machine (a thread in the call, the main thread waking every 10 ms): NumPy's
-and SciPy's LAPACK (2500 x 2500 solves), SuperLU, XLA's compiled calls and its
-compiler release it (the main thread waited at most 4 ms); SciPy 1.17's SLSQP
-holds it through each of its native steps: 0.3 s with 500 variables, 2.3 s
-with 1000 (the designs' constraints are a few smooth aggregates, so the
-variables set the cost), between its calls of the objective.
+machine (`benchmarks.signal_latency`: a thread in the call, the main thread
+waking every 10 ms): NumPy's and SciPy's LAPACK, SuperLU, XLA's compiled calls
+and its compiler release it (at a load of 9 the main thread waited at most
+4 ms; at 13-18, 40-650 ms: the wait for a core); SciPy 1.17's SLSQP holds it
+through each of its native steps, between its calls of the objective: with
+500 variables (a 40-bay wing's cut field per bay) 0.3 s at a load of 9 and
+2.3 s at 13-18, with 1000 variables 2.3 s and 8.3 s (the designs' constraints
+are a few smooth aggregates, so the variables set the cost). A stop inside
+such a step waits for it: the command's work could run in a child process
+instead, but the console script's module imports JAX (3.3 s) and the child
+would import it again and pickle the result back, on every run.
 
 Nothing is installed at import, and `check` does nothing unless `install`
 ran (library callers keep Python's own handling).
