@@ -187,6 +187,7 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         check_flat_panels([scene] if wing_ribs is None else wing.scenes(fabric, n_span=args.n_span,
                                                                        n_contour=args.n_contour),
                           initial, wing=wing_ribs is not None)
+    interrupts.check()  # (a stop during the checks: before the long work)
     timings = {"setup": time.perf_counter() - start}
     if progress:  # (a terminal: the progress bar's first line, before the first solve compiles)
         print(f"{PROG}: {_starting_line(args, len(bays))}", file=sys.stderr, flush=True)
