@@ -71,8 +71,9 @@ _installed = False  # whether the handlers of `install` are in place
 _deferring = 0  # > 0 inside `deferred`: signals are only recorded
 _stopping = False  # True while `run_stoppable` handles a stop: further signals are only recorded
 _gave_up = False  # whether a work was abandoned since `install`
-_abandoned: set[int] = set()  # the threads (`threading.get_ident`) of works abandoned by `run_stoppable`
-_undo: dict[int, tuple[int, object]] = {}  # `undo_if_abandoned`'s actions: key -> (thread, action)
+_abandoned: set[object] = set()  # the tokens of the works that `run_stoppable` abandoned
+_undo: dict[int, tuple[object, object]] = {}  # `undo_if_abandoned`'s actions: key -> (work's token, action)
+_local = threading.local()  # ``work``: the token of the `run_stoppable` work this thread runs
 _keys = itertools.count()
 
 
@@ -143,7 +144,7 @@ def check() -> None:
     Does nothing inside `deferred`, or when no signal was recorded; in a work
     that `run_stoppable` abandoned it always raises (the caller has moved on).
     """
-    if threading.get_ident() in _abandoned:
+    if getattr(_local, "work", None) in _abandoned:
         raise Terminated()
     if _received is not None and not _deferring:
         raise _exception(_received)
@@ -160,7 +161,7 @@ def undo_if_abandoned(action):
     """A block whose work, if `run_stoppable` abandons it meanwhile, is undone by ``action()`` (called
     from the main thread: e.g. removing a staging folder, a lock file). Nothing is called otherwise."""
     key = next(_keys)
-    _undo[key] = (threading.get_ident(), action)
+    _undo[key] = (getattr(_local, "work", None), action)
     try:
         yield
     finally:
@@ -184,14 +185,16 @@ def run_stoppable(function, *args, **kwargs):
     global _stopping
     if threading.current_thread() is not threading.main_thread() or not _installed:
         return function(*args, **kwargs)
-    outcome, done = {}, threading.Event()
+    outcome, done, token = {}, threading.Event(), object()
 
     def work():
+        _local.work = token
         try:
             outcome["value"] = function(*args, **kwargs)
         except BaseException as exc:  # noqa: BLE001 - handed to the main thread
             outcome["error"] = exc
         finally:
+            _abandoned.discard(token)
             done.set()
 
     # (An Event, not `Thread.join`: a join that a handler's exception cuts short marks the thread
@@ -211,7 +214,9 @@ def run_stoppable(function, *args, **kwargs):
             while not done.is_set() and _deferring:  # (a finished folder moving into place)
                 done.wait(_POLL_S)
             if not done.is_set():
-                _abandon(thread.ident)
+                _abandon(token)
+                if done.is_set():  # (it ended meanwhile)
+                    _abandoned.discard(token)
                 raise _exception(_received)
         if "error" in outcome:
             if _received is not None:
@@ -223,14 +228,14 @@ def run_stoppable(function, *args, **kwargs):
         outcome.clear()
 
 
-def _abandon(ident: int) -> None:
-    """Mark the work of thread ``ident`` abandoned and run its undo actions (newest first)."""
+def _abandon(token: object) -> None:
+    """Mark the work ``token`` abandoned and run its undo actions (newest first)."""
     global _gave_up
-    _abandoned.add(ident)
+    _abandoned.add(token)
     _gave_up = True
-    for key in sorted(_undo, reverse=True):
-        thread, action = _undo.pop(key, (None, None))
-        if thread == ident:
+    for key in sorted((k for k, (work, _) in list(_undo.items()) if work is token), reverse=True):
+        _, action = _undo.pop(key, (None, None))
+        if action is not None:
             try:
                 action()
             except OSError:  # (what cannot be removed stays, as after a SIGKILL: the next run cleans up)
