@@ -737,8 +737,17 @@ def _progress_bar(progress: bool, cap: int, name: str):
 
     No percentage or ETA: the cap is an upper bound, not the expected count.
     """
-    return tqdm(total=cap, desc=name, unit="wing solve", disable=not progress,
-                leave=False, dynamic_ncols=True,
+    import os
+    import sys
+
+    try:
+        size = os.get_terminal_size(sys.stderr.fileno())
+    except (AttributeError, ValueError, OSError):
+        size = None
+    # A terminal that reports no size (0 x 0: a pseudo-terminal nobody sized, as under `script`) makes
+    # tqdm print nothing at all: a fixed 80 x 24 there.
+    shape = dict(dynamic_ncols=True) if size and size.lines and size.columns else dict(ncols=80, nrows=24)
+    return tqdm(total=cap, desc=name, unit="wing solve", disable=not progress, leave=False, **shape,
                 bar_format="{desc}: wing solve {n_fmt} (cap {total_fmt}), {elapsed} elapsed, "
                            "{rate_inv_fmt}{postfix}")
 

@@ -11,10 +11,15 @@ nothing written; or the optimiser stopped without converging: the folder is
 written and says so); 2 bad input (one line on stderr), a grid too large
 for the machine among it (`inverse_design.app.resources.check_grid`); 130
 interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
-Ctrl-C, so the staging folder is removed). A stop that Python loses (raised
-inside a garbage-collection callback) is recorded and raised again at the
-next safe point (`inverse_design.app.interrupts`), at the latest before the
-folder's files are put in place.
+Ctrl-C, so the staging folder is removed). The design and the report run on
+a thread of their own while the main thread waits, free to take a signal
+whatever the work computes (`interrupts.run_stoppable`): a stop ends the
+command within about a second (`interrupts.UNWIND_GRACE_S`), the work's
+staging folder and lock file removed, its report workers killed, without
+waiting for the work's compiled call to return. A stop that Python loses
+(raised inside a garbage-collection callback) is recorded and raised again at
+the next safe point (`inverse_design.app.interrupts`), at the latest before
+the folder's files are put in place.
 
 The solvers run in their own thread-local float64 scope. Unlike the
 library, the command turns on JAX's persistent compilation cache for its own
@@ -28,8 +33,8 @@ command never creates a user's home) or whose entries JAX cannot read gets
 one ``warning:`` line, and the run goes on without the cache. It also
 compiles with XLA's faster-compiling CPU loop emitters
 (`forward_solver.xla.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
-otherwise): about 40% less compile time, the same results; and a single
-bay's figures and DXF patterns are written by worker processes started as
+otherwise): about 40% less compile time, the same results; and the
+report's figures and DXF patterns are written by worker processes started as
 it starts, which import matplotlib and ezdxf while the design runs
 (`inverse_design.app.workers.ReportWorkers`). BLAS runs on one thread for
 the command's run (``threadpoolctl``): its solves (the flat panels' banded
@@ -319,6 +324,15 @@ def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
     return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
+def _kill_children() -> None:
+    """End this process's worker processes at once (SIGKILL): an abandoned run's report workers, whose
+    pool then closes without waiting for a task (`workers.ReportWorkers.close`)."""
+    import multiprocessing
+
+    for child in multiprocessing.active_children():
+        child.kill()
+
+
 def _error(args, kind: str, text: str, after: str = "") -> None:
     """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
     _say(f"{PROG}: {kind}: {shorten(text, REFUSAL_WIDTH if kind == 'error' else CONSOLE_WIDTH)}{after}")
@@ -335,10 +349,9 @@ def _main(argv: list[str] | None, started: float) -> int:
     progress = sys.stderr is not None and sys.stderr.isatty() and not (args.quiet or args.json)
     workers = None
     try:
-        # A single bay's figures and DXF patterns: workers started now import matplotlib and ezdxf while
+        # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf while
         # the design runs (`workers.ReportWorkers`).
-        if getattr(args, "wing", None) is None:
-            workers = ReportWorkers.start(WORKER_MODULES)
+        workers = ReportWorkers.start(WORKER_MODULES)
         from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
 
         check_platform()
@@ -354,8 +367,12 @@ def _main(argv: list[str] | None, started: float) -> int:
             return 2
         raise
     try:
-        summary = run(args, sources, progress=progress, started=started, workers=workers)
+        # On a thread of its own: this one stays free to take a stop (`interrupts.run_stoppable`).
+        summary = interrupts.run_stoppable(run, args, sources, progress=progress, started=started,
+                                           workers=workers)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
+        if interrupts.abandoned():  # (the work may still be using the workers: they end now)
+            _kill_children()
         return _interrupted(exc, args.out)
     except (ConvergenceError, ValueError, OSError) as exc:
         try:

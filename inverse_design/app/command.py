@@ -191,7 +191,11 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         check_flat_panels([scene] if wing_ribs is None else wing.scenes(fabric, n_span=args.n_span,
                                                                        n_contour=args.n_contour),
                           initial, wing=wing_ribs is not None)
+    interrupts.check()  # (a stop during the checks: before the long work)
     timings = {"setup": time.perf_counter() - start}
+    if progress:  # (a terminal: the progress bar's first line, before the first solve compiles)
+        print(f"{PROG}: {_starting_line(args, len(bays))}", file=sys.stderr, flush=True)
+    _native_call_for_tests()
     t = time.perf_counter()
     if args.evaluate:
         result = evaluate()
@@ -213,6 +217,36 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     finally:
         if tolerance is not None and tolerance.samples_file:
             os.unlink(tolerance.samples_file)
+
+
+def _starting_line(args: argparse.Namespace, n_bays: int) -> str:
+    """What the run solves now, shown before its first solve (which compiles the solver: minutes for a
+    large wing without a compilation cache, before the progress bar's first tick)."""
+    from .case import variable_names
+
+    bays = f"{n_bays} bays" if n_bays > 1 else "1 bay"
+    grid = f"{args.n_span} x {args.n_contour} nodes{' each' if n_bays > 1 else ''}"
+    if args.evaluate:
+        return f"solving the equilibrium of {bays} of {grid}"
+    names = ", ".join(variable_names(args.variables))
+    return (f"designing {bays} of {grid} ({names}; method {args.method}, at most {args.max_iterations} "
+            "iterations): the first wing solve compiles the solver")
+
+
+#: Test hook, read by `_native_call_for_tests`: set to a number of seconds, the command sits about that long
+#: in one compiled XLA call (which takes no signal) just before its design or equilibrium, as a large
+#: wing's first solve does (tests/command/test_signals.py).
+NATIVE_CALL_VARIABLE = "INFLATABLE_WING_TEST_NATIVE_CALL_S"
+
+
+def _native_call_for_tests() -> None:
+    """The test hook of `NATIVE_CALL_VARIABLE` (nothing unless it is set)."""
+    seconds = float(os.environ.get(NATIVE_CALL_VARIABLE) or 0.0)
+    if seconds > 0:
+        import jax
+
+        spin = jax.jit(lambda n: jax.lax.fori_loop(0, n, lambda i, x: x * 1.0000001 + 1e-9, 1.0))
+        spin(int(min(seconds, 20.0) * 1e8)).block_until_ready()  # (about 1e8 steps a second on a CPU core)
 
 
 def plausibility(args: argparse.Namespace, fabric, parameters, bays, bounds, sources: dict | None = None) -> list[str]:

@@ -155,7 +155,10 @@ def describe(summary: dict) -> list[str]:
     wrinkled = res["equilibrium"]["wrinkled_fraction"]
     if wrinkled:
         lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
-    lines.append(f"  {summary['timings_s']['total']:.1f} s (report {summary['timings_s']['report']:.1f} s)")
+    timings = summary["timings_s"]
+    memory = timings.get("peak_memory_mb")
+    memory = f", peak memory {memory:.0f} MB" if isinstance(memory, (int, float)) and memory == memory else ""
+    lines.append(f"  {timings['total']:.1f} s (report {timings['report']:.1f} s{memory})")
     lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
     return lines
 

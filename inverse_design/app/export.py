@@ -271,7 +271,7 @@ def write_cut_pattern(path, scene, parameters) -> Path:
 REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|(bay_[0-9]+_)?cut_pattern\.csv|"
                           r"pattern_bay_[0-9]+_(upper|lower|panel)\.(dxf|svg)|rib_[0-9]+\.dxf|"
                           r"rib(_[0-9]+)?\.dat|(bay_[0-9]+_)?mid_bay_section\.png|"
-                          r"(bay_[0-9]+_)?aero\.png|(deviation|tensions|history|rib_design|wing_overview|tolerance)\.png|"
+                          r"(bay_[0-9]+_)?aero\.png|(deviation|tensions|history|rib_design|wing_overview|tolerance|cut_pattern_overview)\.png|"
                           r"tolerance_samples\.csv")
 #: The summary of a report, whose ``files`` list the files that report wrote.
 SUMMARY = "summary.json"
@@ -506,7 +506,8 @@ def output_lock(out_dir):
         raise ValueError(f"another run is writing the output folder {out} ({holder} holds the lock {path}); "
                          "wait for it to end, or choose another output folder")
     try:
-        yield out
+        with interrupts.undo_if_abandoned(lambda: fd is not None and os.unlink(path)):  # (a stopped run's)
+            yield out
     finally:
         if fd is not None:
             try:
@@ -662,6 +663,14 @@ def _commit(staging: Path, out: Path) -> None:
     shutil.rmtree(staging, ignore_errors=True)
 
 
+def _discard(staging: Path) -> None:
+    """Remove the staging folder of a run that another thread abandoned while it may still write into
+    it: renamed first (its writer's later paths then fail), then removed."""
+    trash = staging.with_name(staging.name.replace(".partial-", ".discarded-"))
+    os.rename(staging, trash)
+    shutil.rmtree(trash, ignore_errors=True)
+
+
 @contextmanager
 def staged_folder(out_dir):
     """Write a report's files atomically: yield a temporary folder, put its files in place on success.
@@ -704,7 +713,8 @@ def staged_folder(out_dir):
             os.close(lock)
         raise
     try:
-        yield staging
+        with interrupts.undo_if_abandoned(lambda: _discard(staging)):  # (a stopped run's: `interrupts`)
+            yield staging
         with interrupts.deferred():  # a stop recorded until now is raised here, before anything moves
             _commit(staging, out)
     except BaseException:

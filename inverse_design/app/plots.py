@@ -654,3 +654,50 @@ def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
     right.legend(fontsize="small", loc="best")
     right.grid(alpha=0.3)
     return fig
+
+
+def plot_cut_fields(arc: np.ndarray, span_prestrain: np.ndarray, contour_prestrain: np.ndarray,
+                    leading_edge: float | None = None):
+    """One figure of a wing's per-bay cut fields: the local prestrain along the contour, bay by bay.
+
+    Two images side by side, the span fibres' local prestrain and the contour
+    fibres' (`rib_design.cut_lengths`: the uniform prestrain plus the bay's
+    cut field, `forward_solver.cut_field`), bays on the vertical axis (root at
+    the bottom) and the contour arc on the horizontal one, on one colour
+    scale. Whatever the number of bays, one figure.
+
+    Args:
+        arc: ``(n_bays, n_contour)`` each contour node's arc length from the
+            trailing edge at the bay's root rib, as a fraction of the perimeter.
+        span_prestrain: ``(n_bays, n_contour)`` the local prestrain of the span
+            fibre through each node (dimensionless).
+        contour_prestrain: ``(n_bays, n_contour)`` that of the contour edge from
+            each node to the next (dimensionless).
+        leading_edge: the leading edge's arc fraction, marked (None: not marked).
+
+    Returns:
+        A `matplotlib.figure.Figure`.
+    """
+    arc = np.asarray(arc, np.float64)
+    fields = (np.asarray(span_prestrain, np.float64), np.asarray(contour_prestrain, np.float64))
+    n_bays = arc.shape[0]
+    bays = np.broadcast_to(np.arange(n_bays, dtype=np.float64)[:, None], arc.shape)
+    low = min(float(np.min(f)) for f in fields)
+    high = max(float(np.max(f)) for f in fields)
+    if not high > low:  # (a uniform field: a visible range around it)
+        low, high = low - 1e-4, high + 1e-4
+    fig = _figure(11.0, 3.0 + 0.06 * min(n_bays, 80))
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, field, fibre in zip(axes, fields, ("span", "contour")):
+        mesh = ax.pcolormesh(arc, bays, field, cmap="viridis", vmin=low, vmax=high, shading="nearest")
+        if leading_edge is not None:
+            ax.axvline(leading_edge, color="w", lw=0.8, ls="--")
+        ax.set_title(f"{fibre} fibres")
+    from matplotlib.ticker import MaxNLocator
+
+    axes[0].yaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[0].set_ylabel("bay (root to tip)")
+    fig.supxlabel("contour arc / perimeter, from the trailing edge over the upper surface (leading edge dashed)")
+    fig.colorbar(mesh, ax=axes, label="local prestrain")
+    fig.suptitle(f"cut fields of {n_bays} bays: local prestrain {low:.4f} to {high:.4f}")
+    return fig

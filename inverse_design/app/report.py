@@ -26,6 +26,8 @@ The folder, for any number of bays::
                                  rib), metres
     wing_overview.png            every bay in one figure: the deviation over the whole skin,
                                  each bay's errors and tensions (`plots.plot_wing_overview`)
+    cut_pattern_overview.png     a cut field per bay: every bay's local prestrain along the contour,
+                                 span and contour fibres (`plots.plot_cut_fields`)
     bay_K_mid_bay_section.png    bay K's mid-bay section against its root rib and its target (for
                                  at most `PER_BAY_PLOTS` bays)
     bay_K_aero.png               with an aerodynamic comparison: bay K's lift, drag and moment
@@ -87,12 +89,12 @@ from .export import file_checksums
 from .pattern import write_bay_patterns
 from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
-from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,
-                    plot_tolerance, plot_wing_overview)
+from .plots import (plot_aero, plot_cut_fields, plot_deviation, plot_history, plot_rib_design, plot_section,
+                    plot_tensions, plot_tolerance, plot_wing_overview)
 from ..rib_design import cut_lengths
 
-__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "ReportOptions", "mid_bay_targets", "summarise", "wing_deviation",
-           "wing_nodes", "write_report"]
+__all__ = ["PER_BAY_PLOTS", "SCHEMA_VERSION", "ReportOptions", "mid_bay_targets", "peak_memory_mb", "summarise",
+           "wing_deviation", "wing_nodes", "write_report"]
 
 #: Version of the layout of ``summary.json``: 2 added ``schema``, ``case.n_bays``, the bay axis
 #: ``bays`` and ``constraints.violated_where``; 3 is one layout for any number of bays: ``case.ribs``
@@ -114,7 +116,8 @@ _SAVE_OPTIONS = {"dpi": _DPI, "pil_kwargs": {"compress_level": _PNG_COMPRESSION}
 #: 2-core development machine, 2026-11-25: history 0.35-0.39 s, tensions 0.34 s, mid-bay section
 #: 0.28 s, deviation 0.24 s; the wing overview, added later, last). Figures not named keep their place
 #: after these.
-_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png")
+_SAVE_ORDER = ("history.png", "tensions.png", "bay_0_mid_bay_section.png", "deviation.png", "wing_overview.png",
+               "cut_pattern_overview.png")
 
 
 # ------------------------------------------------------------------ summary
@@ -589,6 +592,8 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                                rib_stations=(stations[k], stations[k + 1]))))
             if aero is not None:
                 specs.append((f"bay_{k}_aero.png", plot_aero, (aero[k],), {}))
+        if result.per_bay.cut_patterns is not None:  # a cut field per bay: every bay's in one image
+            specs.append(("cut_pattern_overview.png", plot_cut_fields, _cut_fields(scenes, solutions), {}))
         if n_bays > PER_BAY_PLOTS:
             skipped["bay_K_mid_bay_section.png"] = (f"{n_bays} bays: more than {PER_BAY_PLOTS}, so "
                                                     "wing_overview.png shows every bay in one figure")
@@ -637,11 +642,14 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
                                                               writer=writer)
                         names += more
                         panels += bay_panels
-                    if dxf and workers.submit(dxf):
-                        sent += dxf
-                    else:
-                        for task in dxf:
-                            run_task(task)
+                        # each bay's DXF files handed over at once: the workers write them while this
+                        # process lays out the next bays' panels
+                        if dxf and workers.submit(dxf):
+                            sent += dxf
+                        else:
+                            for task in dxf:
+                                run_task(task)
+                        dxf.clear()
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, seam_allowance_mm)
             if sent:  # the workers' files; any they did not write is written here
@@ -657,11 +665,43 @@ def write_report(out_dir, result: DesignResult | Solution, target=None, *, scene
         times = dict(summary["timings_s"])
         times["report"] = time.perf_counter() - start
         times.setdefault("total", sum(v for v in times.values() if isinstance(v, (int, float))))
+        times["peak_memory_mb"] = peak_memory_mb()  # (not a time: after the total)
         summary.update(timings_s=times, files=files + ["summary.json"], skipped=skipped, out=str(out))
         summary["checksums"] = file_checksums(staging, files)  # (`export.changed_files` compares them)
         text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)
         (staging / "summary.json").write_text(text + "\n")
     return summary
+
+
+def _cut_fields(scenes: list, solutions: list) -> tuple:
+    """`plots.plot_cut_fields`'s arguments: every bay's contour arc (fraction of its root rib's cut
+    perimeter, from the trailing edge), the local prestrain of its span fibres and of its contour edges
+    at each contour node, ``(n_bays, n_contour)`` each, and the leading edge's mean arc fraction."""
+    arcs, spans, contours, leading = [], [], [], []
+    for scene, solution in zip(scenes, solutions):
+        cuts = cut_lengths(scene, solution.parameters)
+        n = scene.bay.n_contour
+        edges = cuts["contour_edge_cut_m"][0]
+        arc = np.concatenate([[0.0], np.cumsum(edges)])[:n] / np.sum(edges)
+        arcs.append(arc)
+        spans.append(np.broadcast_to(cuts["span_prestrain"], (n,)))
+        contour = np.asarray(cuts["contour_prestrain"])
+        contours.append(np.concatenate([contour, contour[-1:]])[:n])  # (a flat panel: its last edge's)
+        leading.append(arc[int(np.argmin(np.asarray(scene.bay.contour_root)[:, 0]))])
+    return np.stack(arcs), np.stack(spans), np.stack(contours), float(np.mean(leading))
+
+
+def peak_memory_mb() -> float:
+    """The largest resident memory of this process so far, or of its largest child process that has
+    ended (the report's workers), whichever is larger, in MB (10**6 bytes): ``resource.getrusage``'s
+    ``ru_maxrss`` (kB on Linux, bytes on macOS); NaN where it is not available (Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return math.nan
+    unit = 1.0 if platform.system() == "Darwin" else 1024.0
+    largest = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+    return round(largest * unit / 1e6, 1)
 
 
 def _write_data(staging: Path, result: DesignResult, solutions: list, scenes: list, targets: list,

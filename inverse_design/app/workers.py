@@ -31,7 +31,7 @@ the workers before the staging folder is removed; the workers ignore
 SIGINT themselves, so a Ctrl-C sent to the process group ends the run with
 the caller's one line.
 
-Used by the ``optimise-pressure`` command for a single bay's report
+Used by the ``optimise-pressure`` command for its report (one bay or a wing)
 (`inverse_design.app.report.write_report` takes its ``workers``); a library
 caller writes every file in its own process. ``INFLATABLE_WING_SERIAL_FIGURES=1``
 keeps the command from starting workers (the same files either way).
@@ -68,8 +68,8 @@ def _cores() -> int:
 
 
 #: Most tasks one `ReportWorkers` takes (a single bay's report hands over four figures and four DXF
-#: files); more are left to the caller.
-MAX_TASKS = 64
+#: files, a 40-bay wing's its figures and 121 DXF files); more are left to the caller.
+MAX_TASKS = 256
 _CLAIMED = None  # in a worker: the pool's shared claims (`multiprocessing.Array`), one flag per task
 
 
