@@ -27,12 +27,14 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse
 
 from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.implicit import forward_only
 from forward_solver.wing import WingSolution, default_strategy
 
+from .blocks import bay_columns, bay_jacobian, block_rows, implicit_equilibrium
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          row_targets, station_etas, weighted_mean_square)
@@ -345,42 +347,101 @@ class DesignProblem:
         """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`shape_residuals`, ``r @ r``
         the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
         (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
-        holds over a longer step) and the rib limits' rows, with their Jacobians by
-        forward mode through the implicit equilibrium (``jax.jacfwd``: one forward solve, then per bay
-        one back-solve per variable with the solve's own LU factor; the rib limits' rows without a
-        solve). One wing solve, whatever the number of variables.
+        holds over a longer step) and the rib limits' rows, with their Jacobians (``scipy.sparse``
+        CSR) by forward mode through the implicit equilibrium, bay by bay (`blocks`): one wing solve,
+        then per bay one back-solve with its own LU factor per variable that moves it (the shared
+        ones, its row of a per-bay cut field, its two ribs' rows of per-rib shapes); the rib limits'
+        rows without a solve. On the batched strategy (no per-bay factors) every variable's tangent
+        goes through every bay (`dense_linearised`).
 
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
+            def plain(wrapped, v):
+                return wrapped(v)
 
-            def outputs(v, sol):
-                shape = self.shape_residuals(sol.nodes)
-                if self.constraints is None:
-                    return shape
-                t = jnp.concatenate(self.tensions(sol.nodes, v))
-                return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
-                                                                self.tension_scale)])
-
-            (y, jac), sol = self._transformed(_value_and_jacobian, outputs, u)
-            y, jac = np.asarray(y), np.asarray(jac)
-            n = self.shape_size
-            r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
+            _, sol = self._transformed(plain, lambda v, sol: jnp.zeros(0), u)
+            if sol.solutions is None:
+                r, jr, g, jg = self._dense_rows(u)
+                jr, jg = scipy.sparse.csr_matrix(jr), scipy.sparse.csr_matrix(jg)
+            else:
+                r, jr, g, jg = self._block_rows(u, sol)
+            n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
             # history: the least row of each tension limit (as `evaluate`'s aggregates, >= 0 feasible)
-            per_limit = g.reshape(-1, max(g.size // max(len(self.constraints.names(self.fabric)), 1), 1)) \
-                if self.constraints is not None and g.size else np.zeros((0, 1))
-            recorded = per_limit.min(axis=1)
+            recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
             if self.rib_geometries:
                 g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-                g, jg = np.concatenate([g, g_rib]), np.vstack([jg, jac_rib])
+                g, jg = np.concatenate([g, g_rib]), scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)],
+                                                                        format="csr")
                 per_rib = g_rib.reshape(len(self.rib_geometries), -1)
                 n_thick = self.rib_geometries[0].upper.size
                 recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.record(u, r @ r, np.linalg.norm(2.0 * jr.T @ r), solution=sol, constraints=recorded)
+            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded)
         return self._cache[key]
+
+    def _block_rows(self, u, sol: WingSolution):
+        """``(r, dr/du, g, dg/du)`` of the tension limits at the solved ``sol``, bay by bay (`blocks`)."""
+        u = np.asarray(u, np.float64)
+        columns = bay_columns(self.variables, len(self.bays))
+        blocks, distances, tensions = [], [], []
+        for k, scene in enumerate(self.scenes):
+            nodes_of = implicit_equilibrium(scene, sol.solutions[k])
+
+            def outputs(v, k=k, scene=scene, nodes_of=nodes_of):
+                parameters = self.variables.bay_parameters(v, k)
+                nodes = nodes_of(parameters.resolved(self.fabric))
+                d = bay_distances(nodes, self.rows[k], self.etas, self.chords[k])
+                shape = math.sqrt(self.weights[k]) * distance_residuals(d, self.objective)
+                if self.constraints is None:
+                    return shape, (d, jnp.zeros(0))
+                t = cell_tensions(scene, nodes, parameters)
+                return jnp.concatenate([shape, t]), (d, t)
+
+            y, block, (d, t) = bay_jacobian(outputs, u, columns[k])
+            blocks.append(block)
+            distances.append(np.asarray(d))
+            tensions.append(np.asarray(t))
+        self._measured[key_of(u)] = (sol.nodes, {"distances": distances, "tensions": tensions})
+        n_shape = self.shape_size // len(self.bays)
+        r = np.concatenate([np.sqrt(w) * np.asarray(distance_residuals(d, self.objective))
+                            for w, d in zip(self.weights, distances)])
+        jr = block_rows([b[:n_shape] for b in blocks], [k * n_shape for k in range(len(blocks))], columns,
+                        r.size, u.size)
+        if self.constraints is None:
+            return r, jr, np.zeros(0), scipy.sparse.csr_matrix((0, u.size))
+        t = np.concatenate(tensions)
+        g = np.asarray(cell_constraints(self.constraints, jnp.asarray(t), self.fabric, self.tension_scale))
+        offsets = np.concatenate([[0], np.cumsum([x.size for x in tensions])[:-1]])
+        jt = block_rows([b[n_shape:] for b in blocks], offsets, columns, t.size, u.size)
+        # each limit's rows are (T - floor) / scale or (ceiling - T) / scale (`cell_constraints`)
+        signs = [1.0 if name == "min_tension" else -1.0 for name in self.constraints.names(self.fabric)]
+        jg = scipy.sparse.vstack([(s / self.tension_scale) * jt for s in signs], format="csr")
+        return r, jr, g, jg
+
+    def _dense_rows(self, u):
+        """``(r, dr/du, g, dg/du)`` of the tension limits by forward mode through the whole wing: every
+        variable's tangent through every bay, dense (NumPy)."""
+
+        def outputs(v, sol):
+            shape = self.shape_residuals(sol.nodes)
+            if self.constraints is None:
+                return shape
+            t = jnp.concatenate(self.tensions(sol.nodes, v))
+            return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
+                                                            self.tension_scale)])
+
+        (y, jac), _ = self._transformed(_value_and_jacobian, outputs, u)
+        y, jac = np.asarray(y), np.asarray(jac)
+        n = self.shape_size
+        return y[:n], jac[:n], y[n:], jac[n:]
+
+    def dense_linearised(self, u):
+        """`linearised`'s ``(r, dr/du, g, dg/du)`` of the tension limits (no rib limits), its Jacobians
+        dense, by forward mode through the whole wing (the reference the bay blocks are checked against)."""
+        return self._dense_rows(u)
 
     # ------------------------------------------------------ penalty methods
     def residuals(self, v, sol):
