@@ -3,23 +3,28 @@
 A bay's equilibrium (eq. 10-15 between its two rigid ribs) depends on the
 shared variables (pressure, uniform prestrains, rib scales, a shared rib shape
 or cut field), on its own row of a per-bay cut field and on its two ribs'
-rows of per-rib shapes, and on nothing else. So its shape residuals and cell
-tensions have a Jacobian block of ``shared + per-bay + 2 x per-rib`` columns
-(`bay_columns`); the rest of the wing's Jacobian in those rows is zero.
-`bay_jacobian` computes one block by forward mode through the implicit
-equilibrium (`implicit_equilibrium`: one back-solve per column with the
-bay's kept LU factor, all columns in one host call), and `block_rows`
-assembles the blocks into a ``scipy.sparse`` matrix. Per Gauss-Newton
-iterate that is one wing solve plus ``shared + per-bay + 2 x per-rib``
-back-solves per bay, where a dense forward mode pushes every variable's
-tangent through every bay (``n_variables x n_bays`` back-solves, a dense
-``n_outputs x n_variables`` matrix: 8.7 GB on 40 bays of 17x64 with 481
+rows of per-rib shapes, and on nothing else (`bay_columns`). So its shape
+residuals and cell tensions have a Jacobian block of ``shared + per-bay + 2 x
+per-rib`` columns; the rest of the wing's Jacobian in those rows is zero.
+
+Those blocks come from one forward-mode pass through the whole wing with
+``shared + per-bay + 2 x per-rib`` tangents (`compressed_seeds`, the
+Curtis-Powell-Reid compression of a structured Jacobian): a shared
+variable's tangent is its own; a per-bay coefficient's tangent moves that
+coefficient of every bay at once (each bay sees only its own); a per-rib
+coefficient's tangent moves it on every other rib (even ribs, then odd ones),
+so that each bay sees one of its two ribs per tangent. Each bay then
+back-solves ``shared + per-bay + 2 x per-rib`` tangents with its kept LU
+factor, and `decompress` puts every entry in its column as a
+``scipy.sparse`` matrix. A dense forward mode pushes every variable's
+tangent through every bay instead (``n_variables x n_bays`` back-solves and
+an ``n_outputs x n_variables`` matrix: 8.7 GB on 40 bays of 17x64 with 481
 variables).
 
-`implicit_equilibrium` is the reusable piece: a function of one bay's
-`forward_solver.Parameters` that returns a converged solve's nodes and
-differentiates them by the implicit function theorem (`forward_solver.implicit.ImplicitAdjoint`)
-with that solve's own factor, without solving again.
+`implicit_equilibrium` and `bay_jacobian` are the same derivative for one
+bay alone (a converged solve's nodes, differentiated by the implicit function
+theorem with its own factor, without solving again): for callers that need
+one bay's block, such as a tolerance analysis.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ import scipy.sparse
 from forward_solver.adjoint import _concrete, _kernel_tangent
 from forward_solver.implicit import ImplicitAdjoint, forward_only
 
-__all__ = ["bay_columns", "implicit_equilibrium", "bay_jacobian", "block_rows"]
+__all__ = ["bay_columns", "compressed_seeds", "decompress", "implicit_equilibrium", "bay_jacobian", "block_rows"]
 
 
 def bay_columns(variables, n_bays: int) -> list[np.ndarray]:
@@ -47,14 +52,7 @@ def bay_columns(variables, n_bays: int) -> list[np.ndarray]:
         component, the bay's row of a per-bay cut field, its two ribs' rows of
         per-rib shapes.
     """
-    shared, per_bay, per_rib = [], None, None
-    for name, part in variables.slices().items():
-        if name == "cut_pattern" and variables.cut_patterns is not None:
-            per_bay = (part.start, variables.cut_patterns.shape[1])
-        elif name == "rib_shape" and variables.rib_shapes is not None:
-            per_rib = (part.start, variables.rib_shapes.shape[1])
-        else:
-            shared.extend(range(part.start, part.stop))
+    shared, per_bay, per_rib = _layout(variables)
     columns = []
     for k in range(n_bays):
         own = list(shared)
@@ -66,6 +64,81 @@ def bay_columns(variables, n_bays: int) -> list[np.ndarray]:
             own.extend(range(start + k * width, start + (k + 2) * width))
         columns.append(np.array(sorted(own), dtype=np.int64))
     return columns
+
+
+def _layout(variables):
+    """``(shared columns, (start, width) of a per-bay field or None, (start, width) of per-rib shapes or None)``."""
+    shared, per_bay, per_rib = [], None, None
+    for name, part in variables.slices().items():
+        if name == "cut_pattern" and variables.cut_patterns is not None:
+            per_bay = (part.start, variables.cut_patterns.shape[1])
+        elif name == "rib_shape" and variables.rib_shapes is not None:
+            per_rib = (part.start, variables.rib_shapes.shape[1])
+        else:
+            shared.extend(range(part.start, part.stop))
+    return shared, per_bay, per_rib
+
+
+def compressed_seeds(variables, n_bays: int):
+    """The tangents of one forward pass that give every bay's Jacobian block, and where each entry goes.
+
+    Args:
+        variables: the `variables.DesignVariables`.
+        n_bays: bays of the wing.
+
+    Returns:
+        ``(seeds, columns)``: ``seeds`` an ``(n_seeds, n_variables)`` array of
+        tangents (``n_seeds`` = shared + per-bay + 2 x per-rib components);
+        ``columns`` an ``(n_bays, n_seeds)`` integer array: the variable whose
+        derivative tangent ``j`` gives in bay ``k``'s outputs.
+    """
+    shared, per_bay, per_rib = _layout(variables)
+    n = variables.size
+    seeds, columns = [], []
+    for c in shared:
+        seed = np.zeros(n)
+        seed[c] = 1.0
+        seeds.append(seed)
+        columns.append(np.full(n_bays, c))
+    if per_bay is not None:
+        start, width = per_bay
+        for i in range(width):
+            seed = np.zeros(n)
+            seed[start + i:start + n_bays * width:width] = 1.0
+            seeds.append(seed)
+            columns.append(start + np.arange(n_bays) * width + i)
+    if per_rib is not None:
+        start, width = per_rib
+        bays = np.arange(n_bays)
+        for parity in (0, 1):
+            for i in range(width):
+                seed = np.zeros(n)
+                seed[start + parity * width + i:start + (n_bays + 1) * width:2 * width] = 1.0
+                seeds.append(seed)
+                rib = np.where(bays % 2 == parity, bays, bays + 1)  # the bay's root or tip rib of this parity
+                columns.append(start + rib * width + i)
+    return np.array(seeds).reshape(-1, n), np.array(columns, dtype=np.int64).T.reshape(n_bays, -1)
+
+
+def decompress(compressed, row_bays, columns, n_columns: int) -> scipy.sparse.csr_matrix:
+    """The sparse Jacobian of a compressed one (`compressed_seeds`).
+
+    Args:
+        compressed: ``(n_rows, n_seeds)`` derivatives along the seeds.
+        row_bays: ``(n_rows,)`` the bay of each row.
+        columns: ``(n_bays, n_seeds)`` from `compressed_seeds`.
+        n_columns: variables.
+
+    Returns:
+        ``(n_rows, n_columns)`` CSR matrix.
+    """
+    compressed = np.asarray(compressed, np.float64)
+    n_rows, n_seeds = compressed.shape
+    rows = np.repeat(np.arange(n_rows), n_seeds)
+    cols = np.asarray(columns)[np.asarray(row_bays)].reshape(-1)
+    values = compressed.reshape(-1)
+    keep = values != 0.0
+    return scipy.sparse.csr_matrix((values[keep], (rows[keep], cols[keep])), shape=(n_rows, n_columns))
 
 
 def implicit_equilibrium(scene, solution):

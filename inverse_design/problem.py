@@ -34,7 +34,7 @@ from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.implicit import forward_only
 from forward_solver.wing import WingSolution, default_strategy
 
-from .blocks import bay_columns, bay_jacobian, block_rows, implicit_equilibrium
+from .blocks import compressed_seeds, decompress
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          row_targets, station_etas, weighted_mean_square)
@@ -82,9 +82,10 @@ def _of_bay(nodes, k: int):
     return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
-def _value_and_jacobian(wrapped, v):
+def _value_and_jacobian(wrapped, v, basis=None):
     """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode; a NumPy array) and its auxiliary
-    output.
+    output; with ``basis`` (``(n_tangents, v.size)``) its derivatives along those tangents instead
+    (``(n_outputs, n_tangents)``: `blocks.compressed_seeds`).
 
     ``jax.jacfwd`` less its bookkeeping: the basis of tangents is NumPy's and the Jacobian is
     transposed on the host (``jax.jacfwd`` built and unravelled them with a dozen eager operations,
@@ -96,8 +97,9 @@ def _value_and_jacobian(wrapped, v):
         r, dr, aux = jax.jvp(wrapped, (v,), (t,), has_aux=True)
         return r, dr, aux
 
-    with forward_only(v.size):
-        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(np.eye(v.size, dtype=np.float64))
+    basis = np.eye(v.size, dtype=np.float64) if basis is None else np.asarray(basis, np.float64)
+    with forward_only(basis.shape[0]):
+        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(basis)
     return r, np.asarray(jac).T, aux
 
 
@@ -348,26 +350,23 @@ class DesignProblem:
         the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
         (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
         holds over a longer step) and the rib limits' rows, with their Jacobians (``scipy.sparse``
-        CSR) by forward mode through the implicit equilibrium, bay by bay (`blocks`): one wing solve,
-        then per bay one back-solve with its own LU factor per variable that moves it (the shared
-        ones, its row of a per-bay cut field, its two ribs' rows of per-rib shapes); the rib limits'
-        rows without a solve. On the batched strategy (no per-bay factors) every variable's tangent
-        goes through every bay (`dense_linearised`).
+        CSR) by forward mode through the implicit equilibrium, bay by bay: one wing solve, then per
+        bay one back-solve with its own LU factor per variable that moves it (the shared ones, its
+        row of a per-bay cut field, its two ribs' rows of per-rib shapes), all bays in one pass of
+        compressed tangents (`blocks.compressed_seeds`); the rib limits' rows without a solve.
 
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
-            def plain(wrapped, v):
-                return wrapped(v)
-
-            _, sol = self._transformed(plain, lambda v, sol: jnp.zeros(0), u)
-            if sol.solutions is None:
-                r, jr, g, jg = self._dense_rows(u)
-                jr, jg = scipy.sparse.csr_matrix(jr), scipy.sparse.csr_matrix(jg)
-            else:
-                r, jr, g, jg = self._block_rows(u, sol)
+            seeds, columns = compressed_seeds(self.variables, len(self.bays))
+            (y, compressed), sol = self._transformed(partial(_value_and_jacobian, basis=seeds),
+                                                     self._linearised_outputs, u)
+            y = np.asarray(y)
+            n = self.shape_size
+            jac = decompress(compressed, self._row_bays(y.size), columns, self.variables.size)
+            r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
             n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
             # history: the least row of each tension limit (as `evaluate`'s aggregates, >= 0 feasible)
             recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
@@ -382,65 +381,37 @@ class DesignProblem:
             self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded)
         return self._cache[key]
 
-    def _block_rows(self, u, sol: WingSolution):
-        """``(r, dr/du, g, dg/du)`` of the tension limits at the solved ``sol``, bay by bay (`blocks`)."""
-        u = np.asarray(u, np.float64)
-        columns = bay_columns(self.variables, len(self.bays))
-        blocks, distances, tensions = [], [], []
-        for k, scene in enumerate(self.scenes):
-            nodes_of = implicit_equilibrium(scene, sol.solutions[k])
-
-            def outputs(v, k=k, scene=scene, nodes_of=nodes_of):
-                parameters = self.variables.bay_parameters(v, k)
-                nodes = nodes_of(parameters.resolved(self.fabric))
-                d = bay_distances(nodes, self.rows[k], self.etas, self.chords[k])
-                shape = math.sqrt(self.weights[k]) * distance_residuals(d, self.objective)
-                if self.constraints is None:
-                    return shape, (d, jnp.zeros(0))
-                t = cell_tensions(scene, nodes, parameters)
-                return jnp.concatenate([shape, t]), (d, t)
-
-            y, block, (d, t) = bay_jacobian(outputs, u, columns[k])
-            blocks.append(block)
-            distances.append(np.asarray(d))
-            tensions.append(np.asarray(t))
-        self._measured[key_of(u)] = (sol.nodes, {"distances": distances, "tensions": tensions})
-        n_shape = self.shape_size // len(self.bays)
-        r = np.concatenate([np.sqrt(w) * np.asarray(distance_residuals(d, self.objective))
-                            for w, d in zip(self.weights, distances)])
-        jr = block_rows([b[:n_shape] for b in blocks], [k * n_shape for k in range(len(blocks))], columns,
-                        r.size, u.size)
+    def _linearised_outputs(self, v, sol):
+        """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
+        shape = self.shape_residuals(sol.nodes)
         if self.constraints is None:
-            return r, jr, np.zeros(0), scipy.sparse.csr_matrix((0, u.size))
-        t = np.concatenate(tensions)
-        g = np.asarray(cell_constraints(self.constraints, jnp.asarray(t), self.fabric, self.tension_scale))
-        offsets = np.concatenate([[0], np.cumsum([x.size for x in tensions])[:-1]])
-        jt = block_rows([b[n_shape:] for b in blocks], offsets, columns, t.size, u.size)
-        # each limit's rows are (T - floor) / scale or (ceiling - T) / scale (`cell_constraints`)
-        signs = [1.0 if name == "min_tension" else -1.0 for name in self.constraints.names(self.fabric)]
-        jg = scipy.sparse.vstack([(s / self.tension_scale) * jt for s in signs], format="csr")
-        return r, jr, g, jg
+            return shape
+        t = jnp.concatenate(self.tensions(sol.nodes, v))
+        return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric, self.tension_scale)])
+
+    def _row_bays(self, n_rows: int) -> np.ndarray:
+        """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
+        tension limit's rows over every bay's cells (span, then chord tensions of each bay)."""
+        n_bays = len(self.bays)
+        shape = np.repeat(np.arange(n_bays), self.shape_size // n_bays)
+        n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
+        if not n_limits:
+            return shape
+        per_bay = (n_rows - shape.size) // (n_limits * n_bays)
+        return np.concatenate([shape, np.tile(np.repeat(np.arange(n_bays), per_bay), n_limits)])
 
     def _dense_rows(self, u):
         """``(r, dr/du, g, dg/du)`` of the tension limits by forward mode through the whole wing: every
         variable's tangent through every bay, dense (NumPy)."""
-
-        def outputs(v, sol):
-            shape = self.shape_residuals(sol.nodes)
-            if self.constraints is None:
-                return shape
-            t = jnp.concatenate(self.tensions(sol.nodes, v))
-            return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
-                                                            self.tension_scale)])
-
-        (y, jac), _ = self._transformed(_value_and_jacobian, outputs, u)
+        (y, jac), _ = self._transformed(_value_and_jacobian, self._linearised_outputs, u)
         y, jac = np.asarray(y), np.asarray(jac)
         n = self.shape_size
         return y[:n], jac[:n], y[n:], jac[n:]
 
     def dense_linearised(self, u):
         """`linearised`'s ``(r, dr/du, g, dg/du)`` of the tension limits (no rib limits), its Jacobians
-        dense, by forward mode through the whole wing (the reference the bay blocks are checked against)."""
+        dense, one tangent per variable through the whole wing (the reference the compressed blocks
+        are checked against)."""
         return self._dense_rows(u)
 
     # ------------------------------------------------------ penalty methods
