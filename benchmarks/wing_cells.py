@@ -61,7 +61,7 @@ def _load() -> float:
     return round(os.getloadavg()[0], 1) if hasattr(os, "getloadavg") else float("nan")
 
 
-def run_design(case: str, design: str, cells: int | None, refine: bool, grid) -> dict:
+def run_design(case: str, design: str, cells: int | None, refine: bool, grid, max_iterations=None) -> dict:
     """One design in this process (the subprocess's work): its record."""
     import resource
 
@@ -78,6 +78,8 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid) ->
             "--method", "gauss_newton", *extra]
     if grid is not None:
         argv += ["--n-span", str(grid[0]), "--n-contour", str(grid[1])]
+    if max_iterations is not None:
+        argv += ["--max-iterations", str(max_iterations)]
     args, _ = parse_arguments(argv)
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, names, rib_limits, bounds, constraints = design_inputs(args)
@@ -113,9 +115,10 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid) ->
     return record
 
 
-def run_subprocess(case: str, design: str, cells, refine: bool, grid) -> dict:
+def run_subprocess(case: str, design: str, cells, refine: bool, grid, max_iterations=None) -> dict:
     """`run_design` in a fresh Python (its own peak memory), or the failure as a record."""
-    spec = json.dumps({"case": case, "design": design, "cells": cells, "refine": refine, "grid": grid})
+    spec = json.dumps({"case": case, "design": design, "cells": cells, "refine": refine, "grid": grid,
+                       "max_iterations": max_iterations})
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([sys.executable, __file__, "--one", spec], capture_output=True, text=True, env=env)
     for line in reversed(proc.stdout.splitlines()):
@@ -132,12 +135,15 @@ def main(argv=None) -> int:
     parser.add_argument("--cells", default=None, help="comma-separated bay counts (the first N bays of each case)")
     parser.add_argument("--grid", type=int, nargs=2, default=None, metavar=("N_SPAN", "N_CONTOUR"))
     parser.add_argument("--refine", action="store_true", help="re-solve each design on 33x64")
+    parser.add_argument("--max-iterations", type=int, default=None,
+                        help="cap on wing solves (peak-memory runs: the peak comes with the first Jacobians)")
     parser.add_argument("--out", type=Path, default=RESULTS / "wing_cells.json")
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     options = parser.parse_args(argv)
     if options.one is not None:
         spec = json.loads(options.one)
-        print(json.dumps(run_design(spec["case"], spec["design"], spec["cells"], spec["refine"], spec["grid"])))
+        print(json.dumps(run_design(spec["case"], spec["design"], spec["cells"], spec["refine"], spec["grid"],
+                                    spec.get("max_iterations"))))
         return 0
     cells = [None] if options.cells is None else [int(c) for c in options.cells.split(",")]
     records = []
@@ -148,7 +154,9 @@ def main(argv=None) -> int:
     for case in options.cases.split(","):
         for design in options.designs.split(","):
             for n in cells:
-                record = run_subprocess(case, design, n, options.refine, options.grid)
+                record = run_subprocess(case, design, n, options.refine, options.grid, options.max_iterations)
+                if options.max_iterations is not None:
+                    record["design"] += f" (cap {options.max_iterations} solves)"
                 print(json.dumps(record), flush=True)
                 records = [r for r in records if (r.get("case"), r.get("design"), r.get("bays")) !=
                            (record["case"], record["design"], record.get("bays"))] + [record]

@@ -159,18 +159,19 @@ def implicit_equilibrium(scene, solution):
         A function of the bay's `forward_solver.Parameters` (JAX values
         allowed under ``jax.jvp``) returning ``(n_span, n_contour, 3)`` nodes, m.
     """
-    x = jnp.asarray(np.asarray(solution.nodes, np.float64))
+    x_host = np.asarray(solution.nodes, np.float64)  # made a JAX array at the call (float64 on there)
     geometry = scene.bay.geometry()
     physics = scene.physics(dynamic=False)
     made = {}
 
     @jax.custom_jvp
     def nodes(parameters):
-        return x
+        return jnp.asarray(x_host, jnp.float64)
 
     @nodes.defjvp
     def nodes_jvp(primals, tangents):
         (parameters,), (dparameters,) = primals, tangents
+        x = jnp.asarray(x_host, jnp.float64)
         params = scene.params(_concrete(parameters))
         if "adjoint" not in made:
             made["adjoint"] = ImplicitAdjoint(x, geometry, params, physics, "lu", factor=solution.factor)

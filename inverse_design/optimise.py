@@ -789,6 +789,8 @@ def _notify(bar, callback, method: str):
     def on_record(entry: dict) -> None:
         value = entry["objective"]
         shown = f"condition={value:.3e}" if method == "root" else f"rms={math.sqrt(max(value, 0.0)):.3e}"
+        if "jacobian" in entry:  # the Jacobian's bay blocks (gauss_newton: one pass of compressed tangents)
+            shown += f", Jacobian {entry['jacobian']}"
         bar.set_postfix_str(shown, refresh=False)
         bar.update(1)
         if callback is not None:

@@ -40,7 +40,7 @@ from .objectives import (bay_distances, bay_weights, distance_errors, distance_r
                          row_targets, station_etas, weighted_mean_square)
 from .variables import DesignVariables, concrete_rows
 
-__all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
+__all__ = ["DesignProblem", "WingConvergenceError", "check_field_terms", "check_solver_options", "key_of"]
 
 #: The forward solves' options when none are given.
 DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
@@ -129,6 +129,7 @@ class DesignProblem:
                  rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None):
         self.scenes = list(scenes)
         self.bays = [scene.bay for scene in self.scenes]
+        check_field_terms(variables, self.bays[0].n_contour)
         self.fabric = self.scenes[0].fabric
         self.targets = list(targets)
         self.variables = variables
@@ -378,7 +379,8 @@ class DesignProblem:
                 n_thick = self.rib_geometries[0].upper.size
                 recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded)
+            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
+                        jacobian=f"{len(self.bays)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
 
     def _linearised_outputs(self, v, sol):
@@ -473,7 +475,10 @@ class DesignProblem:
                 "min_tension": np.array([x.min() for x in t]), "max_tension": np.array([x.max() for x in t]),
                 "tensions": t}
 
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None):
+    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None,
+               jacobian: str | None = None):
+        """Append the history entry of an iterate at ``u`` (``jacobian``: its Jacobian's blocks, as the
+        progress bar shows them) and call `on_record` with it."""
         entry = {
             "values": self.variables.values(np.asarray(u, dtype=np.float64)),
             "objective": float(objective),
@@ -482,9 +487,29 @@ class DesignProblem:
         }
         if constraints is not None:
             entry["constraints"] = [float(c) for c in constraints]
+        if jacobian is not None:
+            entry["jacobian"] = jacobian
         self.history.append(entry)
         if self.on_record is not None:
             self.on_record(entry)
+
+
+def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
+    """Refuse a cut field with more terms per fibre direction than the bay's ``n_contour`` contour nodes:
+    beyond one term per node a term's B-spline spans no node (`forward_solver.cut_field`), so it moves
+    nothing and the design's Jacobian is singular in it.
+
+    Raises:
+        ValueError: naming the terms, the nodes and what to change.
+    """
+    if "cut_pattern" not in variables.names:
+        return
+    width = variables.sizes["cut_pattern"] if variables.cut_patterns is None else variables.cut_patterns.shape[1]
+    terms = width // 2
+    if terms > n_contour:
+        raise ValueError(f"a cut pattern of {terms} terms per fibre direction on {n_contour} contour nodes: at "
+                         f"most one term per contour node moves the skin; give --cut-pattern-terms {n_contour} "
+                         "or fewer, or more --n-contour")
 
 
 def check_solver_options(options) -> dict:
