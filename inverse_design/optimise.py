@@ -133,7 +133,9 @@ class DesignResult(ParameterViews):
             ``constraints`` (the smooth constraint values, >= 0 feasible,
             with the least thickness and curvature row of the rib limits;
             slsqp; for gauss_newton each tension limit's least cell row)
-            and ``steps`` (forward-solve steps of the slowest bay).
+            and ``steps`` (forward-solve steps of the slowest bay); gauss_newton adds
+            ``jacobian`` (its bay blocks and tangents) and, at each accepted iterate,
+            ``qp_rows`` (the limit rows its step QP kept, `step_qp.reachable_rows`).
         success: the method converged, every bay's final solve converged and
             no tension or rib limit is violated.
         message: the method's message, and what was violated.
