@@ -11,10 +11,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import scipy.optimize
+import scipy.sparse
 
 from .constraints import VIOLATION_TOLERANCE
 from .objectives import section_points
 from .problem import DesignProblem, key_of
+from .step_qp import reachable_rows, solve_step_qp
 
 __all__ = ["gauss_newton", "slsqp", "least_squares", "optax_descent", "root", "BRACKET_FACTOR", "OPTAX_GAIN",
            "OPTAX_LEARNING_RATE", "OPTAX_PATIENCE", "OPTAX_HALVINGS",
@@ -117,11 +119,6 @@ GN_MAX_RADIUS = 10.0
 #: Levenberg-Marquardt damping of the subproblem, relative to the largest diagonal entry of J^T J:
 #: it only keeps the model strictly convex where a variable barely moves the skin.
 GN_DAMPING = 1e-8
-#: SLSQP solves the step's QP in a few iterations but now and then stops where it started (status 0 at
-#: d = 0, or status 8: measured on a 2-bay wing with a cut field per bay, where a step lowered the
-#: objective 9%); a step predicted to gain less than this fraction of the merit is checked by an
-#: exact solve of the same QP with hard limits (`_distance_step`) before the method reads it as converged.
-GN_QP_CHECK = 1e-3
 #: A predicted fall below this fraction of the starting merit (1 in the scaled merit) is below what
 #: the merit's float64 sum of squares resolves: converged, whatever ``tolerance`` asks of a merit
 #: that has itself fallen to rounding (a target the design reaches exactly).
@@ -171,7 +168,10 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     while True:
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
-        d, predicted, checked = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
+        d, predicted, kept = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
+        entry = _entry_of(problem, u)
+        if entry is not None:  # the limit rows the step's QP kept (of g.size), in the history
+            entry["qp_rows"] = max(int(kept), int(entry.get("qp_rows", 0)))
         if predicted <= max(tolerance * phi, GN_RESOLUTION):
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
@@ -184,8 +184,6 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         try:
             r1, jr1, g1, jg1, _ = problem.linearised(trial)
             ratio = (phi - merit(r1, g1)) / predicted
-            if checked and violation(g1) > max(violation(g), GN_SLACK):
-                ratio = -np.inf  # the exact QP's step traded a limit for fit: shorter, or converged
         except WingConvergenceError:
             ratio = -np.inf
         step = float(np.max(np.abs(d)))
@@ -201,32 +199,73 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
                     "lowers the merit (objective and constraint violation)")
 
 
-def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
-    """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
-    (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
-    from ``d = 0``, and whether the step is `_distance_step`'s (SLSQP saw no fall and the exact
-    check found one: `gauss_newton` takes it only if no limit ends broken by more than before).
+def _entry_of(problem: DesignProblem, u):
+    """The newest history entry recorded at the scaled vector ``u``, or None."""
+    key = key_of(u)
+    for entry in reversed(problem.history):
+        if key_of(problem.variables.from_values(entry["values"])) == key:
+            return entry
+    return None
 
-    The fit is rewritten by a QR factorisation of ``[jr; sqrt(damping) I]``
-    as ``|c + R d|^2``; in ``z = R d`` its Hessian is the identity, which is
-    SLSQP's own starting Hessian, so SLSQP solves this convex QP (with one
-    slack ``s >= 0`` for the largest violation) in a few iterations and no
-    forward solve.
-    """
-    n = jr.shape[1]
-    # Rows that no step in the box can bring below zero do not bind: drop them (every cell's tension
-    # is a row; only those near a limit stay).
-    near = g - np.abs(jg) @ np.maximum(np.abs(lo), np.abs(hi)) <= 0.0
-    g, jg = g[near], jg[near]
-    damping = GN_DAMPING * max(float(np.max(np.sum(jr * jr, axis=0), initial=0.0)), 1e-300)
-    q, rr = np.linalg.qr(np.vstack([jr, np.sqrt(damping) * np.eye(n)]))
-    c = q.T @ np.concatenate([r, np.zeros(n)])
-    inverse = np.linalg.inv(rr)  # upper triangular, n x n: d = inverse @ z
+
+def _damping(jr) -> float:
+    """`GN_DAMPING` relative to the largest diagonal entry of ``jr^T jr`` (dense or sparse ``jr``)."""
+    squares = (np.asarray(jr.multiply(jr).sum(axis=0)).reshape(-1) if scipy.sparse.issparse(jr)
+               else np.sum(jr * jr, axis=0))
+    return GN_DAMPING * max(float(np.max(squares, initial=0.0)), 1e-300)
+
+
+def _model(r, jr, g, jg, penalty):
+    """The Gauss-Newton model ``m(d)`` of the merit (`gauss_newton`)."""
 
     def model(d):
         fit = r + jr @ d
         return float(fit @ fit) + penalty * max(0.0, -float(np.min(g + jg @ d, initial=0.0)) - GN_SLACK)
 
+    return model
+
+
+def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
+    """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
+    (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
+    from ``d = 0``, and how many limit rows the QP kept.
+
+    ``jr`` and ``jg`` are dense or ``scipy.sparse``. Rows that no step in the box can bring below zero
+    cannot bind and are dropped (`step_qp.reachable_rows`: of a wing's every cell tension, only those
+    near a limit stay); the QP with one slack for the largest violation is solved sparse by
+    `step_qp.solve_step_qp` (Clarabel), without forward solves.
+    """
+    n = jr.shape[1]
+    near = reachable_rows(g, jg, lo, hi)
+    g, jg = g[near], jg[near]
+    model = _model(r, jr, g, jg, penalty)
+    d, _, _ = solve_step_qp(r, jr, g, jg, lo, hi, _damping(jr), qp_penalty)
+    if d is None:
+        return np.zeros(n), 0.0, int(g.size)
+    predicted = model(np.zeros(n)) - model(d)
+    if not predicted > 0.0:
+        return np.zeros(n), 0.0, int(g.size)
+    return d, predicted, int(g.size)
+
+
+def _dense_step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
+    """`_step` by SLSQP on the dense QP (the former path, kept as the reference the tests and
+    ``benchmarks/wing_cells.py`` measure the sparse QP against).
+
+    The fit is rewritten by a QR factorisation of ``[jr; sqrt(damping) I]`` as ``|c + R d|^2``; in
+    ``z = R d`` its Hessian is the identity, SLSQP's own starting Hessian, with one slack ``s >= 0``
+    for the largest violation.
+    """
+    jr = jr.toarray() if scipy.sparse.issparse(jr) else np.asarray(jr)
+    jg = jg.toarray() if scipy.sparse.issparse(jg) else np.asarray(jg)
+    n = jr.shape[1]
+    near = reachable_rows(g, jg, lo, hi)
+    g, jg = g[near], jg[near]
+    damping = _damping(jr)
+    q, rr = np.linalg.qr(np.vstack([jr, np.sqrt(damping) * np.eye(n)]))
+    c = q.T @ np.concatenate([r, np.zeros(n)])
+    inverse = np.linalg.inv(rr)  # upper triangular, n x n: d = inverse @ z
+    model = _model(r, jr, g, jg, penalty)
     # x = (z, s): 0.5 |c + z|^2 + 0.5 penalty s
     cons = [{"type": "ineq", "fun": lambda x: inverse @ x[:n] - lo, "jac": lambda x: np.hstack([inverse, np.zeros((n, 1))])},
             {"type": "ineq", "fun": lambda x: hi - inverse @ x[:n], "jac": lambda x: np.hstack([-inverse, np.zeros((n, 1))])}]
@@ -242,46 +281,10 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
         bounds=[(None, None)] * n + [(0.0, None)], constraints=cons,
         options={"maxiter": 500, "ftol": 1e-14})
     d = np.clip(inverse @ result.x[:n], lo, hi)
-    here = model(np.zeros(n))
-    predicted = here - model(d)
-    checked = False
-    if not predicted > GN_QP_CHECK * here:
-        # SLSQP says no step helps (having solved the QP or not): before that is read as converged,
-        # solve the QP again with its limits hard by least-distance programming; keep the better step.
-        other = _distance_step(c, inverse, g, jg, lo, hi, s0)
-        if other is not None and here - model(other) > predicted:
-            checked, d, predicted = True, other, here - model(other)
+    predicted = model(np.zeros(n)) - model(d)
     if not predicted > 0.0:
-        return np.zeros(n), 0.0, False
-    return d, predicted, checked
-
-
-def _distance_step(c, inverse, g, jg, lo, hi, s0):
-    """The QP of `_step` with its limits hard (each no worse than the current worst violation ``s0``),
-    by least-distance programming: in ``w = c + z`` the fit is ``|w|^2``, so the step is the point
-    of least norm of a polyhedron, which Lawson and Hanson's NNLS finds exactly (``scipy.optimize.nnls``,
-    an active-set method on the few binding rows of thousands). The check on SLSQP's answer; None if
-    the polyhedron is empty or NNLS fails.
-    """
-    n = inverse.shape[0]
-    # Rows G w >= h: the box lo <= inverse z <= hi and the limits g + jg inverse z >= -s0, with z = w - c.
-    gi = jg @ inverse
-    G = np.vstack([inverse, -inverse, gi])
-    h = np.concatenate([lo + inverse @ c, -hi - inverse @ c, -g - s0 + gi @ c])
-    scale = np.maximum(np.linalg.norm(G, axis=1), np.finfo(float).tiny)  # rows of unit norm
-    G, h = G / scale[:, None], h / scale
-    E = np.vstack([G.T, h[None, :]])
-    f = np.zeros(n + 1)
-    f[n] = 1.0
-    try:
-        u, _ = scipy.optimize.nnls(E, f, maxiter=50 * E.shape[1])
-    except RuntimeError:  # NNLS's iteration cap
-        return None
-    r = E @ u - f
-    if not abs(r[n]) > 1e-12:  # no point of the polyhedron
-        return None
-    w = -r[:n] / r[n]
-    return np.clip(inverse @ (w - c), lo, hi)
+        return np.zeros(n), 0.0, int(g.size)
+    return d, predicted, int(g.size)
 
 
 def least_squares(problem: DesignProblem, u0, max_iterations, tolerance):

@@ -168,7 +168,9 @@ class DesignResult(ParameterViews):
             ``constraints`` (the smooth constraint values, >= 0 feasible,
             with the least thickness and curvature row of the rib limits;
             slsqp; for gauss_newton each tension limit's least cell row)
-            and ``steps`` (forward-solve steps of the slowest bay).
+            and ``steps`` (forward-solve steps of the slowest bay); gauss_newton adds
+            ``jacobian`` (its bay blocks and tangents) and, at each accepted iterate,
+            ``qp_rows`` (the limit rows its step QP kept, `step_qp.reachable_rows`).
         success: the method converged, every bay's final solve converged and
             no tension or rib limit is violated.
         message: the method's message, and what was violated.
@@ -758,6 +760,8 @@ def _notify(bar, callback, method: str):
     def on_record(entry: dict) -> None:
         value = entry["objective"]
         shown = f"condition={value:.3e}" if method == "root" else f"rms={math.sqrt(max(value, 0.0)):.3e}"
+        if "jacobian" in entry:  # the Jacobian's bay blocks (gauss_newton: one pass of compressed tangents)
+            shown += f", Jacobian {entry['jacobian']}"
         bar.set_postfix_str(shown, refresh=False)
         bar.update(1)
         if callback is not None:

@@ -27,18 +27,20 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse
 
 from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.implicit import forward_only
 from forward_solver.wing import WingSolution, default_strategy
 
+from .blocks import compressed_seeds, decompress
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          row_targets, station_etas, weighted_mean_square)
 from .variables import DesignVariables, concrete_rows
 
-__all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
+__all__ = ["DesignProblem", "WingConvergenceError", "check_field_terms", "check_solver_options", "key_of"]
 
 #: The forward solves' options when none are given.
 DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
@@ -80,9 +82,10 @@ def _of_bay(nodes, k: int):
     return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
-def _value_and_jacobian(wrapped, v):
+def _value_and_jacobian(wrapped, v, basis=None):
     """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode; a NumPy array) and its auxiliary
-    output.
+    output; with ``basis`` (``(n_tangents, v.size)``) its derivatives along those tangents instead
+    (``(n_outputs, n_tangents)``: `blocks.compressed_seeds`).
 
     ``jax.jacfwd`` less its bookkeeping: the basis of tangents is NumPy's and the Jacobian is
     transposed on the host (``jax.jacfwd`` built and unravelled them with a dozen eager operations,
@@ -94,8 +97,9 @@ def _value_and_jacobian(wrapped, v):
         r, dr, aux = jax.jvp(wrapped, (v,), (t,), has_aux=True)
         return r, dr, aux
 
-    with forward_only(v.size):
-        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(np.eye(v.size, dtype=np.float64))
+    basis = np.eye(v.size, dtype=np.float64) if basis is None else np.asarray(basis, np.float64)
+    with forward_only(basis.shape[0]):
+        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(basis)
     return r, np.asarray(jac).T, aux
 
 
@@ -125,6 +129,7 @@ class DesignProblem:
                  rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None):
         self.scenes = list(scenes)
         self.bays = [scene.bay for scene in self.scenes]
+        check_field_terms(variables, self.bays[0].n_contour)
         self.fabric = self.scenes[0].fabric
         self.targets = list(targets)
         self.variables = variables
@@ -345,42 +350,71 @@ class DesignProblem:
         """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`shape_residuals`, ``r @ r``
         the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
         (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
-        holds over a longer step) and the rib limits' rows, with their Jacobians by
-        forward mode through the implicit equilibrium (``jax.jacfwd``: one forward solve, then per bay
-        one back-solve per variable with the solve's own LU factor; the rib limits' rows without a
-        solve). One wing solve, whatever the number of variables.
+        holds over a longer step) and the rib limits' rows, with their Jacobians (``scipy.sparse``
+        CSR) by forward mode through the implicit equilibrium, bay by bay: one wing solve, then per
+        bay one back-solve with its own LU factor per variable that moves it (the shared ones, its
+        row of a per-bay cut field, its two ribs' rows of per-rib shapes), all bays in one pass of
+        compressed tangents (`blocks.compressed_seeds`); the rib limits' rows without a solve.
 
         Raises:
             WingConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
-
-            def outputs(v, sol):
-                shape = self.shape_residuals(sol.nodes)
-                if self.constraints is None:
-                    return shape
-                t = jnp.concatenate(self.tensions(sol.nodes, v))
-                return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric,
-                                                                self.tension_scale)])
-
-            (y, jac), sol = self._transformed(_value_and_jacobian, outputs, u)
-            y, jac = np.asarray(y), np.asarray(jac)
+            seeds, columns = compressed_seeds(self.variables, len(self.bays))
+            (y, compressed), sol = self._transformed(partial(_value_and_jacobian, basis=seeds),
+                                                     self._linearised_outputs, u)
+            y = np.asarray(y)
             n = self.shape_size
+            jac = decompress(compressed, self._row_bays(y.size), columns, self.variables.size)
             r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
+            n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
             # history: the least row of each tension limit (as `evaluate`'s aggregates, >= 0 feasible)
-            per_limit = g.reshape(-1, max(g.size // max(len(self.constraints.names(self.fabric)), 1), 1)) \
-                if self.constraints is not None and g.size else np.zeros((0, 1))
-            recorded = per_limit.min(axis=1)
+            recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
             if self.rib_geometries:
                 g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-                g, jg = np.concatenate([g, g_rib]), np.vstack([jg, jac_rib])
+                g, jg = np.concatenate([g, g_rib]), scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)],
+                                                                        format="csr")
                 per_rib = g_rib.reshape(len(self.rib_geometries), -1)
                 n_thick = self.rib_geometries[0].upper.size
                 recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.record(u, r @ r, np.linalg.norm(2.0 * jr.T @ r), solution=sol, constraints=recorded)
+            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
+                        jacobian=f"{len(self.bays)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
+
+    def _linearised_outputs(self, v, sol):
+        """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
+        shape = self.shape_residuals(sol.nodes)
+        if self.constraints is None:
+            return shape
+        t = jnp.concatenate(self.tensions(sol.nodes, v))
+        return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric, self.tension_scale)])
+
+    def _row_bays(self, n_rows: int) -> np.ndarray:
+        """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
+        tension limit's rows over every bay's cells (span, then chord tensions of each bay)."""
+        n_bays = len(self.bays)
+        shape = np.repeat(np.arange(n_bays), self.shape_size // n_bays)
+        n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
+        if not n_limits:
+            return shape
+        per_bay = (n_rows - shape.size) // (n_limits * n_bays)
+        return np.concatenate([shape, np.tile(np.repeat(np.arange(n_bays), per_bay), n_limits)])
+
+    def _dense_rows(self, u):
+        """``(r, dr/du, g, dg/du)`` of the tension limits by forward mode through the whole wing: every
+        variable's tangent through every bay, dense (NumPy)."""
+        (y, jac), _ = self._transformed(_value_and_jacobian, self._linearised_outputs, u)
+        y, jac = np.asarray(y), np.asarray(jac)
+        n = self.shape_size
+        return y[:n], jac[:n], y[n:], jac[n:]
+
+    def dense_linearised(self, u):
+        """`linearised`'s ``(r, dr/du, g, dg/du)`` of the tension limits (no rib limits), its Jacobians
+        dense, one tangent per variable through the whole wing (the reference the compressed blocks
+        are checked against)."""
+        return self._dense_rows(u)
 
     # ------------------------------------------------------ penalty methods
     def residuals(self, v, sol):
@@ -441,7 +475,10 @@ class DesignProblem:
                 "min_tension": np.array([x.min() for x in t]), "max_tension": np.array([x.max() for x in t]),
                 "tensions": t}
 
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None):
+    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None,
+               jacobian: str | None = None):
+        """Append the history entry of an iterate at ``u`` (``jacobian``: its Jacobian's blocks, as the
+        progress bar shows them) and call `on_record` with it."""
         entry = {
             "values": self.variables.values(np.asarray(u, dtype=np.float64)),
             "objective": float(objective),
@@ -450,9 +487,29 @@ class DesignProblem:
         }
         if constraints is not None:
             entry["constraints"] = [float(c) for c in constraints]
+        if jacobian is not None:
+            entry["jacobian"] = jacobian
         self.history.append(entry)
         if self.on_record is not None:
             self.on_record(entry)
+
+
+def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
+    """Refuse a cut field with more terms per fibre direction than the bay's ``n_contour`` contour nodes:
+    beyond one term per node a term's B-spline spans no node (`forward_solver.cut_field`), so it moves
+    nothing and the design's Jacobian is singular in it.
+
+    Raises:
+        ValueError: naming the terms, the nodes and what to change.
+    """
+    if "cut_pattern" not in variables.names:
+        return
+    width = variables.sizes["cut_pattern"] if variables.cut_patterns is None else variables.cut_patterns.shape[1]
+    terms = width // 2
+    if terms > n_contour:
+        raise ValueError(f"a cut pattern of {terms} terms per fibre direction on {n_contour} contour nodes: at "
+                         f"most one term per contour node moves the skin; give --cut-pattern-terms {n_contour} "
+                         "or fewer, or more --n-contour")
 
 
 def check_solver_options(options) -> dict:

@@ -32,6 +32,7 @@ part, so a design optimises either them or ``cut_pattern``, not both.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from functools import partial
 from typing import Mapping
@@ -163,6 +164,13 @@ class DesignVariables:
             raise ValueError(f"rib_shape must be one of {RIB_SHAPE_LAYOUTS}, got {rib_shape!r}")
         if cut_pattern not in CUT_PATTERN_LAYOUTS:
             raise ValueError(f"cut_pattern must be one of {CUT_PATTERN_LAYOUTS}, got {cut_pattern!r}")
+        if cut_pattern == "per_bay" and "cut_pattern" in names and n_ribs == 2:
+            warnings.warn("a cut field per bay on a case of one bay is the shared field: the design "
+                          "optimises one field (cut_pattern layout 'shared')", stacklevel=2)
+            cut_pattern = "shared"
+            if not isinstance(initial, Parameters) and initial is not None and "cut_pattern" in initial:
+                rows = np.asarray(initial["cut_pattern"], np.float64)
+                initial = {**initial, "cut_pattern": rows.reshape(-1) if rows.ndim == 2 and len(rows) == 1 else rows}
         per_rib = "rib_shape" in names and rib_shape == "per_rib"
         per_bay = "cut_pattern" in names and cut_pattern == "per_bay"
         shape_start = field_start = None

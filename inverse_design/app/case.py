@@ -433,6 +433,10 @@ def design_inputs(args: argparse.Namespace) -> tuple:
     if "cut_pattern" in variables and not getattr(args, "evaluate", False):
         if args.cut_pattern_terms < 1:
             raise InputError(f"--cut-pattern-terms must be at least 1, got {args.cut_pattern_terms}")
+        if args.cut_pattern_terms > args.n_contour:  # (as `inverse_design.problem.check_field_terms`)
+            raise InputError(f"a cut pattern of {args.cut_pattern_terms} terms per fibre direction on {args.n_contour} "
+                             f"contour nodes: at most one term per contour node moves the skin; give "
+                             f"--cut-pattern-terms {args.n_contour} or fewer, or more --n-contour")
         initial = initial.replace(cut_pattern=[0.0] * (2 * args.cut_pattern_terms))
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,

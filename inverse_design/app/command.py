@@ -20,7 +20,8 @@ import time
 from . import interrupts
 from .case import check_equilibrium_method, design_inputs, ignored_options, load_section, report_may_write
 from .options import PROG, InputError
-from .resources import check_flat_panels, check_grid
+from ..memory import design_tangents
+from .resources import check_design_memory, check_flat_panels, check_grid
 from .tolerance import check_tolerance_options, run_tolerance
 
 __all__ = ["NOT_FOR_A_WING", "WORKER_MODULES", "plausibility", "run", "safe_point"]
@@ -173,6 +174,10 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         chords, stations = wing.chords, wing.stations
         # Ribs too close for the grid are refused before any warning about the inputs is shown.
         check_rib_gaps(wing, fabric, initial, n_span=args.n_span, n_contour=args.n_contour, rtol=GRADIENT_RTOL)
+        if not args.evaluate:  # a design that would not fit in memory: refused before any solve
+            check_design_memory(wing.n_bays, args.n_span, args.n_contour, design_tangents(
+                variables, wing.n_bays, cut_pattern_terms=args.cut_pattern_terms, rib_shape_terms=args.rib_shape_terms,
+                cut_pattern=args.cut_pattern_layout), allow_large=args.allow_large_grid)
         bays = [(stations[k + 1] - stations[k], 0.5 * (chords[k] + chords[k + 1])) for k in range(len(chords) - 1)]
         layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
 

@@ -51,6 +51,7 @@ __all__ = [
     "CLOSE_RIBS",
     "available_memory",
     "check_flat_panels",
+    "check_design_memory",
     "check_grid",
     "estimate_cost",
 ]
@@ -203,6 +204,27 @@ def check_grid(n_span: int, n_contour: int, *, evaluate: bool = False, allow_lar
     if cost.nodes > MAX_NODES:
         raise ValueError(f"{grid} exceeds the cap of {MAX_NODES:,} nodes: {estimate}; {advice}")
     return cost
+
+
+def check_design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: int, *, allow_large: bool = False,
+                        available: tuple[float | None, str] | None = None) -> float:
+    """Refuse a design whose estimated peak memory (`inverse_design.memory.design_memory`: bays, grid and
+    the Jacobian's tangents) exceeds `MEMORY_FRACTION` of the available memory; returns the estimate, bytes.
+
+    Raises:
+        ValueError: one line with the estimate, the limit and what to change.
+    """
+    from ..memory import design_memory
+
+    estimate = design_memory(n_bays, n_span, n_contour, n_tangents)
+    free, source = available_memory() if available is None else available
+    if not allow_large and free is not None and estimate > MEMORY_FRACTION * free:
+        raise ValueError(f"the design of {n_bays} bays on {n_span} x {n_contour} with {n_tangents} Jacobian tangents "
+                         f"per bay needs about {_size(estimate)} of memory, more than the limit of "
+                         f"{_size(MEMORY_FRACTION * free)} (half of the {_size(free)} available, {source}); use "
+                         "fewer bays, a smaller --n-span or --n-contour, fewer --cut-pattern-terms or "
+                         "--rib-shape-terms, or --allow-large-grid to run it anyway")
+    return estimate
 
 
 #: Rib spacing over mean chord below which `check_flat_panels` lays a bay's panels out before the

@@ -46,6 +46,7 @@ def test_forward_mode_jacobian_matches_central_differences(wing):
                                 Constraints(), rtol=1e-12)
         u = np.array([1.0, 2.0])
         r, jr, g, jg, _ = problem.linearised(u)
+        jr, jg = jr.toarray(), jg.toarray()  # scipy.sparse
         h = 1e-4
         for i in range(u.size):
             e = np.zeros_like(u)

@@ -1,0 +1,195 @@
+"""Designs of a 40-cell wing cut cell by cell: time, wing solves, errors and peak memory.
+
+Three 40-cell cases (``inverse_design/cases/``): the built-in elliptic wing
+(``wing_40_cells.toml``, NACA 4415), a rectangular one of one section
+(``wing_40_cells_constant.toml``) and one blended from NACA 4418 at the root
+to NACA 2412 at the tip with a linear taper (``wing_40_cells_blended.toml``).
+Four designs each (`DESIGNS`), by the command's own namespace
+(`inverse_design.app.case.parse_arguments`, `case.design_inputs`): the
+pressure and the uniform prestrains; the pressure and one shared cut field;
+the pressure and a cut field per bay; the pressure, a cut field per bay and a
+shape per rib (about 800 variables on 40 cells). Gauss-Newton with the block
+Jacobian (`inverse_design.blocks`) and the sparse step QP
+(`inverse_design.step_qp`).
+
+Each design runs in a subprocess of its own, which reports its peak resident
+memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: JAX's buffers are not
+Python objects, so tracemalloc misses them) and its wall time with the load
+average at its start and end (the machine is shared). ``--refine`` re-solves
+each design on 33x64 (`optimise.refine_design`) and records how far it
+moves. ``--cells 10,20,40`` runs the first 10, 20 and 40 bays of a case (the
+peak memory's growth; `inverse_design.memory` is calibrated on it).
+
+Run:
+    PYTHONPATH=. python benchmarks/wing_cells.py                       # every case and design, 17x64
+    PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --refine
+    PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --cells 10,20,40 --out F
+
+The LE recession is not in the design's summary, so it is not reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.results import RESULTS, machine_description, save_result  # noqa: E402
+
+CASES = {"elliptic": "wing_40_cells.toml", "constant": "wing_40_cells_constant.toml",
+         "blended": "wing_40_cells_blended.toml"}
+#: Design name -> (``--variables``, further arguments).
+DESIGNS = {
+    "prestrains": ("pressure,prestrain_span,prestrain_chord", []),
+    "shared_field": ("pressure,cut_pattern", []),
+    "per_bay": ("pressure,cut_pattern", ["--cut-pattern-layout", "per_bay"]),
+    "per_bay_ribs": ("pressure,cut_pattern,rib_shape", ["--cut-pattern-layout", "per_bay"]),
+}
+COLUMNS = ["case", "bays", "design", "variables", "success", "wing solves", "rms", "max", "worst bay",
+           "worst bay rms", "QP rows kept (max)", "seconds", "peak MB", "load start/end",
+           "33x64 rms", "33x64 move"]
+
+
+def _load() -> float:
+    return round(os.getloadavg()[0], 1) if hasattr(os, "getloadavg") else float("nan")
+
+
+def run_design(case: str, design: str, cells: int | None, refine: bool, grid, max_iterations=None) -> dict:
+    """One design in this process (the subprocess's work): its record."""
+    import resource
+
+    import numpy as np
+
+    from forward_solver import Fabric, Wing
+    from inverse_design import Layout, Limits, SolverSettings, optimise_wing
+    from inverse_design.app.case import design_inputs, load_section, parse_arguments
+    from inverse_design.optimise import refine_design
+
+    load_start = _load()
+    variables, extra = DESIGNS[design]
+    argv = ["--config", str(ROOT / "inverse_design" / "cases" / CASES[case]), "--variables", variables,
+            "--method", "gauss_newton", *extra]
+    if grid is not None:
+        argv += ["--n-span", str(grid[0]), "--n-contour", str(grid[1])]
+    if max_iterations is not None:
+        argv += ["--max-iterations", str(max_iterations)]
+    args, _ = parse_arguments(argv)
+    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
+    initial, names, rib_limits, bounds, constraints = design_inputs(args)
+    ribs = args.wing if cells is None else args.wing[:cells + 1]
+    sections = [load_section(r["section"], "section") for r in ribs]
+    targets = [load_section(r["target"], "target") if "target" in r else sections[k] for k, r in enumerate(ribs)]
+    wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
+                stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
+    limits = Limits(tension=constraints, ribs=rib_limits)
+    solver = SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+                            equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
+    layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
+    start = time.perf_counter()
+    result = optimise_wing(wing, fabric, targets, names, initial=initial, bounds=bounds, objective=args.objective,
+                           method="gauss_newton", limits=limits, solver=solver, layout=layout)
+    seconds = time.perf_counter() - start
+    worst = int(np.argmax(result.per_bay.rms_error))
+    size = sum(np.size(v) for v in result.history[-1]["values"].values()) if result.history else None
+    record = {"case": case, "bays": wing.n_bays, "design": design, "variables": size,
+              "success": bool(result.success), "message": result.message, "wing solves": int(result.solves),
+              "rms": float(f"{result.rms_error:.4g}"), "max": float(f"{result.max_error:.4g}"),
+              "worst bay": worst, "worst bay rms": float(f"{result.per_bay.rms_error[worst]:.4g}"),
+              "QP rows kept (max)": max([h.get("qp_rows", 0) for h in result.history], default=0),
+              "seconds": round(seconds, 1),
+              "load start/end": f"{load_start}/{_load()}"}
+    record["peak MB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    if refine:
+        fine = refine_design(result, layout=dataclasses.replace(layout, n_span=33, n_contour=64), bounds=bounds,
+                             limits=limits, solver=solver)
+        change = fine.grid_change["change"]
+        record["33x64 rms"] = float(f"{fine.rms_error:.4g}")
+        record["33x64 move"] = "; ".join(f"{k} {v:.3g}" for k, v in change.items())
+        record["33x64 seconds"] = round(time.perf_counter() - start - seconds, 1)
+        record["peak MB with 33x64"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    return record
+
+
+def run_subprocess(case: str, design: str, cells, refine: bool, grid, max_iterations=None) -> dict:
+    """`run_design` in a fresh Python (its own peak memory), or the failure as a record."""
+    spec = json.dumps({"case": case, "design": design, "cells": cells, "refine": refine, "grid": grid,
+                       "max_iterations": max_iterations})
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, __file__, "--one", spec], capture_output=True, text=True, env=env)
+    for line in reversed(proc.stdout.splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+    return {"case": case, "bays": cells, "design": design, "success": False, "message": tail[0]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", default=",".join(CASES), help=f"comma-separated among {','.join(CASES)}")
+    parser.add_argument("--designs", default=",".join(DESIGNS), help=f"comma-separated among {','.join(DESIGNS)}")
+    parser.add_argument("--cells", default=None, help="comma-separated bay counts (the first N bays of each case)")
+    parser.add_argument("--grid", type=int, nargs=2, default=None, metavar=("N_SPAN", "N_CONTOUR"))
+    parser.add_argument("--refine", action="store_true", help="re-solve each design on 33x64")
+    parser.add_argument("--max-iterations", type=int, default=None,
+                        help="cap on wing solves (peak-memory runs: the peak comes with the first Jacobians)")
+    parser.add_argument("--out", type=Path, default=RESULTS / "wing_cells.json")
+    parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    options = parser.parse_args(argv)
+    if options.one is not None:
+        spec = json.loads(options.one)
+        print(json.dumps(run_design(spec["case"], spec["design"], spec["cells"], spec["refine"], spec["grid"],
+                                    spec.get("max_iterations"))))
+        return 0
+    cells = [None] if options.cells is None else [int(c) for c in options.cells.split(",")]
+    records = []
+    if options.out.exists():  # runs of other cases and designs are kept, the same ones replaced
+        old = json.loads(options.out.read_text())
+        records = [dict(zip(old["columns"], row)) for row in old["rows"]]
+        records = [{**r, "message": ""} for r in records]
+    for case in options.cases.split(","):
+        for design in options.designs.split(","):
+            for n in cells:
+                record = run_subprocess(case, design, n, options.refine, options.grid, options.max_iterations)
+                if options.max_iterations is not None:
+                    record["design"] += f" (cap {options.max_iterations} solves)"
+                print(json.dumps(record), flush=True)
+                records = [r for r in records if (r.get("case"), r.get("design"), r.get("bays")) !=
+                           (record["case"], record["design"], record.get("bays"))] + [record]
+                rows = [[r.get(c) for c in COLUMNS] for r in records]
+                failed = [f"{r['case']} {r['design']} ({r.get('bays')} bays): {r['message']}" for r in records
+                          if r.get("message") and not r.get("success")]
+                save_result(
+                    options.out.stem, title="Designs of 40-cell wings cut cell by cell (Gauss-Newton, block "
+                                            "Jacobian, sparse QP)",
+                    command="PYTHONPATH=. python benchmarks/wing_cells.py [--cases ...] [--designs ...] "
+                            "[--cells 10,20,40] [--refine]",
+                    columns=COLUMNS, rows=rows,
+                    notes=["grid 17x64 per bay unless the row says otherwise; the command's defaults (objective "
+                           "average, min_tension 0, max_iterations 50, start 1e4 Pa and 2% prestrain)",
+                           "designs: prestrains = pressure + uniform prestrains; shared_field = pressure + one "
+                           "cut field (12 coefficients); per_bay = pressure + a cut field per bay; per_bay_ribs = "
+                           "that + a shape per rib (8 coefficients each)",
+                           "rms, max: normal distance from the target, fractions of the local chord; worst bay: "
+                           "the bay of the largest rms; QP rows kept: the tension and rib rows of the step QP that "
+                           "a step in the trust box can reach (of 2 x 2048 per bay at 17x64)",
+                           "seconds: wall time of the design in its own process, compilation included; peak MB: "
+                           "ru_maxrss of that process; load: the 1-minute load average at its start and end "
+                           "(2-core machine shared with other work)",
+                           "33x64: the design re-solved on 33x64 (refine_design): its rms and how far the "
+                           "variables moved (pressure relative, others absolute, largest component)",
+                           "LE recession is not in the design summary, so it is not reported",
+                           *[f"failed: {line}" for line in failed]],
+                    machine=machine_description(), folder=options.out.parent)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
