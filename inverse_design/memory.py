@@ -16,9 +16,11 @@ a shape per rib (29 tangents), capped at 2 wing solves: 987 and 1324 MiB, 33.7
 MiB a bay (0.031 MiB a node; the tangents' share, 0.0005 MiB a node each, is
 the size of their node arrays through the force kernel, not a fit). A run of
 many iterates holds more: the archive of every solve grows with them
-(measured: the uncapped 40-bay design above 4 GiB after 45 minutes, against
-the estimate's 2.0 GiB), so the estimate is the floor a design needs, and the
-command refuses on it.
+(measured: the uncapped 40-bay design, 809 variables, 6.7 GiB resident after
+60 minutes at load 7-16 and still growing, against the estimate's 2.0 GiB;
+the cause is not found: the archive of solves is small and the released LU
+factors are capped at 512 MiB), so the estimate is the floor a design needs,
+and the command refuses on it.
 """
 
 from __future__ import annotations
