@@ -57,6 +57,34 @@ def pytest_configure(config):
         "(a few minutes); deselect with -m 'not notebooks'")
 
 
+#: The longest files (CPU seconds on one core, most first: docs/architecture.md "Tests"). They run
+#: first: pytest-xdist's ``--dist loadfile`` hands whole files to its workers in collection order
+#: (``--no-loadscope-reorder``: else in order of their number of tests, which put the notebooks, four
+#: tests, near the end), so the short files at the end fill the gaps and neither worker waits alone
+#: for one long file.
+LONGEST_FIRST = (
+    "docs/test_readme.py",  # 136 s (measured serially, 2026-11-26, on a loaded 2-core machine)
+    "docs/test_notebooks.py",  # 120 s
+    "command/test_cli.py",  # 113 s
+    "derivatives/test_transforms.py",  # 75 s
+    "wing/test_solve_bays.py",  # 74 s
+    "design/test_design_matrix.py",  # 71 s
+    "design/test_cut_field.py",  # 65 s
+    "reliability/test_stress.py",  # 64 s
+    "derivatives/test_gradients.py",  # 57 s
+    "solver/test_equilibrium.py",  # 52 s
+    "design/test_rib_design.py",  # 52 s
+)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    def rank(item):
+        path = item.nodeid.split("::")[0].removeprefix("tests/")
+        return LONGEST_FIRST.index(path) if path in LONGEST_FIRST else len(LONGEST_FIRST)
+
+    items.sort(key=rank)  # (stable: every file keeps its own order, the others their collection order)
+
+
 def pytest_unconfigure(config):
     owned = getattr(config, "owned_cache", None)
     if owned:

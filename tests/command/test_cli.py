@@ -70,6 +70,15 @@ def _leftovers(folder: Path):
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
+def _main_in(folder: Path, monkeypatch, capsys, *args):
+    """`cli.main` on ``args`` in ``folder``, in this process: its exit code and output as a finished
+    subprocess's (``returncode``, ``stdout``, ``stderr``)."""
+    monkeypatch.chdir(folder)
+    code = cli.main(list(args))
+    captured = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+
+
 def _one_line_error(done, *fragments):
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
@@ -320,10 +329,10 @@ def test_case_file_values_are_checked_like_options(tmp_path):
         ("chord = [1\n", "not valid TOML"),
     ],
 )
-def test_a_bad_case_file_exits_2_with_one_line(run_cli, tmp_path, text, message):
+def test_a_bad_case_file_exits_2_with_one_line(tmp_path, monkeypatch, capsys, text, message):
     (tmp_path / "case.toml").write_text(text)
-    done = run_cli("--config", "case.toml", "--out", "out", cwd=tmp_path)
-    _one_line_error(done, "case.toml", message)
+    _one_line_error(_main_in(tmp_path, monkeypatch, capsys, "--config", "case.toml", "--out", "out"),
+                    "case.toml", message)
     assert not (tmp_path / "out").exists()
 
 
@@ -348,10 +357,18 @@ def test_a_bad_case_file_exits_2_with_one_line(run_cli, tmp_path, text, message)
         (["--variables", "pressure,rib_shape", "--rib-shape-bounds", "0.01", "0.05"], "outside its bounds"),
     ],
 )
-def test_bad_input_exits_2_with_one_line(run_cli, tmp_path, args, message):
+def test_bad_input_exits_2_with_one_line(tmp_path, monkeypatch, capsys, args, message):
     (tmp_path / "garbled.dat").write_text("not an airfoil\n1 2 3\n")
-    done = run_cli(*args, "--out", "out", cwd=tmp_path)
-    _one_line_error(done, message)
+    _one_line_error(_main_in(tmp_path, monkeypatch, capsys, *args, "--out", "out"), message)
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
+
+
+def test_bad_input_exits_2_with_one_line_from_a_fresh_process(run_cli, tmp_path):
+    """The cases above run `cli.main` in this process (a fresh interpreter each costs seconds); one
+    runs as a user runs it: nothing else reaches stderr or stdout on the way (imports, JAX's start)."""
+    (tmp_path / "case.toml").write_text("n-spam = 5\n")
+    _one_line_error(run_cli("--config", "case.toml", "--out", "out", cwd=tmp_path), "case.toml", "unknown key 'n-spam'")
+    _one_line_error(run_cli("--pressure", "-5", "--out", "out", cwd=tmp_path), "pressure")
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 

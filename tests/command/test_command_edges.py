@@ -49,7 +49,8 @@ def test_a_run_without_stdout_or_home_finishes_and_creates_no_home(tmp_path):
     """stdout closed (``>&-``) and HOME a folder that does not exist: the report is written, exit 0,
     one line says the run goes without the cache, and the home folder is not created."""
     home = tmp_path / "no-such-home"
-    command = [sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--out", str(tmp_path / "out")]
+    # (--evaluate: one equilibrium and its report; without a cache an optimisation compiles its gradients cold)
+    command = [sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--evaluate", "--out", str(tmp_path / "out")]
     ran = subprocess.run(["sh", "-c", 'exec "$@" >&-', "sh", *command],
                          cwd=tmp_path, env=_env(HOME=str(home), XDG_CACHE_HOME=None, XDG_CONFIG_HOME=None,
                                                 INFLATABLE_WING_CACHE=None, JAX_COMPILATION_CACHE_DIR=None,

@@ -1,6 +1,6 @@
 """One forward entry for N >= 1 bays: `solve_bays`, its two strategies and one adjoint.
 
-A 3-bay NACA 2412 wing tapering 1.0 -> 0.8 -> 0.7 -> 0.6 m on 9x32 grids,
+A 3-bay NACA 2412 wing tapering 1.0 -> 0.8 -> 0.7 -> 0.6 m on 5x32 grids,
 with one rib shape per rib. The "loop" (per-bay `solve_equilibrium`: host
 LU adjoint) and the "batch" (one jit(vmap) relaxation: Krylov adjoint) must
 find the same nodes (both at rtol 1e-10: < 1e-7 m) and the same gradients
@@ -18,7 +18,7 @@ from forward_solver.implicit import ImplicitAdjoint
 from forward_solver.wing import Wing, solve_wing
 from targets import naca
 
-GRID = dict(n_span=9, n_contour=32)
+GRID = dict(n_span=5, n_contour=32)
 PARAMETERS = Parameters(pressure=2e4, prestrain_span=0.005, prestrain_chord=0.005)
 SHAPES = 0.01 * np.array([[0.0, 0.0, 0.0, 0.0], [-1.0, 0.5, 1.0, -0.5], [0.5, -1.0, 0.0, 1.0],
                           [1.0, 1.0, -1.0, 0.0]])
@@ -54,7 +54,7 @@ def test_loop_and_batch_gradients_agree(scenes):
         shapes = jnp.asarray(SHAPES).at[1, 1].set(c)
         nodes = solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-11, rib_shapes=shapes,
                            strategy=strategy).nodes
-        return jnp.sum(nodes[:, 4, :, 2] ** 2)
+        return jnp.sum(nodes[:, 2, :, 2] ** 2)  # (the mid-bay rows)
 
     with jax.enable_x64(True):
         grads = {s: np.asarray(jax.grad(bulge, argnums=(0, 1))(2e4, SHAPES[1, 1], s)) for s in ("loop", "batch")}
@@ -118,8 +118,8 @@ def test_bad_input_is_refused_with_what_to_change(scenes):
     other = Scene(scenes[1].bay, Fabric(stiffness_span=1e5))
     with pytest.raises(ValueError, match="scene 1 differs from scene 0 in: fabric"):
         solve_bays([scenes[0], other], PARAMETERS)
-    coarse = Scene(Bay.from_airfoil(naca("2412"), n_span=5, n_contour=32), Fabric())
-    with pytest.raises(ValueError, match="grid 5x32"):
+    coarse = Scene(Bay.from_airfoil(naca("2412"), n_span=5, n_contour=24), Fabric())
+    with pytest.raises(ValueError, match="grid 5x24"):
         solve_bays([scenes[0], coarse], PARAMETERS)
     with pytest.raises(ValueError, match="strategy must be one of"):
         solve_bays(scenes, PARAMETERS, strategy="gpu")
