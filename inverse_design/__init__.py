@@ -18,7 +18,7 @@ mid-bay condition). The packages and the data flow: ``docs/architecture.md``.
 import importlib
 
 #: Each public name and the submodule that defines it: imported on first use (PEP 562), so that a
-#: process that needs only a JAX-free submodule (the report's workers: `app.workers`, `app.pattern`)
+#: process that needs only a JAX-free submodule (the report's workers: `app.workers`, `app.cut_files`)
 #: does not import JAX and the solver.
 _PUBLIC = {"Constraints": "constraints", "OBJECTIVES": "objectives", "design_errors": "objectives",
            "objective_residuals": "objectives", "section_errors": "objectives", "DesignResult": "optimise",

@@ -148,7 +148,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
     squares) is refused by `optimise.optimise_wing`.
     """
-    from .problem import WingConvergenceError
+    from .problem import BaysConvergenceError
 
     design = problem.variables
     lower, upper = design.lower, design.upper
@@ -184,7 +184,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         try:
             r1, jr1, g1, jg1, _ = problem.linearised(trial)
             ratio = (phi - merit(r1, g1)) / predicted
-        except WingConvergenceError:
+        except BaysConvergenceError:
             ratio = -np.inf
         step = float(np.max(np.abs(d)))
         if ratio < 0.25:

@@ -43,7 +43,7 @@ def safe_point(entry=None) -> None:
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
 #: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
 #: the figures and of the DXF patterns they write, and the modules their tasks name.
-WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf", "inverse_design.app.pattern")
+WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf", "inverse_design.app.cut_files")
 
 
 def _import_report_modules() -> None:
