@@ -42,7 +42,7 @@ Two paths. This module's primal is host code (scipy, Python control flow),
 so it serves eager ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` and
 ``jax.vjp``, where the parameters are traced but concrete. Under ``jax.jit``
 or ``jax.vmap`` of the parameters they are abstract and `solve_equilibrium`
-takes the pure-JAX path of `traced` instead: the relaxation alone, under
+takes the pure-JAX path of `jit_equilibrium` instead: the relaxation alone, under
 ``stop_gradient``, its fixed point differentiated by `implicit.implicit_nodes`
 (the same implicit rule with the iterative solver). The two agree to 1e-10
 relative on the 9x32 bay (tests/derivatives/test_transforms.py). The host methods
@@ -129,7 +129,7 @@ GRADIENT_RTOL = 1e-11
 
 
 # ---------------------------------------------------------------- the rule
-def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
+def _kernel_tangent(dparameters: Parameters, like: fk.KernelInputs) -> fk.KernelInputs:
     """The kernel-parameter tangent of a `Parameters` tangent (fabric constants do not move).
 
     An unset tip rib shape follows the root's, so it takes the root's tangent too.
@@ -149,7 +149,7 @@ def _kernel_tangent(dparameters: Parameters, like: fk.Params) -> fk.Params:
             return value
         return jnp.asarray(value, dtype=primal.dtype)
 
-    return fk.Params(*(tangent(name) for name in fk.Params._fields))
+    return fk.KernelInputs(*(tangent(name) for name in fk.KernelInputs._fields))
 
 
 def _concrete(parameters: Parameters) -> Parameters:

@@ -80,7 +80,7 @@ def plane_strain_modulus(material):
     """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)``, N/m.
 
     Args:
-        material: a `Fabric` or the kernel's `forces.Params` (anything with
+        material: a `Fabric` or the kernel's `forces.KernelInputs` (anything with
             ``stiffness_span``, ``stiffness_chord`` and ``poisson``).
     """
     return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
@@ -90,7 +90,7 @@ def wave_speed(material):
     """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s.
 
     Args:
-        material: a `Fabric` or `forces.Params` (also ``areal_density``, kg/m^2).
+        material: a `Fabric` or `forces.KernelInputs` (also ``areal_density``, kg/m^2).
     """
     return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
 

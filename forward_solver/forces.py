@@ -38,7 +38,7 @@ from .rib_shape import rib_offsets
 
 __all__ = [
     "Geometry",
-    "Params",
+    "KernelInputs",
     "Physics",
     "Reference",
     "Forces",
@@ -74,8 +74,12 @@ class Geometry(NamedTuple):
     free: jnp.ndarray  # (ns, nc) 1.0 where the node may move, 0.0 where held
 
 
-class Params(NamedTuple):
-    """Traced physical parameters: new values never recompile."""
+class KernelInputs(NamedTuple):
+    """The force kernel's inputs: traced physical values, new values never recompile.
+
+    Built by `scene.Scene.params` from the design's `parameters.Parameters`
+    and the `fabric.Fabric` (the kernel never sees the design's pytree itself).
+    """
 
     pressure: jnp.ndarray  # Pa, internal overpressure
     prestrain_span: jnp.ndarray  # dimensionless
@@ -223,13 +227,13 @@ def nominal_nodes(geometry: Geometry, rib_thickness_scale=1.0, rib_chord_scale=1
     return jnp.stack([x, y, z], axis=-1)
 
 
-def mounted_nodes(geometry: Geometry, params: Params) -> jnp.ndarray:
+def mounted_nodes(geometry: Geometry, params: KernelInputs) -> jnp.ndarray:
     """`nominal_nodes` with the rib variables of the kernel ``params`` (scales and shapes)."""
     return nominal_nodes(geometry, params.rib_thickness_scale, params.rib_chord_scale,
                          params.rib_shape_root, params.rib_shape_tip)
 
 
-def prepare(geometry: Geometry, params: Params, physics: Physics) -> Reference:
+def prepare(geometry: Geometry, params: KernelInputs, physics: Physics) -> Reference:
     """Cut lengths and lumped areas for one solve.
 
     The fabric is cut shorter than the mounted geometry: reference length =
@@ -296,7 +300,7 @@ class Fibres(NamedTuple):
     wrinkled: jnp.ndarray  # (ns-1, ncell) bool
 
 
-def fibres(x, ref: Reference, params: Params, physics: Physics, v=None) -> Fibres:
+def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) -> Fibres:
     """Stretches (eq. 12), directions (13), tensions (10) and edge forces (14)."""
     periodic = physics.periodic
     d1 = x[1:] - x[:-1]  # span edges (ns-1, nc, 3)
@@ -352,7 +356,7 @@ def fibres(x, ref: Reference, params: Params, physics: Physics, v=None) -> Fibre
 def forces(
     x: jnp.ndarray,
     ref: Reference,
-    params: Params,
+    params: KernelInputs,
     physics: Physics,
     pressure: jnp.ndarray | None = None,
     v: jnp.ndarray | None = None,
@@ -392,7 +396,7 @@ def forces(
     return Forces(total * ref.free, fib.tension_span, fib.tension_chord, fib.wrinkled)
 
 
-def node_stiffness(x, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+def node_stiffness(x, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
     """Upper estimate of each node's stiffness, ``(ns, nc)`` N/m.
 
     The sum over the node's edges of the axial stiffness (plane-strain
@@ -423,18 +427,18 @@ def static_physics(physics: Physics) -> Physics:
     return Physics(physics.periodic, physics.tension_only, False, False, physics.gravity)
 
 
-def residual(x: jnp.ndarray, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+def residual(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
     """Static force residual ``R(x)`` at rest (no velocity terms), ``(ns, nc, 3)`` N."""
     return forces(x, ref, params, static_physics(physics)).total
 
 
-def relative_residual(x: jnp.ndarray, ref: Reference, params: Params, physics: Physics) -> jnp.ndarray:
+def relative_residual(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
     """``||R_free||_2 / (p A)``: the residual over the total pressure load (dimensionless)."""
     r = residual(x, ref, params, physics)
     return safe_norm(r.reshape(-1)) / (params.pressure * ref.skin_area)
 
 
-def rounding_residual_floor(ref: Reference, params: Params, physics: Physics, eps) -> jnp.ndarray:
+def rounding_residual_floor(ref: Reference, params: KernelInputs, physics: Physics, eps) -> jnp.ndarray:
     """Relative residual ``||R_free|| / (p A)`` that rounding the coordinates can leave.
 
     Rounding every coordinate to a relative precision ``eps`` (``eps`` of the

@@ -27,7 +27,7 @@ dofs. `ImplicitAdjoint` is that rule at one equilibrium:
   it runs under ``jax.jit`` / ``jax.vmap`` and on any backend).
 
 `solve_equilibrium`'s custom JVP (`adjoint.differentiable_solution`) and the
-pure-JAX relaxation (`implicit_nodes`, used by `traced` and by the batched
+pure-JAX relaxation (`implicit_nodes`, used by `jit_equilibrium` and by the batched
 wing) both differentiate through this one object.
 """
 
@@ -67,7 +67,7 @@ def default_linear_solver() -> str:
     return "lu" if jax.default_backend() == "cpu" else "iterative"
 
 
-def held_at_mounted(x, geometry: fk.Geometry, params: fk.Params):
+def held_at_mounted(x, geometry: fk.Geometry, params: fk.KernelInputs):
     """``x`` on the free nodes, the held nodes at the mounted (rib) position of ``params``."""
     mounted = fk.mounted_nodes(geometry, params)
     free = geometry.free[..., None]
@@ -75,7 +75,7 @@ def held_at_mounted(x, geometry: fk.Geometry, params: fk.Params):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
+def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
     """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
 
     The first is zero on held nodes (the residual is); the second, the
@@ -92,7 +92,7 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Param
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, physics: fk.Physics):
+def _batched_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
     """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
     program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
     level, so that it compiles ahead (`batched_rhs_task`) and is found in the persistent cache
@@ -101,7 +101,7 @@ def _batched_rhs(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params
         x, geometry, params, dparams)
 
 
-def batched_rhs_task(geometry: fk.Geometry, params: fk.Params, physics: fk.Physics, n_tangents: int):
+def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, n_tangents: int):
     """``(key, task)`` for `ahead.Ahead.submit`: compile `_batched_rhs` for ``n_tangents`` tangents at
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
     batched, float64 and strongly typed), and trace the
@@ -167,7 +167,7 @@ def forward_only(n_tangents: int | None = None):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def jacobian_matvec(x, geometry: fk.Geometry, params: fk.Params, v, physics: fk.Physics):
+def jacobian_matvec(x, geometry: fk.Geometry, params: fk.KernelInputs, v, physics: fk.Physics):
     """``J v`` on the free dofs and ``v`` on the held ones (the operator of the linear solve)."""
     physics = fk.static_physics(physics)
     ref = fk.prepare(geometry, params, physics)
@@ -277,7 +277,7 @@ def _apply_lu(token, anchor, free, b, callback):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _callback_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.Params, free, token, physics):
+def _callback_tangent(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, free, token, physics):
     """``J^-1 (-dR/dtheta . dtheta) + dheld`` by the host LU that ``token`` names, not transposable
     (`HostLU.direct_tangent` of one tangent, or under an enclosing trace)."""
     b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
@@ -285,7 +285,7 @@ def _callback_tangent(x, geometry: fk.Geometry, params: fk.Params, dparams: fk.P
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def _lu_solve(x, geometry: fk.Geometry, params: fk.Params, b, dheld, free, token, physics):
+def _lu_solve(x, geometry: fk.Geometry, params: fk.KernelInputs, b, dheld, free, token, physics):
     """``J^-1 b + dheld``, transposable, by the host LU that ``token`` names (`HostLU`).
 
     A program of its own, apart from the right-hand side (`parameter_rhs`): a program that calls
@@ -436,13 +436,13 @@ class ImplicitAdjoint:
         self.solver = (HostLU.at(x, geometry, params, self.physics, factor) if linear_solver == "lu"
                        else Krylov())
 
-    def tangent(self, dparams: fk.Params):
+    def tangent(self, dparams: fk.KernelInputs):
         """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
         return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(0,))
-def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.Params, converged):
+def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.KernelInputs, converged):
     """The equilibrium ``x`` (returned as is), differentiable in ``params`` by `ImplicitAdjoint`
     with the "iterative" solver (pure JAX: under ``jax.jit`` and ``jax.vmap``).
 

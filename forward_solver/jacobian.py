@@ -246,7 +246,7 @@ def linearise(x, ref, params, physics, pattern: FreePattern):
     return jac, np.asarray(r, dtype=np.float64)[pattern.free_dofs]
 
 
-def assemble_jacobian(x, ref: fk.Reference, params: fk.Params, physics: fk.Physics) -> sp.csc_matrix:
+def assemble_jacobian(x, ref: fk.Reference, params: fk.KernelInputs, physics: fk.Physics) -> sp.csc_matrix:
     """Sparse Jacobian ``dR/dx`` of `forces.residual` on the free degrees of freedom.
 
     One ``jax.vmap`` of ``jax.jvp`` over the colour seeds of

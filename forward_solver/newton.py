@@ -281,7 +281,7 @@ def _continuation(problem, params, x_start, rtol, max_iterations, max_line_searc
     return last, iterations, levels, done
 
 
-def warm_up(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> None:
+def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> None:
     """Compile (running each once) the programs of a `newton` solve on ``x``'s grid: the reference
     state, the residual and the Jacobian values, called as `newton` calls them (`ahead`)."""
     with float64_scope():
@@ -295,7 +295,7 @@ def warm_up(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) ->
 def newton(
     x_init,
     geometry: fk.Geometry,
-    params: fk.Params,
+    params: fk.KernelInputs,
     physics: fk.Physics,
     rtol: float,
     max_iterations: int = 50,

@@ -10,7 +10,7 @@ derivatives, and new values never recompile.
 
 What is not a design parameter (Poisson's ratio, areal density, viscosity,
 damping, gravity) belongs to the `Fabric` and the `Scene`;
-`Scene.params` merges both into the kernel's `forces.Params` at the last
+`Scene.params` merges both into the kernel's `forces.KernelInputs` at the last
 step.
 """
 

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 from .bay import Bay
 from .fabric import Fabric
 from ._precision import device_arrays, float64_scope
-from .forces import Params, Physics
+from .forces import KernelInputs, Physics
 from .parameters import Parameters
 
 __all__ = ["Scene", "float64_scope"]
@@ -69,7 +69,7 @@ class Scene:
             gravity=self.gravity,
         )
 
-    def params(self, parameters: Parameters, dtype=jnp.float64) -> Params:
+    def params(self, parameters: Parameters, dtype=jnp.float64) -> KernelInputs:
         """The force kernel's traced parameters: ``parameters`` merged with the fabric's constants.
 
         Args:
@@ -79,7 +79,7 @@ class Scene:
         """
         p = parameters.resolved(self.fabric)
         fab = self.fabric
-        values = Params(
+        values = KernelInputs(
             pressure=p.pressure,
             prestrain_span=p.prestrain_span,
             prestrain_chord=p.prestrain_chord,
@@ -96,7 +96,7 @@ class Scene:
             rib_shape_tip=_no_shape if p.rib_shapes[1] is None else p.rib_shapes[1],
             cut_pattern=_no_shape if p.cut_pattern is None else p.cut_pattern,
         )
-        return Params(*device_arrays(values, dtype))
+        return KernelInputs(*device_arrays(values, dtype))
 
     def check_parameters(self, parameters: Parameters) -> Parameters:
         """``parameters.check()``, and a rib shape only on a closed (airfoil) contour.

@@ -121,7 +121,7 @@ class Solution(ParameterViews):
     are traced and differentiable; the other fields are the concrete solve's.
 
     Under ``jax.jit`` or ``jax.vmap`` of the parameters (the pure-JAX path,
-    `traced`), ``result``, ``steps``, ``residual`` and ``parameters`` are
+    `jit_equilibrium`), ``result``, ``steps``, ``residual`` and ``parameters`` are
     arrays and leaves of the pytree too (a batch has a leading axis on every
     leaf): ``result`` is then an int32 array of `Result` codes, `converged`
     an array, ``wall_time`` None (not measured inside a compiled call), and
@@ -272,7 +272,7 @@ def make_solution(out, f, steps, wall, method, parameters: Parameters, bay, hist
     )
 
 
-def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndarray:
+def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jnp.ndarray:
     """Starting shape: the mounted one, or a warm start whose held nodes are re-mounted.
 
     Held nodes (ribs, seams) always start at this solve's mounted position, so
@@ -313,7 +313,7 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.Params) -> jnp.ndar
 
 
 @jax.jit
-def _remounted(nodes, geometry: fk.Geometry, params: fk.Params, *own):
+def _remounted(nodes, geometry: fk.Geometry, params: fk.KernelInputs, *own):
     """`initial_nodes` as one program (a warm re-solve's start; eager, it was half of its time):
     ``nodes`` with the held nodes at this solve's mounted shape and, given the rib variables
     ``own`` of the solution they came from, the free nodes moved by the change of mounted shape."""
@@ -324,7 +324,7 @@ def _remounted(nodes, geometry: fk.Geometry, params: fk.Params, *own):
 
 
 @partial(jax.jit, static_argnames=("physics",))
-def static_state(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics):
+def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
     """``(forces, relative)`` at nodes ``x``: the `forces.Forces` of the static residual (velocity
     terms dropped) and ``||R_free||_2 / (p A)`` (`forces.relative_residual`; NaN when a coordinate
     is not finite).
@@ -340,6 +340,6 @@ def static_state(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physic
     return f, jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
 
 
-def static_forces(x, geometry: fk.Geometry, params: fk.Params, physics: fk.Physics) -> fk.Forces:
+def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> fk.Forces:
     """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped); `static_state`."""
     return static_state(x, geometry, params, physics)[0]

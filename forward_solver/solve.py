@@ -22,7 +22,7 @@ from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, static_forces
-from .traced import has_abstract_values, traced_solution
+from .jit_equilibrium import has_abstract_values, traced_solution
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 
@@ -96,7 +96,7 @@ def solve_equilibrium(
     Under ``jax.jit`` and ``jax.vmap``. When the parameters are abstract
     (traced by ``jax.jit``, or batched by ``jax.vmap``), the solve cannot
     run on the host: method "relax" then runs as one pure-JAX program
-    (`traced`): the relaxation from the mounted shape or ``initial``, no
+    (`jit_equilibrium`): the relaxation from the mounted shape or ``initial``, no
     grid sequencing, at most ``max_steps`` steps, the result code, steps and
     residual returned as arrays in the `Solution`; derivatives by the
     implicit function theorem with the iterative solver. A failure cannot

@@ -5,7 +5,7 @@ between its two ribs (with their sections and chords: taper), and all share
 one inflation pressure and one fabric. On a common grid shape their
 `forces.Geometry` arrays stack along a leading axis, so the relaxation of
 every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
-`relax`, as `traced` runs it under ``jax.vmap``) instead of a Python loop,
+`relax`, as `jit_equilibrium` runs it under ``jax.vmap``) instead of a Python loop,
 and the result is differentiable in the shared `Parameters` by the implicit
 function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 (``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
@@ -15,11 +15,11 @@ cut fields (``cut_patterns``: one row of cut-pattern coefficients per bay,
 `forward_solver.cut_field`) are mapped the same way: bay ``k``'s skin is cut
 by row ``k`` (each cell's panel is cut on its own).
 
-A warm start (``initial``: an earlier `WingSolution`) starts every bay from
+A warm start (``initial``: an earlier `BaysSolution`) starts every bay from
 its earlier displacement added to this solve's mounted shape (as
 `solution.initial_nodes` does for one bay), so the design loop
 (`inverse_design.problem`) re-solves a nearby design in fewer steps.
-`WingSolution.bay_solution` gives one bay as a `Solution` (tensions,
+`BaysSolution.bay_solution` gives one bay as a `Solution` (tensions,
 wrinkles), for reports and for comparison with `solve_equilibrium`.
 
 One forward entry, two strategies. `solve_bays` solves
@@ -54,9 +54,9 @@ from .parameters import Parameters, as_parameters
 from .scene import Scene
 from .solution import ConvergenceError, Result, Solution, static_forces
 from .solve import METHODS, solve_equilibrium
-from .traced import relaxed_nodes
+from .jit_equilibrium import relaxed_nodes
 
-__all__ = ["Wing", "WingSolution", "bay_parameters", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
+__all__ = ["Wing", "BaysSolution", "bay_parameters", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
 
 #: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
 #: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
@@ -165,8 +165,8 @@ class Wing:
 
 
 @dataclass(frozen=True)
-class WingSolution:
-    """The equilibrium of every bay of a wing.
+class BaysSolution:
+    """The equilibrium of N >= 1 bays sharing one `Parameters` (`solve_bays`; one bay for `optimise_pressure`).
 
     Attributes:
         nodes: ``(n_bays, n_span, n_contour, 3)`` m, each bay in its own frame
@@ -231,7 +231,7 @@ class WingSolution:
         if self.solutions is not None:
             return self.solutions[bay]
         if self.fabric is None:
-            raise ValueError("this WingSolution carries no fabric; solve it with solve_wing")
+            raise ValueError("this BaysSolution carries no fabric; solve it with solve_wing")
         scene = self.scene(bay)
         parameters = self.bay_parameters(bay)
         with float64_scope():
@@ -321,8 +321,8 @@ def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> Non
 
 def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
                n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
-               tension_only: bool = True, initial: WingSolution | None = None, rib_shapes=None,
-               cut_patterns=None, strategy: str = "auto", **loose) -> WingSolution:
+               tension_only: bool = True, initial: BaysSolution | None = None, rib_shapes=None,
+               cut_patterns=None, strategy: str = "auto", **loose) -> BaysSolution:
     """Every bay of ``wing`` at one pressure: `solve_bays` of ``wing.scenes(...)``.
 
     Args:
@@ -336,7 +336,7 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         rtol: relative residual each bay is solved to.
         max_steps: step cap (per bay, per grid level on the loop).
         tension_only: the scene switch (no compression, wrinkles).
-        initial: None or an earlier `WingSolution` of this wing on this grid
+        initial: None or an earlier `BaysSolution` of this wing on this grid
             (a warm start, see `solve_bays`).
         rib_shapes: None, or ``(n_ribs, 2 K)`` rib-shape coefficients, one row
             per rib root to tip (`forward_solver.rib_shape`; K for the upper
@@ -351,7 +351,7 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         strategy: "auto", "loop" or "batch" (`solve_bays`).
 
     Returns:
-        A `WingSolution`. A failed bay is reported by its result code, not
+        A `BaysSolution`. A failed bay is reported by its result code, not
         raised; its nodes are NaN (the implicit fixed point is undefined).
 
     Raises:
@@ -375,9 +375,9 @@ def default_strategy() -> str:
 
 
 def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, max_steps: int = 200_000,
-               method: str = "relax", initial: WingSolution | None = None, rib_shapes=None,
+               method: str = "relax", initial: BaysSolution | None = None, rib_shapes=None,
                cut_patterns=None, strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
-               sequencing: bool = True, **loose) -> WingSolution:
+               sequencing: bool = True, **loose) -> BaysSolution:
     """The equilibrium of N >= 1 bays sharing one `Parameters`; differentiable like `solve_equilibrium`.
 
     Args:
@@ -390,7 +390,7 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         max_steps: step cap (per bay and grid level on the loop; for the
             whole batch, which runs until its slowest bay stops).
         method: as `solve_equilibrium`'s (the loop); the batch runs "relax".
-        initial: None, or an earlier `WingSolution` of these bays on this
+        initial: None, or an earlier `BaysSolution` of these bays on this
             grid (not differentiated). The loop passes each bay its earlier
             `Solution` where it has one (so "relax+newton" first tries chord
             Newton with its factor), else the earlier displacement added to
@@ -413,7 +413,7 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
             `solve_equilibrium`'s; small grids compile faster without).
 
     Returns:
-        A `WingSolution`; ``solutions`` holds the loop's per-bay `Solution`s.
+        A `BaysSolution`; ``solutions`` holds the loop's per-bay `Solution`s.
         A failed bay's nodes are NaN there (its result code says why).
 
     Raises:
@@ -450,8 +450,8 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         _check_rows(cut_patterns, "cut_patterns", parameters.cut_pattern, n_bays, "bay", "cut fields")
     shape = (n_bays,) + first.bay.shape + (3,)
     if initial is not None:
-        if not isinstance(initial, WingSolution) or tuple(np.shape(initial.nodes)) != shape:
-            raise ValueError(f"initial must be a WingSolution of these bays on their {shape[1]}x{shape[2]} "
+        if not isinstance(initial, BaysSolution) or tuple(np.shape(initial.nodes)) != shape:
+            raise ValueError(f"initial must be a BaysSolution of these bays on their {shape[1]}x{shape[2]} "
                              f"grid ({n_bays} bays), got {type(initial).__name__}"
                              + (f" of shape {tuple(np.shape(initial.nodes))}" if hasattr(initial, "nodes") else ""))
         if not np.all(np.isfinite(np.asarray(initial.displacements()))):
@@ -545,7 +545,7 @@ def _concrete_solution(solution: Solution) -> Solution:
 
 
 def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
-          sequencing=True) -> WingSolution:
+          sequencing=True) -> BaysSolution:
     """The "loop" strategy: `solve_equilibrium` on each bay (float64 scope on)."""
     solutions, nodes, mounted = [], [], []
     moved = None if initial is None or initial.solutions is not None else initial.displacements()
@@ -586,7 +586,7 @@ def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initia
         steps = np.asarray([int(s.steps) for s in solutions])
         rest = np.stack([np.asarray(m) for m in mounted])
     first = scenes[0]
-    return WingSolution(nodes=stacked, result=result, residual=residual, steps=steps,
+    return BaysSolution(nodes=stacked, result=result, residual=residual, steps=steps,
                         bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
                         tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
                         solutions=solutions, scenes=list(scenes), cut_patterns=fields)
@@ -600,7 +600,7 @@ def _stack_nodes(nodes):
 
 
 def _batch(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
-           sequencing=True) -> WingSolution:
+           sequencing=True) -> BaysSolution:
     """The "batch" strategy: one ``jit(vmap)`` relaxation of every bay (float64 scope on)."""
     del method, linear_solver, sequencing  # relax, and the matrix-free adjoint of `krylov`
     first = scenes[0]
@@ -617,7 +617,7 @@ def _batch(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initi
         geometries, bounds, displacements, None if shapes is None else shapes[:-1],
         None if shapes is None else shapes[1:], fields, params, jnp.asarray(rtol, jnp.float64), physics,
         -(-max_steps // BATCH_CHUNK))
-    return WingSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
+    return BaysSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
                         parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
                         mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes),
                         cut_patterns=fields)

@@ -151,7 +151,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
     squares) is refused by `optimise.optimise_wing`.
     """
-    from .problem import WingConvergenceError
+    from .problem import BaysConvergenceError
 
     design = problem.variables
     lower, upper = design.lower, design.upper
@@ -186,7 +186,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
             ratio = (phi - merit(r1, g1)) / predicted
             if checked and violation(g1) > max(violation(g), GN_SLACK):
                 ratio = -np.inf  # the exact QP's step traded a limit for fit: shorter, or converged
-        except WingConvergenceError:
+        except BaysConvergenceError:
             ratio = -np.inf
         step = float(np.max(np.abs(d)))
         if ratio < 0.25:

@@ -83,14 +83,14 @@ from tqdm import tqdm
 from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing, solve_bays
 from forward_solver.parameters import ParameterViews
 from forward_solver.solution import Result
-from forward_solver.wing import WingSolution, check_rib_gaps
+from forward_solver.wing import BaysSolution, check_rib_gaps
 from targets import Airfoil
 
 from .constraints import UNMET_ADVICE, cell_tensions, constraint_report, tension_scale
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
 from .objectives import (bay_distances, bay_weights, check_objective, distance_errors, local_chords,
                          row_targets, same_section, station_etas)
-from .problem import DesignProblem, WingConvergenceError
+from .problem import DesignProblem, BaysConvergenceError
 from .rib_design import RibGeometry, rib_crossings, rib_report
 from .settings import (AUTO, AUTO_FOR_WORST, METHODS, ROOT_CONDITIONS, DesignRequest, Layout, Limits,
                        SolverSettings, refuse_moved)
@@ -158,7 +158,7 @@ class DesignResult(ParameterViews):
             the square root of the bays' area-weighted mean squares, and the
             largest over the bays (one bay: its own).
         initial_rms_error, initial_max_error: the same at the start.
-        wing_solution: the `forward_solver.wing.WingSolution` at the design
+        wing_solution: the `forward_solver.wing.BaysSolution` at the design
             (``solution``: one bay's `Solution`, or the wing's).
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2,
@@ -215,7 +215,7 @@ class DesignResult(ParameterViews):
     max_error: float
     initial_rms_error: float
     initial_max_error: float
-    wing_solution: WingSolution
+    wing_solution: BaysSolution
     request: DesignRequest
     per_bay: PerBayResults
     history: list = field(default_factory=list)
@@ -253,8 +253,8 @@ class DesignResult(ParameterViews):
         return len(self.wing_solution.bays)
 
     @property
-    def solution(self) -> Solution | WingSolution:
-        """One bay: its `Solution` at the design; a wing: the `WingSolution` (``bay_solution(k)``)."""
+    def solution(self) -> Solution | BaysSolution:
+        """One bay: its `Solution` at the design; a wing: the `BaysSolution` (``bay_solution(k)``)."""
         return self.wing_solution.bay_solution(0) if self.n_bays == 1 else self.wing_solution
 
     @property
@@ -325,7 +325,7 @@ def optimise_wing(
             targets or limits, ribs too close for the grid, rib limits with a
             method other than slsqp or gauss_newton, ``method="root"`` on
             several bays, or gauss_newton with the objective "worst".
-        WingConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
+        BaysConvergenceError: (a `forward_solver.ConvergenceError`) if a bay's
             solve at the start (or the final solve at a clipped design never
             solved before) does not converge; a failure in between ends the
             optimisation at the best iterate whose solves converged, with
@@ -492,7 +492,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
                 u, success, message = least_squares(problem, u0, max_iterations, tolerance)
             else:
                 u, success, message = optax_descent(problem, u0, max_iterations, tolerance, settings.optimiser)
-        except WingConvergenceError as failure:
+        except BaysConvergenceError as failure:
             # Stop at the best iterate whose forward solves converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
             best = problem.best_iterate()
@@ -548,7 +548,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
 
 def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = None, *, objective: str = "mid_bay",
                     wing: Wing | None = None, solver: SolverSettings | None = None,
-                    solution: Solution | WingSolution | None = None) -> DesignResult:
+                    solution: Solution | BaysSolution | None = None) -> DesignResult:
     """One equilibrium of N >= 1 bays at ``parameters``, measured as a design is (no variables, no history).
 
     The errors are those of `optimise_wing` (each bay's rows against the
@@ -570,7 +570,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             ``max_steps`` (`settings.SolverSettings`; None: the defaults with
             ``rtol`` 1e-8, `forward_solver.solve_equilibrium`'s).
         solution: an equilibrium of the bays solved already (a `Solution`
-            of one bay, or a `WingSolution`): measured as it is, not solved
+            of one bay, or a `BaysSolution`): measured as it is, not solved
             again (``parameters`` and ``solver`` are then not used; one that
             did not converge gives ``success`` False).
 
@@ -580,7 +580,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
 
     Raises:
         forward_solver.ConvergenceError: if a bay's solve does not converge (a
-            `WingConvergenceError` naming the bay for several bays).
+            `BaysConvergenceError` naming the bay for several bays).
         ValueError: for an unknown objective.
     """
     scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
@@ -595,7 +595,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     if isinstance(solution, Solution):  # one bay's solve: the wing of that bay
         if len(scenes) != 1:
             raise ValueError(f"a Solution is one bay's equilibrium; got {len(scenes)} scenes")
-        solution = WingSolution(
+        solution = BaysSolution(
             nodes=np.asarray(solution.nodes, np.float64)[None], result=np.asarray([int(solution.result)], np.int32),
             residual=np.asarray([float(solution.residual)]), steps=np.asarray([int(solution.steps)]),
             bays=bays, parameters=solution.parameters, fabric=scenes[0].fabric,
@@ -608,7 +608,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
             sol = solve_bays(scenes, parameters, rtol=solver.rtol, max_steps=solver.max_steps,
                              method=solver.equilibrium_method, sequencing=bays[0].n_contour > 128)
             if not sol.converged:  # (one bay: its own failure, as solve_equilibrium's)
-                raise (WingConvergenceError(sol, sol.failed_bays()[0]) if len(scenes) > 1
+                raise (BaysConvergenceError(sol, sol.failed_bays()[0]) if len(scenes) > 1
                        else ConvergenceError(sol.bay_solution(0)))
         else:
             sol, parameters = solution, solution.parameters
@@ -720,7 +720,7 @@ def _value(result: DesignResult, name: str):
     return float(value) if np.ndim(value) == 0 else np.asarray(value, np.float64).tolist()
 
 
-def _failed_solve_message(failure: WingConvergenceError) -> str:
+def _failed_solve_message(failure: BaysConvergenceError) -> str:
     sol = failure.solution
     where = "" if failure.n_bays == 1 else (f" in bay {failure.bay} ({len(failure.failed)} of {failure.n_bays} "
                                             "bays failed)")

@@ -14,7 +14,7 @@ weighted by `objectives.bay_weights`) and the smooth tension constraints
 gradients by reverse mode through the N-bay forward solve (one adjoint solve
 per output); the penalty residuals their Jacobian by forward mode. Every
 converged solve is archived, so the result is never re-solved. A bay whose
-cold solve fails raises `WingConvergenceError`; its NaN nodes never reach
+cold solve fails raises `BaysConvergenceError`; its NaN nodes never reach
 the optimiser.
 """
 
@@ -31,23 +31,23 @@ import numpy as np
 from forward_solver import ConvergenceError, solve_bays
 from forward_solver.adjoint import GRADIENT_RTOL
 from forward_solver.implicit import forward_only
-from forward_solver.wing import WingSolution, default_strategy
+from forward_solver.wing import BaysSolution, default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
                          row_targets, station_etas, weighted_mean_square)
 from .variables import DesignVariables, concrete_rows
 
-__all__ = ["DesignProblem", "WingConvergenceError", "check_solver_options", "key_of"]
+__all__ = ["DesignProblem", "BaysConvergenceError", "check_solver_options", "key_of"]
 
 #: The forward solves' options when none are given.
 DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
 
 
-class WingConvergenceError(ConvergenceError):
+class BaysConvergenceError(ConvergenceError):
     """A bay did not converge; ``.bay`` is its index, ``.failed`` every failed bay, ``.solution`` its `Solution`."""
 
-    def __init__(self, wing_solution: WingSolution, bay: int):
+    def __init__(self, wing_solution: BaysSolution, bay: int):
         solution = wing_solution.bay_solution(bay)
         super().__init__(solution)
         failed = wing_solution.failed_bays()
@@ -146,7 +146,7 @@ class DesignProblem:
             self.method = "relax"
         # Small design grids: one relaxation loop to compile beats grid sequencing.
         self.sequencing = self.bays[0].n_contour > 128
-        self.previous: WingSolution | None = None  # warm start (and its LU factors)
+        self.previous: BaysSolution | None = None  # warm start (and its LU factors)
         self.solves = 0
         self.history: list[dict] = []
         self.on_record = None  # called with each new history entry (progress bar, callback)
@@ -191,7 +191,7 @@ class DesignProblem:
         return values
 
     # ------------------------------------------------------------ solves
-    def _solve(self, u, initial) -> WingSolution:
+    def _solve(self, u, initial) -> BaysSolution:
         sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol,
                          max_steps=self.solver_options["max_steps"], method=self.method, initial=initial,
                          rib_shapes=self.variables.rib_shapes_at(u), cut_patterns=self.variables.cut_patterns_at(u),
@@ -200,7 +200,7 @@ class DesignProblem:
         self.solves += max([len(s.extra.get("attempts", [None])) for s in sol.solutions or []], default=1)
         return sol
 
-    def _concrete(self, sol: WingSolution, aux: dict, u) -> WingSolution:
+    def _concrete(self, sol: BaysSolution, aux: dict, u) -> BaysSolution:
         """``sol`` with the concrete arrays of ``aux`` (a JAX transformation's auxiliary output)."""
         u = np.asarray(u, np.float64)
         return dataclasses.replace(
@@ -211,11 +211,11 @@ class DesignProblem:
             parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
     def _transformed(self, transform, function, u):
-        """``transform(wrapped)(u)`` and the concrete `WingSolution`, where ``wrapped(v)`` solves every
+        """``transform(wrapped)(u)`` and the concrete `BaysSolution`, where ``wrapped(v)`` solves every
         bay at ``v`` and returns ``(function(v, solution), aux)``; the warm start first, then cold.
 
         Raises:
-            WingConvergenceError: if a bay does not converge from the mounted shape.
+            BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
         # The chain retries cold itself; a named method is retried cold here.
         retry = self.previous is not None and self.method != "auto"
@@ -244,20 +244,20 @@ class DesignProblem:
                     self._measured[key_of(u)] = (sol.nodes, {name: [np.asarray(a) for a in values]
                                                              for name, values in measured.items()})
                 return out[:-1], self.remember(sol, u)
-        raise WingConvergenceError(sol, sol.failed_bays()[0])
+        raise BaysConvergenceError(sol, sol.failed_bays()[0])
 
-    def remember(self, sol: WingSolution, u) -> WingSolution:
+    def remember(self, sol: BaysSolution, u) -> BaysSolution:
         """Keep ``sol`` as the next warm start and in the archive of solves (without LU factors)."""
         self.previous = sol
         light = None if sol.solutions is None else [dataclasses.replace(s, factor=None) for s in sol.solutions]
         self._solved[key_of(u)] = dataclasses.replace(sol, solutions=light)
         return sol
 
-    def solve(self, u) -> WingSolution:
-        """The concrete `WingSolution` at the scaled vector ``u`` (from the archive if solved before).
+    def solve(self, u) -> BaysSolution:
+        """The concrete `BaysSolution` at the scaled vector ``u`` (from the archive if solved before).
 
         Raises:
-            WingConvergenceError: if a bay does not converge from the mounted shape.
+            BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
         u = np.asarray(u, np.float64)
         if key_of(u) in self._solved:
@@ -295,7 +295,7 @@ class DesignProblem:
         outputs, 0.4 s less of a fresh run).
 
         Raises:
-            WingConvergenceError: if a bay does not converge from the mounted shape.
+            BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
@@ -351,7 +351,7 @@ class DesignProblem:
         solve). One wing solve, whatever the number of variables.
 
         Raises:
-            WingConvergenceError: if a bay does not converge from the mounted shape.
+            BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
@@ -419,7 +419,7 @@ class DesignProblem:
         return value, grad, sol
 
     # ------------------------------------------------------------ measurements
-    def measure(self, sol: WingSolution, u) -> dict:
+    def measure(self, sol: BaysSolution, u) -> dict:
         """Per-bay errors and tensions of a concrete converged solution at ``u``: ``rms``, ``max``
         (arrays over the bays, fractions of the local chord), ``wing_rms`` (the square root of the
         weighted mean squares), ``tensions`` (per bay, N/m) and their extremes."""
@@ -441,7 +441,7 @@ class DesignProblem:
                 "min_tension": np.array([x.min() for x in t]), "max_tension": np.array([x.max() for x in t]),
                 "tensions": t}
 
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: WingSolution, constraints=None):
+    def record(self, u, objective, gradient_norm=math.nan, *, solution: BaysSolution, constraints=None):
         entry = {
             "values": self.variables.values(np.asarray(u, dtype=np.float64)),
             "objective": float(objective),

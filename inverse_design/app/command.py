@@ -42,7 +42,7 @@ REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf
 #: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
 #: the figures and of the DXF patterns they write, and the modules their tasks name.
 WORKER_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "matplotlib.ticker",
-                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.pattern", "inverse_design.app.report")
+                  "inverse_design.app.plots", "ezdxf", "inverse_design.app.cut_files", "inverse_design.app.report")
 
 
 def _import_report_modules() -> None:

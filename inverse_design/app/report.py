@@ -33,7 +33,7 @@ The folder, for any number of bays::
     bay_K_cut_pattern.csv        bay K's cut lengths (`export.write_cut_pattern`)
     history.png                  the optimiser's iterates (not for a single equilibrium)
     pattern_bay_K_upper.dxf/.svg, pattern_bay_K_lower.dxf/.svg
-                                 bay K's flat panels, cut-ready (1:1, mm; `app.pattern`); a
+                                 bay K's flat panels, cut-ready (1:1, mm; `app.cut_files`); a
                                  successful design only
     rib_K.dxf                    rib K's template at its chord (a successful design only)
     rib.dat                      the designed rib as a Selig file (one shape for every rib)
@@ -84,7 +84,7 @@ from .workers import run_task, save_figure, saved_after
 from .export import (check_output_folder, save_npz, staged_folder, write_cut_pattern, write_npz, write_obj,
                      write_selig, write_stl)
 from .export import file_checksums
-from .pattern import write_bay_patterns
+from .cut_files import write_bay_patterns
 from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_deviation, plot_history, plot_rib_design, plot_section, plot_tensions,

@@ -216,7 +216,7 @@ CLOSE_RIBS = 0.05
 def check_flat_panels(scenes, parameters, wing: bool = False) -> None:
     """Refuse a bay whose flat panels cannot be laid out at the start's cut lengths, before the design.
 
-    The report draws each bay's panels (`inverse_design.pattern.bay_panels`)
+    The report draws each bay's panels (`inverse_design.flat_panels.bay_panels`)
     after the design; a bay whose panels cannot be laid flat then ends the
     run with no report. Only bays with ribs closer than `CLOSE_RIBS` of their
     mean chord are laid out here (about 0.1-1 s each); the cut lengths are
@@ -231,7 +231,7 @@ def check_flat_panels(scenes, parameters, wing: bool = False) -> None:
     Raises:
         ValueError: naming the bay, its ribs and what to change.
     """
-    from ..pattern import bay_panels
+    from ..flat_panels import bay_panels
 
     for k, scene in enumerate(scenes):
         bay = scene.bay

@@ -191,8 +191,8 @@ def test_a_bay_s_section_plot_names_its_own_ribs_and_stations():
 
 def test_the_panel_label_runs_clear_of_the_warp_arrow():
     from forward_solver import Bay, Fabric, Parameters, Scene
-    from inverse_design.app.pattern import _panel_drawing
-    from inverse_design.pattern import bay_panels
+    from inverse_design.app.cut_files import _panel_drawing
+    from inverse_design.flat_panels import bay_panels
     from targets import naca
 
     scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())

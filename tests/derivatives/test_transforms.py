@@ -1,4 +1,4 @@
-"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.traced`).
+"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.jit_equilibrium`).
 
 One 9 x 32 NACA 2412 bay and a few module-scoped compiled functions are
 shared by every test (compilation dominates). Tolerances:

@@ -28,8 +28,8 @@ from forward_solver import Bay, Fabric, Parameters, Result, Scene, solve_equilib
 from forward_solver import forces as fk  # noqa: E402
 from inverse_design.app import cli  # noqa: E402
 from inverse_design.app.report import ReportOptions, write_report  # noqa: E402
-from inverse_design.app.pattern import rib_mark_nodes  # noqa: E402
-from inverse_design.pattern import RIB_CHORDAL_ERROR, develop, mounted_skin, offset_outline, rib_template  # noqa: E402
+from inverse_design.app.cut_files import rib_mark_nodes  # noqa: E402
+from inverse_design.flat_panels import RIB_CHORDAL_ERROR, develop, mounted_skin, offset_outline, rib_template  # noqa: E402
 from inverse_design.rib_design import cut_lengths  # noqa: E402
 from targets import naca  # noqa: E402
 
@@ -203,7 +203,7 @@ def test_a_bay_whose_layout_runs_the_damping_down_develops_without_a_singular_so
     # the exact phase's damping fell until it was lost in rounding, and scipy's "Matrix is exactly
     # singular" warning reached the user's console (the step was then rejected, the layout exact).
     from forward_solver.wing import Wing
-    from inverse_design.pattern import bay_panels
+    from inverse_design.flat_panels import bay_panels
 
     af = naca("4415")
     bay = Wing(airfoils=(af, af), chords=(2.3372, 2.3238), stations=(1.5, 1.65)).scenes(Fabric())[0]

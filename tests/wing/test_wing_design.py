@@ -16,7 +16,7 @@ from forward_solver.wing import Wing
 from inverse_design import Constraints, optimise_pressure, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
 from inverse_design.objectives import bay_distances, bay_weights, row_targets
-from inverse_design.problem import DesignProblem, WingConvergenceError
+from inverse_design.problem import DesignProblem, BaysConvergenceError
 from inverse_design.rib_design import RibGeometry, RibLimits
 from inverse_design.variables import DesignVariables
 from inverse_design.settings import Layout, Limits, SolverSettings
@@ -201,7 +201,7 @@ def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
         problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
                                 Constraints(), rtol=1e-11,
                                 solver_options={"method": "relax", "max_steps": 100})
-        with pytest.raises(WingConvergenceError, match=r"bay 0 \(ribs 0 and 1.*max_steps_reached") as failure:
+        with pytest.raises(BaysConvergenceError, match=r"bay 0 \(ribs 0 and 1.*max_steps_reached") as failure:
             problem.solve(np.array([1.0]))
     assert failure.value.bay == 0 and failure.value.failed == [0, 1, 2]
     assert failure.value.solution.result.name == "max_steps_reached"
@@ -235,7 +235,7 @@ def test_every_method_designs_a_wing_or_says_why_not(wing):
 
 
 def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(design):
-    # One result class: a wing's solution is its WingSolution (per-bay Solutions inside), its
+    # One result class: a wing's solution is its BaysSolution (per-bay Solutions inside), its
     # violations one format (the largest per name, and per bay in violated_where) whether one bay or three.
     assert design.n_bays == 3 and design.solution is design.wing_solution
     assert design.solution.bay_solution(2).converged

@@ -1,6 +1,6 @@
 """Cut-ready files of a design: flat panels and rib templates as DXF (1:1, millimetres) and SVG.
 
-Each panel of each bay (`inverse_design.pattern.bay_panels`: an airfoil
+Each panel of each bay (`inverse_design.flat_panels.bay_panels`: an airfoil
 bay's ``upper`` and ``lower`` panels, split at the trailing and leading
 edges) is one DXF file ``pattern_bay_K_NAME.dxf`` and one SVG file for a
 quick look; each rib is a template ``rib_R.dxf``. Drawing units are
@@ -11,7 +11,7 @@ millimetres (``$INSUNITS`` 4), drawn at scale 1:1, on these layers:
   rib's edge, its first span fibre. Its edges are the design's cut lengths
   (`rib_design.cut_lengths`).
 * ``CUT``: the cut line, the sewing line offset outward by the seam allowance
-  (`pattern.offset_outline`).
+  (`flat_panels.offset_outline`).
 * ``MARK``: alignment notches across the seam allowance (from 3 mm inside
   the sewing line out to the cut line) at every `MARK_EVERY`-th grid node
   along both ribs and both seams, and at their ends; a double notch and
@@ -22,10 +22,10 @@ millimetres (``$INSUNITS`` 4), drawn at scale 1:1, on these layers:
   come from, for checking; not to be cut. The layer is off in the file (a
   cutter or viewer shows it only when it is switched on).
 
-A rib template draws the rib itself (`pattern.rib_template`): the designed
+A rib template draws the rib itself (`flat_panels.rib_template`): the designed
 section (thickness and chord scales and rib shape applied, as the solver
 mounts it) at its chord, from the section's smooth contour with a chordal
-error below `pattern.RIB_CHORDAL_ERROR` (0.05 mm), not the grid's polygon:
+error below `flat_panels.RIB_CHORDAL_ERROR` (0.05 mm), not the grid's polygon:
 ``SEW`` the rib outline, the part itself (a rigid rib is cut on it);
 ``CUT`` offset outward by the seam allowance, the allowance of a fabric rib
 (not the part); ``MARK`` attachment ticks at the skin's nodes (the grid's
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pattern import bay_panels, offset_outline, panel_outline, rib_template
+from ..flat_panels import bay_panels, offset_outline, panel_outline, rib_template
 
 __all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "rib_mark_nodes", "write_bay_patterns", "write_panel_dxf",
            "write_panel_svg", "write_rib_dxf"]
@@ -143,7 +143,7 @@ def _write_dxf(path, drawing: dict) -> Path:
 
 
 def write_panel_dxf(path, panel, seam_allowance_mm: float = 10.0) -> Path:
-    """Write one flat panel (`pattern.Panel`) as DXF, 1:1 in millimetres (module docstring)."""
+    """Write one flat panel (`flat_panels.Panel`) as DXF, 1:1 in millimetres (module docstring)."""
     return _write_dxf(path, _panel_drawing(panel, seam_allowance_mm))
 
 
@@ -189,7 +189,7 @@ def write_rib_dxf(path, outline, nodes, label: str, seam_allowance_mm: float = 1
 
     Args:
         path: the file.
-        outline: ``(n, 2)`` the rib's outline, x-z in metres, Selig order (`pattern.rib_template`).
+        outline: ``(n, 2)`` the rib's outline, x-z in metres, Selig order (`flat_panels.rib_template`).
         nodes: ``(n_contour, 2)`` the skin's nodes on the rib (the grid's contour nodes), x-z in metres.
         label: the rib's name and chord.
         seam_allowance_mm: the allowance, mm (>= 0).
@@ -232,7 +232,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
             it to its `workers.ReportWorkers` instead.
 
     Returns:
-        ``(names, panels)``: the names of the files written and the `pattern.Panel` objects.
+        ``(names, panels)``: the names of the files written and the `flat_panels.Panel` objects.
     """
     folder = Path(folder)
     allowance = seam_allowance_m * _MM
