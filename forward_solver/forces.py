@@ -76,7 +76,11 @@ class Geometry(NamedTuple):
 
 
 class KernelInputs(NamedTuple):
-    """Traced physical parameters: new values never recompile."""
+    """The force kernel's inputs: traced physical values, new values never recompile.
+
+    Built by `scene.Scene.params` from the design's `parameters.Parameters`
+    and the `fabric.Fabric` (the kernel never sees the design's pytree itself).
+    """
 
     pressure: jnp.ndarray  # Pa, internal overpressure
     prestrain_span: jnp.ndarray  # dimensionless

@@ -166,7 +166,7 @@ class Wing:
 
 @dataclass(frozen=True)
 class BaysSolution:
-    """The equilibrium of every bay of a wing.
+    """The equilibrium of N >= 1 bays sharing one `Parameters` (`solve_bays`; one bay for `optimise_pressure`).
 
     Attributes:
         nodes: ``(n_bays, n_span, n_contour, 3)`` m, each bay in its own frame
