@@ -271,9 +271,10 @@ def test_the_command_refuses_a_field_outside_its_bounds(tmp_path, capsys, args, 
 
 def test_the_command_designs_a_field_per_bay(tmp_path, capsys):
     """A case file with ``cut-pattern-layout = "per_bay"``: summary.json has a row per bay, the console
-    says so, and each bay's cut_pattern.csv follows its own row. (The wing, grid and terms of
-    `test_a_per_bay_design_from_the_shared_field`, so the two share their compilations; one wing
-    solve: this checks the plumbing, the design is checked there.)"""
+    says so, each bay's cut_pattern.csv follows its own row, the folder holds the overview of every bay's
+    field (cut_pattern_overview.png; its figure: tests/command/test_cut_field_report.py) and the console
+    says the run's peak memory. (The wing, grid and terms of `test_a_per_bay_design_from_the_shared_field`,
+    so the two share their compilations; one wing solve: this checks the plumbing, the design is checked there.)"""
     import json
 
     from inverse_design.app import cli
@@ -310,6 +311,10 @@ station = 0.5
     local = summary["results"]["cut_pattern_local"]
     assert local["span"][0] <= local["span"][1] and local["chord"][0] <= local["chord"][1]
     assert "a cut field per bay (bay_K_cut_pattern.csv; local prestrain span" in captured.out
+    assert {"cut_pattern_overview.png", "bay_0_cut_pattern.csv", "bay_1_cut_pattern.csv"} <= set(summary["files"])
+    assert (out / "cut_pattern_overview.png").stat().st_size
+    peak = summary["timings_s"]["peak_memory_mb"]
+    assert 50 < peak < 1e5 and f"peak memory {peak:.0f} MB" in captured.out
     p = summary["results"]["values"]
     for k in range(2):
         table = np.genfromtxt(out / f"bay_{k}_cut_pattern.csv", delimiter=",", skip_header=2, names=True,

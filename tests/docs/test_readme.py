@@ -21,12 +21,13 @@ shell blocks run
 each command (``&&`` splits them) with ``optimise-pressure`` as
 ``python -m inverse_design.app.cli`` (the code under test) and skip ``pip
 install`` lines. "Small grid" is the one substitution: every ``n_span=N``
-and ``n_contour=N`` of a Python block becomes 5 and 48, and every
-``optimise-pressure`` command gets ``--n-span 5 --n-contour 48``
+and ``n_contour=N`` of a Python block becomes 5 and 32, and every
+``optimise-pressure`` command gets ``--n-span 5 --n-contour 32``
 (the default grids take minutes; the blocks' outcomes do not depend on the
-grid). The subprocesses share one JAX compilation cache, as in
-tests/command/test_cli.py, but kept between sessions in pytest's cache folder
-(``.pytest_cache/d/readme-jax-cache``; delete it to start cold).
+grid). 5x32 is the grid of the command's other tests (tests/command/), so
+the subprocesses reuse the programs those compile: every block runs with the
+run's one JAX compilation cache (tests/conftest.py), which its subprocesses
+inherit from the environment.
 """
 
 import os
@@ -44,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 #: The pages whose code blocks run here: the README, then the docs pages with examples.
 PAGES = (README, ROOT / "docs" / "command.md", ROOT / "docs" / "patterns.md", ROOT / "docs" / "compilation.md")
-SMALL = {"n_span": 5, "n_contour": 48}
+SMALL = {"n_span": 5, "n_contour": 32}
 SMALL_ARGS = ["--n-span", str(SMALL["n_span"]), "--n-contour", str(SMALL["n_contour"])]
 TIMEOUT = 300
 MARKER = re.compile(r"<!-- readme-test: (.+?) -->\s*$")
@@ -73,14 +74,12 @@ BLOCKS = _blocks()
 
 
 @pytest.fixture(scope="module")
-def env(request, tmp_path_factory):
-    # Compilation is most of the blocks' time (about 3 minutes of it on a loaded 2-core machine,
-    # 40 s once compiled), so the cache lives in pytest's own cache folder and outlasts the session.
-    cache = (request.config.cache.mkdir("readme-jax-cache") if getattr(request.config, "cache", None) is not None
-             else tmp_path_factory.mktemp("jax-cache"))
+def env():
+    # Compilation is most of the blocks' time: the subprocesses inherit the run's compilation cache
+    # (JAX_COMPILATION_CACHE_DIR and INFLATABLE_WING_CACHE, set by tests/conftest.py), shared with
+    # every other test process and subprocess of the run.
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-                JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0",
-                JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0", MPLBACKEND="Agg")
+                MPLBACKEND="Agg")
 
 
 def _small_python(code: str) -> str:
