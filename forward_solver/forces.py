@@ -35,7 +35,6 @@ import jax.numpy as jnp
 
 from .cut_field import local_prestrain
 from .rib_shape import rib_offsets
-from .programs import stored
 
 __all__ = [
     "Geometry",
@@ -256,11 +255,11 @@ def prepare(geometry: Geometry, params: KernelInputs, physics: Physics) -> Refer
 
 
 #: `prepare` as one compiled program (eagerly, each of its operations compiles on its own).
-prepare_compiled = stored(prepare, static_argnames=("physics",))
+prepare_compiled = jax.jit(prepare, static_argnames=("physics",))
 
 #: `mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and dispatched one
 #: by one, on every cold start and on every bay of every wing solve).
-mounted_compiled = stored(mounted_nodes)
+mounted_compiled = jax.jit(mounted_nodes)
 
 
 def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:

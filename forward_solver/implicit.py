@@ -49,7 +49,6 @@ from jax.scipy.sparse.linalg import bicgstab
 from . import forces as fk
 from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
-from .programs import stored
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -92,7 +91,7 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk
     return -dr, (1.0 - geometry.free[..., None]) * dnodes
 
 
-@stored(static_argnames=("physics",))
+@partial(jax.jit, static_argnames=("physics",))
 def _batched_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
     """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
     program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top

@@ -43,7 +43,6 @@ import scipy.sparse as sp
 
 from . import forces as fk
 from ._precision import float64_scope
-from .programs import stored
 
 __all__ = [
     "PERMC_SPEC",
@@ -218,7 +217,7 @@ def free_dofs(ref: fk.Reference) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ jacobian
-@stored(static_argnames=("physics", "n_colours"))
+@functools.partial(jax.jit, static_argnames=("physics", "n_colours"))
 def _jacobian_values(x, ref, params, colours, gather_colour, gather_row, physics, n_colours):
     """Residual and the Jacobian's structural non-zeros from one vmap of jvp over the colours."""
     physics = fk.static_physics(physics)

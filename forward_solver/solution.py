@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +14,6 @@ from . import forces as fk
 from ._precision import device_arrays
 from .jacobian import JacobianFactor
 from .parameters import Parameters, ParameterViews
-from .programs import stored
 
 __all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
            "make_solution", "initial_nodes", "static_forces", "static_state"]
@@ -323,7 +323,7 @@ def _remounted(nodes, geometry: fk.Geometry, params: fk.KernelInputs, *own):
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 
-@stored(static_argnames=("physics",))
+@partial(jax.jit, static_argnames=("physics",))
 def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
     """``(forces, relative)`` at nodes ``x``: the `forces.Forces` of the static residual (velocity
     terms dropped) and ``||R_free||_2 / (p A)`` (`forces.relative_residual`; NaN when a coordinate

@@ -190,7 +190,6 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_INTERRUPTED
     finally:
         interrupts.restore(previous)
-        _restore_program_store()
         if config is not None:
             _HOMELESS = None
             for variable in _CONFIG_VARIABLES:
@@ -263,21 +262,6 @@ def _cache_problem(path: Path) -> str | None:
     return None
 
 
-#: The program store's folder before `use_compilation_cache` set the command's (`_UNCHANGED`: not set).
-_UNCHANGED = object()
-_STORE_BEFORE = _UNCHANGED
-
-
-def _restore_program_store() -> None:
-    """Put back the program store's folder that the run found (`forward_solver.programs`)."""
-    global _STORE_BEFORE
-    if _STORE_BEFORE is not _UNCHANGED:
-        from forward_solver.programs import use_program_store
-
-        use_program_store(_STORE_BEFORE)
-        _STORE_BEFORE = _UNCHANGED
-
-
 def use_compilation_cache(path: Path) -> bool:
     """Turn on JAX's persistent compilation cache in ``path`` for this process (every entry kept:
     the solver's functions compile in 0.3-6 s each and load in milliseconds), unless the folder
@@ -290,17 +274,10 @@ def use_compilation_cache(path: Path) -> bool:
         return False
     import jax
 
-    from forward_solver.programs import use_program_store
-
     jax.config.update("jax_enable_compilation_cache", True)
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    global _STORE_BEFORE
-    # (the solver's largest programs, exported: `forward_solver.programs`; `main` puts back the folder it
-    # found, so that a caller's later solves in this process do not run the command's store)
-    before = use_program_store(path / "programs")
-    _STORE_BEFORE = before if _STORE_BEFORE is _UNCHANGED else _STORE_BEFORE
     return True
 
 
