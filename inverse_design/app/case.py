@@ -36,6 +36,7 @@ import argparse
 import math
 import re
 import sys
+import warnings
 from pathlib import Path
 
 from .options import OPTION_SPECS, PROG, InputError, build_parser
@@ -438,6 +439,10 @@ def design_inputs(args: argparse.Namespace) -> tuple:
                              f"contour nodes: at most one term per contour node moves the skin; give "
                              f"--cut-pattern-terms {args.n_contour} or fewer, or more --n-contour")
         initial = initial.replace(cut_pattern=[0.0] * (2 * args.cut_pattern_terms))
+        if args.cut_pattern_layout == "per_bay" and getattr(args, "wing", None) is None:
+            # (a case file's two ribs reach `variables.DesignVariables.build`, which says so itself)
+            warnings.warn("--cut-pattern-layout per_bay on one bay is the shared field: the design optimises "
+                          "one cut field", stacklevel=2)
     all_bounds = {"pressure": args.pressure_bounds, "prestrain_span": args.prestrain_bounds,
                   "prestrain_chord": args.prestrain_bounds, "rib_thickness_scale": args.rib_thickness_bounds,
                   "rib_chord_scale": args.rib_chord_bounds, "rib_shape": args.rib_shape_bounds,

@@ -128,3 +128,13 @@ def test_ribs_too_close_for_the_grid_are_refused_naming_them(tmp_path, capsys):
     assert code == 2 and printed.out == ""
     assert printed.err.count("\n") == 1 and "ribs 0 and 1" in printed.err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_field_per_bay_on_a_plain_bay_is_said_once_before_any_solve(tmp_path, capsys):
+    # The tolerance is refused after the design's inputs are read, before any solve: the run shows
+    # the warning line and the refusal and writes nothing.
+    code = cli.main(["--variables", "pressure,cut_pattern", "--cut-pattern-layout", "per_bay",
+                     "--tolerance", "pressure=-1", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and not (tmp_path / "out").exists()
+    assert err.count("per_bay on one bay is the shared field") == 1, err
