@@ -52,7 +52,10 @@ tolerance that meets the spec is found by bisection without a solve.
 Monte Carlo (``samples``): draws wings from the stated distributions and
 solves each bay warm from the nominal equilibrium (chord Newton with its
 kept factor, the fallbacks of `forward_solver.fallback` where not) to
-`SAMPLE_RTOL`, in this process. A sample whose solve fails is counted and named, never dropped.
+`SAMPLE_RTOL`, in this process, or on a Dask cluster (``scheduler``: the
+samples in chunks, each worker making the nominal factor once by the same
+solve as here, so the same seed gives the same numbers). A sample whose solve
+fails is counted and named, never dropped.
 
 Wrinkling onset makes the least tension non-smooth: where a cell's tension
 crosses zero within the scatter the linear prediction of the least tension
@@ -77,8 +80,9 @@ from forward_solver.implicit import forward_only
 from .constraints import cell_tensions
 from .objectives import bay_distances, local_chords, row_targets, station_etas
 
-__all__ = ["DEFAULT_TOLERANCES", "LINEAR_SAMPLES", "SAMPLE_RTOL", "SOURCES", "SOURCE_UNITS", "Tolerance", "ToleranceAnalysis",
-           "parse_tolerance", "parse_tolerances", "solve_sample", "tolerance_analysis", "wing_outputs"]
+__all__ = ["DEFAULT_TOLERANCES", "LINEAR_SAMPLES", "SAMPLE_RTOL", "SCHEDULER_TIMEOUT_S", "SOURCES", "SOURCE_UNITS",
+           "Tolerance", "ToleranceAnalysis", "connect_scheduler", "parse_tolerance", "parse_tolerances", "solve_sample",
+           "tolerance_analysis", "wing_outputs"]
 
 #: The tolerance sources, in the order of the parameter vector.
 SOURCES = ("pressure", "stiffness_span", "stiffness_chord", "cut_span", "cut_chord", "rib_station", "rib_profile")
@@ -229,6 +233,7 @@ class _Model:
         sol = result.wing_solution
         self.result = result
         self.n_bays = n = result.n_bays
+        self.design_nodes = [np.asarray(sol.nodes[k]) for k in range(n)]  # (the nominal solves' start)
         self.scenes = [sol.scene(k) for k in range(n)]
         fabric = self.scenes[0].fabric
         self.nominal = [sol.bay_parameters(k).resolved(fabric) for k in range(n)]
@@ -269,6 +274,11 @@ class _Model:
         self.chords = [np.asarray(local_chords(b, self.etas), np.float64) for b in bays]
         weights = result.per_bay.weights
         self.weights = np.asarray(weights if weights is not None else np.ones(n) / n, np.float64)
+
+    def __getstate__(self) -> dict:
+        """Pickled (to a Dask worker) without the design result (its solution holds LU factors) and
+        without a worker's nominal solutions."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("result", "worker_nominal")}
 
     @property
     def size(self) -> int:
@@ -491,10 +501,9 @@ def _bay_jacobian(model: _Model, k: int, start, rtol: float):
 
 def _nominal_solutions(model: _Model, rtol: float) -> list:
     """Each bay's equilibrium at the design with a Newton factor (warm from the design's nodes)."""
-    sol = model.result.wing_solution
     out = []
     for k in range(model.n_bays):
-        start = np.asarray(sol.nodes[k])
+        start = model.design_nodes[k]
         out.append(solve_equilibrium(model.scenes[k], model.nominal[k], rtol=rtol, method="newton",
                                      initial=start if np.all(np.isfinite(start)) else None, throw=True))
     return out
@@ -560,7 +569,7 @@ def _budget(model: _Model, spec: float, a: float, b: np.ndarray, q: np.ndarray, 
 
 def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples: int = 0, seed: int = 0,
                        rtol: float = GRADIENT_RTOL, sample_rtol: float = SAMPLE_RTOL,
-                       linear_samples: int = LINEAR_SAMPLES, on_sample=None) -> ToleranceAnalysis:
+                       linear_samples: int = LINEAR_SAMPLES, on_sample=None, scheduler=None) -> ToleranceAnalysis:
     """First-order tolerance analysis of a design, and optionally its Monte Carlo check (module docstring).
 
     Args:
@@ -577,14 +586,20 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples
         linear_samples: draws of the linearised model.
         on_sample: called with each sample's row (a dict: ``sample``, the
             drawn absolute value of every column, ``rms``, ``max``,
-            ``min_tension``, ``converged``) as it is solved.
+            ``min_tension``, ``converged``) as it is solved, in sample order.
+        scheduler: where the Monte Carlo wings are solved: None (this
+            process), a Dask scheduler's address (``"tcp://host:8786"``) or a
+            ``distributed.Client`` (`connect_scheduler`; the ``dask`` extra).
+            The same seed gives the same numbers either way.
 
     Returns:
         A `ToleranceAnalysis`.
 
     Raises:
         ValueError: for bad tolerances, a negative ``samples``, a spec of 0 or
-            less, or a stiffness scatter reaching the nominal stiffness.
+            less, a stiffness scatter reaching the nominal stiffness, or a
+            scheduler that cannot be reached.
+        ImportError: for a scheduler without ``distributed`` installed.
         forward_solver.ConvergenceError: if the nominal design does not solve.
     """
     if not isinstance(samples, int) or isinstance(samples, bool) or samples < 0:
@@ -638,7 +653,7 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samples
         linear_rms=linear_measures["rms"])
     if samples:
         t = time.perf_counter()
-        _monte_carlo(model, analysis, nominal, samples, seed, sample_rtol, on_sample)
+        _monte_carlo(model, analysis, nominal, samples, seed, sample_rtol, on_sample, scheduler, rtol)
         analysis.timings["samples"] = time.perf_counter() - t
     return analysis
 
@@ -720,12 +735,13 @@ def _row(model: _Model, index: int, e: np.ndarray, measured: dict, converged: bo
 
 
 def _monte_carlo(model: _Model, analysis: ToleranceAnalysis, nominal, count: int, seed: int, rtol: float,
-                 on_sample) -> None:
+                 on_sample, scheduler, nominal_rtol: float) -> None:
     rng = np.random.default_rng([seed, 0])
     draws = _unit_draws(model, rng, count) * model.spread[None, :]
     rows, failures, measures = [], [], []
-    for m in range(count):
-        d, t, failed = _solve_wing(model, draws[m], nominal, rtol)
+    solved = ((_solve_wing(model, e, nominal, rtol) for e in draws) if scheduler is None
+              else _solve_on_cluster(model, draws, rtol, nominal_rtol, scheduler))
+    for m, (d, t, failed) in enumerate(solved):
         measured = _measures(model, [x[None] for x in d], [x[None] for x in t])
         measures.append(measured)
         row = _row(model, m, draws[m], measured, not failed)
@@ -738,6 +754,59 @@ def _monte_carlo(model: _Model, analysis: ToleranceAnalysis, nominal, count: int
     sampled = _summary_of({key: np.concatenate([m[key] for m in measures]) for key in measures[0]})
     sampled.update(count=count, failed=len({f["sample"] for f in failures}))
     analysis.sampled = sampled
+
+
+#: Seconds `connect_scheduler` waits for a Dask scheduler to answer.
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+def connect_scheduler(address: str, timeout: float | None = None):
+    """A ``distributed.Client`` of the Dask scheduler at ``address`` (``"tcp://host:8786"``).
+
+    Raises:
+        ImportError: without the ``distributed`` package (the ``dask`` extra).
+        ValueError: if no scheduler answers there within ``timeout`` seconds
+            (default `SCHEDULER_TIMEOUT_S`).
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ImportError("a Dask scheduler needs the distributed package: "
+                          "pip install 'inflatable-wing[dask]'") from None
+    wait = SCHEDULER_TIMEOUT_S if timeout is None else timeout
+    try:
+        return Client(address, timeout=wait)
+    except (OSError, TimeoutError, ValueError) as exc:  # (refused, no answer in time, a malformed address)
+        raise ValueError(f"no Dask scheduler answered at {address} within {wait:g} s ({exc}): start one "
+                         f"(dask scheduler) or give its address") from None
+
+
+def _solve_chunk(model: _Model, draws: np.ndarray, rtol: float, nominal_rtol: float) -> list:
+    """A Dask worker's chunk of samples: `_solve_wing` of each, warm from the nominal equilibrium that the
+    worker solves once (the same solve as `tolerance_analysis`'s, so the samples are the same)."""
+    with jax.enable_x64(True):
+        if getattr(model, "worker_nominal", None) is None:
+            model.worker_nominal = _nominal_solutions(model, nominal_rtol)
+    return [_solve_wing(model, e, model.worker_nominal, rtol) for e in draws]
+
+
+def _solve_on_cluster(model: _Model, draws: np.ndarray, rtol: float, nominal_rtol: float, scheduler):
+    """`_solve_wing` of every draw on a Dask cluster, yielded in sample order as the chunks come back
+    (four chunks per worker thread: a slow chunk holds up few samples)."""
+    from distributed import Client
+
+    client = scheduler if isinstance(scheduler, Client) else connect_scheduler(scheduler)
+    try:
+        threads = max(sum(client.nthreads().values()), 1)
+        shared = client.scatter(model, broadcast=True)  # (once per worker, not once per chunk)
+        futures = [client.submit(_solve_chunk, shared, chunk, rtol, nominal_rtol, pure=False)
+                   for chunk in np.array_split(draws, min(len(draws), 4 * threads))]
+        for future in futures:
+            yield from future.result()
+            future.release()
+    finally:
+        if client is not scheduler:
+            client.close()
 
 
 def wing_outputs(result, tolerances, deviations, *, rtol: float = SAMPLE_RTOL) -> tuple[list, list]:

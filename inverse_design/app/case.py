@@ -247,14 +247,17 @@ def ignored_options(args: argparse.Namespace, sources: dict) -> list[str]:
 
     ``--variables`` with ``--evaluate`` (the equilibrium is solved at the
     given values; its fields are refused, `check_option_combinations`);
-    ``--shape-spec``, ``--samples`` or ``--seed`` without tolerances.
+    ``--shape-spec``, ``--samples``, ``--seed`` or ``--scheduler`` without tolerances.
     """
     lines = []
     if not getattr(args, "tolerances", None):
-        for name in ("shape_spec", "samples", "seed"):
+        for name in ("shape_spec", "samples", "seed", "scheduler"):
             if name in sources:
                 lines.append(f"{_given(name, sources)} is ignored without tolerances (--tolerance NAME=VALUE or a "
                              "[tolerances] table), which turn on the tolerance analysis")
+    elif "scheduler" in sources and not args.samples:
+        lines.append(f"{_given('scheduler', sources)} is ignored without --samples: the first-order analysis runs "
+                     "here; the cluster solves Monte Carlo wings")
     if args.evaluate and "variables" in sources:
         lines.append(f"{_given('variables', sources)} {args.variables} is ignored with "
                      f"{_given('evaluate', sources)}, which solves the equilibrium at the given values "

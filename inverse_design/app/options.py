@@ -239,6 +239,10 @@ OPTIONS = (
                                     "analysis (default 0: first order only); tolerance_samples.csv")),
     ("optimiser", "--seed", dict(type=_whole, default=0, metavar="N",
                                  help="seed of the Monte Carlo draws (default 0: the same wings every run)")),
+    ("optimiser", "--scheduler", dict(default=None, metavar="ADDRESS",
+                                      help="with --samples: solve the Monte Carlo wings on the Dask cluster of "
+                                      "this scheduler (tcp://host:8786; the dask extra) instead of in this "
+                                      "process; the same seed gives the same numbers")),
     ("optimiser", "--refine", dict(action="store_true",
                                    help="confirm and polish the design on a grid with twice the span "
                                    "resolution (2 n-span - 1 nodes) and report how far it moved")),

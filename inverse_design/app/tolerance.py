@@ -5,7 +5,8 @@ table turn on `inverse_design.tolerance.tolerance_analysis` after the design
 (or after ``--evaluate``); ``--shape-spec MM`` asks for the budget,
 ``--samples N`` and ``--seed`` for the Monte Carlo check, whose rows stream to
 a temporary file that the report copies into ``tolerance_samples.csv``
-(docs/tolerances.md).
+(docs/tolerances.md); ``--scheduler ADDRESS`` solves its wings on a Dask
+cluster, whose scheduler must answer before any solve.
 """
 
 from __future__ import annotations
@@ -29,9 +30,10 @@ def check_tolerance_options(args: argparse.Namespace, fabric) -> dict | None:
     Raises:
         InputError: one line: an unknown or negative tolerance, a stiffness
             scatter of 100% or more of the fabric's, ``--samples`` below 0
-            (the spec's sign is checked by its option type).
+            (the spec's sign is checked by its option type), a ``--scheduler``
+            that does not answer or without the ``distributed`` package.
     """
-    from ..tolerance import SOURCE_UNITS, parse_tolerances
+    from ..tolerance import SOURCE_UNITS, connect_scheduler, parse_tolerances
 
     if args.samples < 0:
         raise InputError(f"--samples must be 0 (first order only) or a positive number of wings, got {args.samples}")
@@ -47,6 +49,11 @@ def check_tolerance_options(args: argparse.Namespace, fabric) -> dict | None:
         if t is not None and not t.relative and t.spread(nominal) >= nominal:
             raise InputError(f"--tolerance {name}={t.text} {SOURCE_UNITS[name]} is a scatter of 100% or more of "
                              f"the fabric's {nominal:g} N/m (zero or negative stiffness): give less")
+    if args.scheduler and args.samples:  # (the samples connect again: no connection is held through the design)
+        try:
+            connect_scheduler(args.scheduler).close()
+        except (ImportError, ValueError) as exc:
+            raise InputError(f"--scheduler: {exc}") from None
     return tolerances
 
 
@@ -72,7 +79,7 @@ def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: d
 
     try:
         analysis = tolerance_analysis(result, tolerances, spec=args.shape_spec, samples=args.samples, seed=args.seed,
-                                      on_sample=on_sample)
+                                      on_sample=on_sample, scheduler=args.scheduler or None)
     except BaseException:
         if stream["file"] is not None:
             stream["file"].close()

@@ -119,3 +119,15 @@ def test_the_analysis_options_without_tolerances_are_said_to_be_ignored():
     args, sources = case_reader.parse_arguments(["--samples", "10", "--shape-spec", "3"])
     lines = case_reader.ignored_options(args, sources)
     assert [line.split(" is ignored")[0] for line in lines] == ["--shape-spec", "--samples"]
+
+
+def test_a_scheduler_without_tolerances_or_samples_is_said_to_be_ignored():
+    from inverse_design.app import case as case_reader
+
+    for argv, ignored in ((["--scheduler", "tcp://h:8786"], "without tolerances"),
+                          (["--tolerance", "defaults", "--scheduler", "tcp://h:8786"], "without --samples")):
+        args, sources = case_reader.parse_arguments(argv)
+        lines = case_reader.ignored_options(args, sources)
+        assert len(lines) == 1 and lines[0].startswith(f"--scheduler is ignored {ignored}"), lines
+    args, sources = case_reader.parse_arguments(["--tolerance", "defaults", "--samples", "4", "--scheduler", "tcp://h:1"])
+    assert case_reader.ignored_options(args, sources) == []
