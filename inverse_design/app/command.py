@@ -211,7 +211,7 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
             result = refine(result)
         timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result, alphas, timings)
-    tolerance = run_tolerance(args, result, tolerances, timings) if tolerances else None
+    tolerance = run_tolerance(args, result, tolerances, timings, notes) if tolerances else None
     interrupts.check()
     report = ReportOptions(bounds=None if args.evaluate else bounds, magnification=args.magnification,
                            rib_limits=rib_limits, patterns=not args.no_patterns,

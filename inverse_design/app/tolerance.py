@@ -14,9 +14,10 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import sys
 import tempfile
 
-from .options import InputError
+from .options import PROG, InputError
 
 __all__ = ["SAMPLES_FILE", "check_tolerance_options", "run_tolerance"]
 
@@ -57,12 +58,16 @@ def check_tolerance_options(args: argparse.Namespace, fabric) -> dict | None:
     return tolerances
 
 
-def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: dict):
+def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: dict, notes: list):
     """`tolerance_analysis` of ``result`` with the options' spec, samples and seed; the samples stream to
     a temporary CSV file (its path in the analysis' ``samples_file``, for the report to copy).
 
-    Adds ``tolerance`` and ``samples`` (s) to ``timings``.
+    Adds ``tolerance`` and ``samples`` (s) to ``timings``. A design that does not solve again at its own
+    values (the analysis' nominal solve) is not lost: the analysis is skipped with a warning line, kept
+    in ``notes`` (the summary's warnings), and None returned.
     """
+    from forward_solver import ConvergenceError
+
     from ..tolerance import tolerance_analysis
 
     stream = {"file": None, "writer": None}
@@ -80,11 +85,18 @@ def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: d
     try:
         analysis = tolerance_analysis(result, tolerances, spec=args.shape_spec, samples=args.samples, seed=args.seed,
                                       on_sample=on_sample, scheduler=args.scheduler or None)
-    except BaseException:
+    except BaseException as exc:
         if stream["file"] is not None:
             stream["file"].close()
             os.unlink(stream["path"])
-        raise
+        if not isinstance(exc, ConvergenceError):
+            raise
+        line = (f"the tolerance analysis is skipped: the design did not solve again at its own values, which the "
+                f"analysis linearises about ({exc}); the design's report is written without it")
+        notes.append(line)
+        if not args.quiet:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+        return None
     if stream["file"] is not None:
         stream["file"].close()
     analysis.samples_file = stream.get("path")

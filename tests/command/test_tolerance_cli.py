@@ -131,3 +131,23 @@ def test_a_scheduler_without_tolerances_or_samples_is_said_to_be_ignored():
         assert len(lines) == 1 and lines[0].startswith(f"--scheduler is ignored {ignored}"), lines
     args, sources = case_reader.parse_arguments(["--tolerance", "defaults", "--samples", "4", "--scheduler", "tcp://h:1"])
     assert case_reader.ignored_options(args, sources) == []
+
+
+def test_a_design_that_does_not_solve_again_keeps_its_report_and_skips_the_analysis(tmp_path, capsys, monkeypatch):
+    """The analysis linearises about the design's own equilibrium, solved again to the gradients' tolerance;
+    where that solve fails (here: one Newton step allowed), the run still writes the design's report and
+    says in a warning line, kept in the summary, that the analysis is skipped."""
+    from forward_solver import solve_equilibrium
+    from inverse_design import tolerance as tolerance_module
+
+    monkeypatch.setattr(tolerance_module, "solve_equilibrium",
+                        lambda *a, **k: solve_equilibrium(*a, **{**k, "max_steps": 1, "rtol": 1e-30}))
+    out = tmp_path / "out"
+    code = cli.main(["--evaluate", "--pressure", "5e3", "--n-span", "5", "--n-contour", "32", "--no-patterns",
+                     "--tolerance", "pressure=2%", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert err.count("the tolerance analysis is skipped: the design did not solve again") == 1, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary.get("tolerance") is None and not (out / "tolerance.png").exists()
+    assert any(w.startswith("the tolerance analysis is skipped") for w in summary["warnings"])
