@@ -369,11 +369,15 @@ def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
     sol = result.wing_solution
     stations = _chords_and_stations(result)[1]
     design = bool(result.variables)
+    noses = [float(np.min(np.asarray(t.x))) for t in mid_bay_targets(result)]
     entries = []
     for k, bay in enumerate(sol.bays):
         cuts = cut_lengths(sol.scene(k) if sol.fabric is not None else result.per_bay.scenes[k],
                            solutions[k].parameters)
         mid_row = bay.n_span // 2
+        mid_chord = 0.5 * (bay.chord_root + bay.chord_tip)
+        # how far the mid-bay section's nose lies behind the target's (positive: pulled back), local chord
+        recession = float(np.min(solutions[k].section(0.5)[:, 0])) / mid_chord - noses[k]
         entry = {
             "bay": k, "ribs": [k, k + 1], "span_m": [stations[k], stations[k + 1]],
             "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.per_bay.weights[k],
@@ -385,6 +389,7 @@ def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
             "errors_after": {"rms": result.per_bay.rms_error[k], "max": result.per_bay.max_error[k]},
             "min_tension_n_per_m": result.per_bay.min_tension[k], "max_tension_n_per_m": result.per_bay.max_tension[k],
             "wrinkled_fraction": solutions[k].wrinkled_fraction,
+            "le_recession": {"chord_fraction": recession, "mm": 1e3 * recession * mid_chord},
             "cut_lengths": {
                 "unit": "m", "file": f"bay_{k}_cut_pattern.csv",
                 "contour_perimeter": {"root_rib": cuts["contour_cut_m"][0], "mid_bay": cuts["contour_cut_m"][mid_row],

@@ -54,6 +54,7 @@ def two_reports(tmp_path_factory):
         out = base / name.replace(" ", "_")
         assert cli.main([*args, "--out", str(out), "--no-compilation-cache", "--quiet"]) == 0
         summaries[name] = json.loads((out / "summary.json").read_text())
+        summaries[name]["folder"] = str(out)
     return summaries
 
 
@@ -64,13 +65,27 @@ def test_a_bay_by_options_and_by_a_two_rib_case_file_write_the_same_files_and_ke
             "tensions.png", "bay_0_cut_pattern.csv"} <= set(by_options["files"])
     # The inputs are the options as given (where each came from, and the case file's rib tables, differ
     # by nature); every other key is the same, down to the bay axis.
-    keys = [{k for k in _keys(s) if not k.startswith(("/inputs/sources/", "/inputs/wing[]/"))}
+    keys = [{k for k in _keys(s) if not k.startswith(("/inputs/sources/", "/inputs/wing[]/", "/folder"))}
             for s in (by_options, by_file)]
     assert keys[0] == keys[1]
     assert by_options["case"]["n_bays"] == by_file["case"]["n_bays"] == 1
     # The same bay: the same design (the same grid and start; the scenes are built the same way).
     assert by_options["results"]["values"]["pressure_pa"] == pytest.approx(
         by_file["results"]["values"]["pressure_pa"], rel=1e-6)
+
+
+def test_each_bay_says_how_far_its_mid_bay_nose_lies_behind_the_target(two_reports):
+    """The leading-edge recession of the summary against the equilibrium written beside it: the mid-bay
+    row's foremost node (5 span rows: row 2 is mid-bay) behind NACA 2412's nose (x = 0), local chord 1 m."""
+    from targets import naca
+
+    summary = two_reports["options"]
+    nodes = np.load(f"{summary['folder']}/wing.npz")["nodes"][0]
+    expected = float(np.min(nodes[2, :, 0])) - float(np.min(naca("2412").x))
+    recession = summary["bays"][0]["le_recession"]
+    assert recession["chord_fraction"] == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    assert recession["mm"] == pytest.approx(1e3 * expected, rel=1e-9, abs=1e-9)
+    assert 0.0 < recession["chord_fraction"] < 0.05  # (the prestressed skin pulls the nose back: README)
 
 
 def test_the_console_says_one_bay_and_a_wing_of_n_bays(two_reports):
