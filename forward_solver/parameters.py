@@ -167,6 +167,19 @@ class Parameters:
         """Whether any value is a JAX tracer (the solve is being transformed)."""
         return any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(self))
 
+    def same_problem(self, other) -> bool:
+        """Whether ``other`` (concrete `Parameters`) poses the same equilibrium: equal values, where an
+        unset rib shape or cut pattern equals all-zero coefficients (the unshaped rib, the uniform cut)."""
+        if not isinstance(other, Parameters):
+            return False
+
+        def value(v, like):
+            return np.zeros(np.shape(like)) if v is None and like is not None else v
+
+        return all(_same(value(a, b), value(b, a)) if n in _ARRAY_NAMES else _same(a, b)
+                   for n in PARAMETER_NAMES + _ARRAY_NAMES
+                   for a, b in [(getattr(self, n), getattr(other, n))])
+
     def check(self) -> "Parameters":
         """Raise a ValueError, saying what to change, for a non-physical concrete value.
 

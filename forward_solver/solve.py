@@ -271,6 +271,12 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         chord = None
         if method == "relax+newton" and previous is not None:
             chord = chord_newton(x_init, geometry, params, physics, previous, rtol)
+            if (chord is not None and chord.iterations == 0 and previous.current
+                    and parameters.same_problem(initial.parameters)):
+                # At rest already, at the initial solution's own parameters: its factor is the Jacobian
+                # of this point (the same nodes, re-mounted to rounding), as an implicit derivative
+                # needs it; no fresh assembly and LU.
+                chord = chord._replace(factor_current=True)
         newton_solution = partial(_newton_solution, start=start, parameters=parameters, bay=bay,
                                   params=params, geometry=geometry, physics=physics)
         if chord is not None:

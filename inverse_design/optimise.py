@@ -501,7 +501,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
             u = u0 if best is None else best
             success, message = False, _failed_solve_message(failure)
         u = np.clip(np.asarray(u, dtype=np.float64), design.lower, design.upper)
-        sol = problem.solve(u)
+        sol = problem.final_solution(u)
         parameters = sol.parameters if design.rib_shapes is not None else design.parameters(u).as_floats()
         after = problem.measure(sol, u)
         if not (np.all(np.isfinite(after["rms"])) and np.all(np.isfinite(after["max"]))

@@ -152,6 +152,7 @@ class DesignProblem:
         # Small design grids: one relaxation loop to compile beats grid sequencing.
         self.sequencing = self.bays[0].n_contour > 128
         self.previous: BaysSolution | None = None  # warm start (and its LU factors)
+        self._previous_key = None
         self.solves = 0
         self.history: list[dict] = []
         self.on_record = None  # called with each new history entry (progress bar, callback)
@@ -253,10 +254,19 @@ class DesignProblem:
 
     def remember(self, sol: BaysSolution, u) -> BaysSolution:
         """Keep ``sol`` as the next warm start and in the archive of solves (without LU factors)."""
-        self.previous = sol
+        self.previous, self._previous_key = sol, key_of(u)
         light = None if sol.solutions is None else [dataclasses.replace(s, factor=None) for s in sol.solutions]
         self._solved[key_of(u)] = dataclasses.replace(sol, solutions=light)
         return sol
+
+    def final_solution(self, u) -> BaysSolution:
+        """`solve` at ``u``, with each bay's LU factor when ``u`` was the last point solved (the
+        archive keeps none): what a later implicit derivative at the design reuses (the tolerance
+        analysis) instead of factorising again."""
+        u = np.asarray(u, np.float64)
+        if self.previous is not None and self._previous_key == key_of(u):
+            return self.previous
+        return self.solve(u)
 
     def solve(self, u) -> BaysSolution:
         """The concrete `BaysSolution` at the scaled vector ``u`` (from the archive if solved before).

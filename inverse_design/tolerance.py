@@ -234,6 +234,7 @@ class _Model:
         self.result = result
         self.n_bays = n = result.n_bays
         self.design_nodes = [np.asarray(sol.nodes[k]) for k in range(n)]  # (the nominal solves' start)
+        self.design_solutions = list(sol.solutions) if sol.solutions is not None else [None] * n
         self.scenes = [sol.scene(k) for k in range(n)]
         fabric = self.scenes[0].fabric
         self.nominal = [sol.bay_parameters(k).resolved(fabric) for k in range(n)]
@@ -276,9 +277,10 @@ class _Model:
         self.weights = np.asarray(weights if weights is not None else np.ones(n) / n, np.float64)
 
     def __getstate__(self) -> dict:
-        """Pickled (to a Dask worker) without the design result (its solution holds LU factors) and
-        without a worker's nominal solutions."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("result", "worker_nominal")}
+        """Pickled (to a Dask worker) without the design result and solutions (they hold LU factors)
+        and without a worker's nominal solutions."""
+        return {k: (v if k != "design_solutions" else [None] * len(v)) for k, v in self.__dict__.items()
+                if k not in ("result", "worker_nominal")}
 
     @property
     def size(self) -> int:
@@ -324,13 +326,17 @@ class _Model:
         for name in ("stiffness_span", "stiffness_chord"):
             if name in self.tolerances:
                 changes[name] = getattr(p, name) + dev(name)
+        # (b + db) / (b / (1 + e0) + dL) - 1, written as e0 plus a change that is exactly 0 at no
+        # deviation: the nominal wing is then the design's own, to the bit (its kept factor serves)
         if {"cut_span", "rib_station"} & set(self.tolerances):
             b, e0 = self.spacing[k], float(p.prestrain_span)
             db = 1e-3 * (dev("rib_station", k + 1) - dev("rib_station", k))
-            changes["prestrain_span"] = (b + db) / (b / (1.0 + e0) + 1e-3 * dev("cut_span")) - 1.0
+            dl = (1.0 + e0) * 1e-3 * dev("cut_span")
+            changes["prestrain_span"] = e0 + (1.0 + e0) * (db - dl) / (b + dl)
         if "cut_chord" in self.tolerances:
             c, e0 = self.contour[k], float(p.prestrain_chord)
-            changes["prestrain_chord"] = c / (c / (1.0 + e0) + 1e-3 * dev("cut_chord")) - 1.0
+            dl = (1.0 + e0) * 1e-3 * dev("cut_chord")
+            changes["prestrain_chord"] = e0 - (1.0 + e0) * dl / (c + dl)
         if "rib_profile" in self.tolerances:
             root, tip = p.rib_shapes
             size = self.shape_terms
@@ -500,9 +506,16 @@ def _bay_jacobian(model: _Model, k: int, start, rtol: float):
 
 
 def _nominal_solutions(model: _Model, rtol: float) -> list:
-    """Each bay's equilibrium at the design with a Newton factor (warm from the design's nodes)."""
+    """Each bay's equilibrium at the design with a Newton factor: the design's own solution where it
+    holds the current factor at that tolerance (the design's last solve), else solved again warm from
+    the design's nodes."""
     out = []
     for k in range(model.n_bays):
+        kept = model.design_solutions[k]
+        factor = None if kept is None else kept.factor
+        if factor is not None and factor.current and kept.converged and float(kept.residual) <= rtol:
+            out.append(kept)
+            continue
         start = model.design_nodes[k]
         out.append(solve_equilibrium(model.scenes[k], model.nominal[k], rtol=rtol, method="newton",
                                      initial=start if np.all(np.isfinite(start)) else None, throw=True))
