@@ -80,6 +80,9 @@ def test_a_wing_with_tolerances_and_samples_writes_its_analysis(tmp_path, capsys
     (["--tolerance", "stiffness_chord=2e5"], "100% or more"),
     (["--tolerance", "pressure=2%", "--samples", "-1"], "--samples must be 0"),
     (["--tolerance", "pressure=2%", "--shape-spec", "0"], "must be a positive number (mm)"),
+    (["--objective", "robust", "--tolerance", "pressure=0"], "every tolerance given is 0"),
+    (["--objective", "robust", "--evaluate"], "designs nothing"),
+    (["--objective", "robust", "--method", "slsqp"], "is minimised by gauss_newton"),
 ])
 def test_bad_input_is_refused_before_any_solve(args, message, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -104,7 +107,8 @@ def test_the_case_file_table_and_the_command_line_merge(tmp_path):
     ([], [], ["tolerance.png", "tolerance_samples.csv"]),
     (["--tolerance", "defaults"], ["tolerance.png"], ["tolerance_samples.csv"]),
     (["--tolerance", "defaults", "--samples", "4"], ["tolerance.png", "tolerance_samples.csv"], []),
-], ids=["none", "first order", "samples"])
+    (["--objective", "robust"], ["tolerance.png"], ["tolerance_samples.csv"]),
+], ids=["none", "first order", "samples", "robust: the defaults"])
 def test_what_a_run_with_tolerances_may_write(argv, writes, never):
     from inverse_design.app import case as case_reader
 
