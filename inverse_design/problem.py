@@ -119,6 +119,8 @@ class DesignProblem:
             rows (empty: none): one per rib for a shape per rib, else one per
             distinct starting section of a shared shape.
         rib_indices: the rib of each geometry (default 0, 1, ...).
+        tolerances: the manufacturing tolerances of the objective "robust"
+            (`robust.check_robust_tolerances`: None for every default).
 
     The constraint vector is the tension rows (`constraints.Constraints.names`,
     over all bays), then every rib geometry's `rib_design.RibGeometry.functions`

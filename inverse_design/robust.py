@@ -108,6 +108,7 @@ class RobustTerms:
         self.tolerances = tolerances
         self.step = step
         self.scale = None  # s: sqrt(Var[ms]) at the last accepted iterate (None: set at the first)
+        self.size = 0  # the tolerance parameters (columns), once `columns` has run
         self._raw: dict = {}  # the columns and their derivatives by `problem.key_of`
 
     # ------------------------------------------------------------ the columns
@@ -137,7 +138,7 @@ class RobustTerms:
     def raw(self, u, sol, derivatives: bool = True) -> dict:
         """The columns at ``u`` (solved: ``sol``) and, with ``derivatives``, their central differences in
         every scaled design variable (each side a wing solve warm from ``sol``)."""
-        from .problem import key_of
+        from .problem import BaysConvergenceError, key_of
 
         key = key_of(u)
         held = self._raw.get(key)
@@ -157,8 +158,6 @@ class RobustTerms:
                     v[j] += sign * self.step
                     side = self.problem._solve(v, sol)
                     if not side.converged:
-                        from .problem import BaysConvergenceError
-
                         raise BaysConvergenceError(side, side.failed_bays()[0])
                     sides.append(self.columns(self.problem._concrete(side, _aux_of(side), v))[:2])
                 (dp, tp), (dm, tm) = sides
