@@ -123,3 +123,23 @@ def test_the_analysis_options_without_tolerances_are_said_to_be_ignored():
     args, sources = case_reader.parse_arguments(["--samples", "10", "--shape-spec", "3"])
     lines = case_reader.ignored_options(args, sources)
     assert [line.split(" is ignored")[0] for line in lines] == ["--shape-spec", "--samples"]
+
+
+ROBUST_CASE = CASE.replace("evaluate = true\n", "objective = \"robust\"\n").replace(
+    "[tolerances]\npressure = \"2%\"\nstiffness_span = \"uniform:10%\"\ncut_chord = 0.5\nrib_station = 1.0\n", "")
+
+
+def test_a_robust_design_of_a_wing_reports_its_percentiles(tmp_path, capsys):
+    """``objective = "robust"`` without tolerances: designed for the defaults, which the analysis then
+    reports; the tension rows at their percentile are in the summary."""
+    case = tmp_path / "wing.toml"
+    case.write_text(ROBUST_CASE)
+    out = tmp_path / "out"
+    code = cli.main(["--config", str(case), "--out", str(out), "--no-compilation-cache", "--no-patterns", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["errors"]["objective"] == "robust"
+    assert set(summary["tolerance"]["inputs"]) == {"pressure", "stiffness_span", "stiffness_chord", "cut_span",
+                                                   "cut_chord", "rib_station", "rib_profile"}
+    assert summary["constraints"]["values"]["min_tension_p5"] >= 0.0
+    assert all(entry["robust_p95"] > 0 for entry in summary["history"])
