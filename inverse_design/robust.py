@@ -225,29 +225,39 @@ class RobustTerms:
         g, jg = self._quantile_rows(g, jg, raw, n_u)
         return residual, scipy.sparse.csr_matrix(jacobian), g, jg
 
+    def _tension_limits(self) -> int:
+        """How many tension limits the constraint rows begin with (each one row per cell of every bay;
+        the rib limits' rows, if any, follow them)."""
+        p = self.problem
+        return 0 if p.constraints is None else len(p.constraints.names(p.fabric))
+
+    def _shift(self, sigma, rows: int) -> np.ndarray:
+        """``1.645 sigma`` over the tension scale on each tension limit's cell rows, 0 on the rib rows."""
+        limits = self._tension_limits()
+        shift = np.tile(QUANTILE_Z * sigma / self.problem.tension_scale, limits)
+        return np.concatenate([shift, np.zeros(rows - shift.size)])
+
     def _quantile_rows(self, g, jg, raw: dict, n_u: int):
         """The tension rows ``g >= 0`` with each cell at its own quantile (module docstring)."""
-        if g.size == 0 or not raw["tensions"]:
+        if g.size == 0 or not raw["tensions"] or not self._tension_limits():
             return g, jg
         at = raw["tensions"]
         sigma = np.concatenate([np.sqrt(np.sum(a * a, axis=1)) for a in at])
         dsigma = np.concatenate([np.einsum("ic,icj->ij", a, da) for a, da in zip(at, raw["d_tensions"])])
         safe = np.where(sigma > 0.0, sigma, 1.0)
         dsigma = np.where(sigma[:, None] > 0.0, dsigma / safe[:, None], 0.0)
-        limits = g.size // sigma.size
-        scale = self.problem.tension_scale
-        g = g - np.tile(QUANTILE_Z * sigma / scale, limits)
-        jg = scipy.sparse.csr_matrix(jg) - scipy.sparse.csr_matrix(np.tile(QUANTILE_Z * dsigma / scale, (limits, 1)))
-        return g, jg.tocsr()
+        shift = np.vstack([self._shift(dsigma[:, j], g.size) for j in range(n_u)]).T
+        jg = scipy.sparse.csr_matrix(jg) - scipy.sparse.csr_matrix(shift)
+        return g - self._shift(sigma, g.size), jg.tocsr()
 
     def at(self, u, r, g, sol) -> dict:
         """The robust measures at ``u`` without derivatives (for the history and the tests): ``quantile``
         (``q``), ``mean`` (``E[ms]``), ``std`` (``sqrt(Var[ms])``) and the quantile tension rows ``g``."""
         raw = self.raw(u, sol, derivatives=False)
         mean, var, _, _ = self.moments(r, raw)
-        if g.size and raw["tensions"]:
+        if g.size and raw["tensions"] and self._tension_limits():
             sigma = np.concatenate([np.sqrt(np.sum(a * a, axis=1)) for a in raw["tensions"]])
-            g = g - np.tile(QUANTILE_Z * sigma / self.problem.tension_scale, g.size // sigma.size)
+            g = g - self._shift(sigma, g.size)
         return {"quantile": mean + QUANTILE_Z * math.sqrt(max(var, 0.0)), "mean": mean,
                 "std": math.sqrt(max(var, 0.0)), "g": g}
 
