@@ -46,6 +46,8 @@ EXPECTED = {
                                "python benchmarks/optimise_default.py --skip-command"),
     "refinement": ("grid refinement of the default bay (observed orders)", "python benchmarks/refinement.py"),
     "rib_design*": ("rib-shape designs of the default bay", "python benchmarks/rib_design.py"),
+    "robust_design": ("the robust design against the nominal one under the default tolerances, by Monte Carlo",
+                      "python benchmarks/robust_design.py --samples 256"),
     "runtime_vs_error": ("solve time against mid-bay error for every equilibrium method (the full run)",
                          "python benchmarks/runtime_vs_error.py"),
     "stability_map_panel": ("stability of the paper's explicit scheme: Courant coefficient against viscosity",

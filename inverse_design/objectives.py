@@ -10,7 +10,10 @@ fractions of the local chord. The sections are a bay's span rows at
 * ``"average"``: every grid row from rib to rib, each weighted equally (the
   mean square over the bay);
 * ``"worst"``: the row whose RMS distance is largest (a minimax objective;
-  non-smooth where two rows tie; `mean_square` takes a smooth maximum).
+  non-smooth where two rows tie; `mean_square` takes a smooth maximum);
+* ``"robust"``: the rows of "average", and the design minimises the
+  linearised 95th percentile of their rms under the manufacturing
+  tolerances (`robust`); here, at one equilibrium, it is "average".
 
 RMS and maximum are taken over the section's nodes (each node weighted
 equally, as `section_errors`).
@@ -79,7 +82,7 @@ __all__ = [
 BLEND_POINTS = 401
 
 #: Objective names accepted by `objective_residuals` and `optimise_pressure`.
-OBJECTIVES = ("mid_bay", "average", "worst")
+OBJECTIVES = ("mid_bay", "average", "worst", "robust")
 
 
 class SectionErrors(NamedTuple):

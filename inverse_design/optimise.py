@@ -282,6 +282,7 @@ def optimise_wing(
     limits: Limits = Limits(),
     solver: SolverSettings = SolverSettings(),
     layout: Layout = Layout(),
+    tolerances=None,
     **moved,
 ) -> DesignResult:
     """One pressure (and prestrain, rib scales, rib shapes) for every bay of ``wing`` (module docstring).
@@ -300,7 +301,10 @@ def optimise_wing(
         bounds: ``{name: (lower, upper)}`` of optimised names (defaults
             `variables.DEFAULT_BOUNDS`; ``rib_shape``'s for every coefficient).
         objective: per bay "mid_bay", "average" (default) or "worst"
-            (`objectives`); combined over bays weighted by planform area.
+            (`objectives`); combined over bays weighted by planform area; or
+            "robust": the linearised 95th percentile of the "average" rms
+            under ``tolerances``, with the tension limits at every cell's own
+            5th / 95th percentile (`robust`; gauss_newton only).
         method: "auto" (default: "gauss_newton", whose forward solves hardly
             grow with the number of variables; "slsqp" for the objective
             "worst"), "slsqp", "gauss_newton", "least_squares", "optax" or
@@ -315,6 +319,10 @@ def optimise_wing(
             (`settings.SolverSettings`).
         layout: a rib shape per rib or shared, a cut pattern shared or per
             bay, and the grid of every bay (`settings.Layout`).
+        tolerances: with ``objective="robust"``, the manufacturing
+            tolerances designed for (``{name: value}`` or anything
+            `tolerance.parse_tolerances` takes; None: every default,
+            docs/tolerances.md); refused with another objective.
         **moved: the keyword arguments that moved into ``limits``, ``solver``
             and ``layout``: refused with a TypeError that names where each went.
 
@@ -348,7 +356,7 @@ def optimise_wing(
         for k, t in enumerate(targets):
             if not isinstance(t, Airfoil):
                 raise TypeError(f"target {k} must be a targets.Airfoil, got {type(t).__name__}")
-    request = DesignRequest(variables, initial, bounds, objective, method, limits)
+    request = DesignRequest(variables, initial, bounds, objective, method, limits, tolerances)
     return _optimise(wing.scenes(fabric, layout.n_span, layout.n_contour), targets, list(wing.sections), wing,
                      request, solver, layout, name="optimise_wing", check_gaps=True)
 
@@ -365,6 +373,7 @@ def optimise_pressure(
     limits: Limits = Limits(),
     solver: SolverSettings = SolverSettings(),
     rib=None,
+    tolerances=None,
     **moved,
 ) -> DesignResult:
     """Pressure, prestrain and rib geometry that bring one bay's inflated skin closest to ``target``.
@@ -376,7 +385,8 @@ def optimise_pressure(
     Args:
         scene: bay, fabric and physics switches (`forward_solver.Scene`).
         target: the target section, a chord-normalised `targets.Airfoil`.
-        objective: "mid_bay" (default), "average" or "worst".
+        objective: "mid_bay" (default), "average", "worst" or "robust".
+        tolerances: the tolerances of ``objective="robust"`` (as `optimise_wing`).
         method: "auto" (default: "gauss_newton"; "slsqp" for the objective
             "worst"), "slsqp", "gauss_newton", "least_squares", "optax" or
             "root" (its condition: ``SolverSettings.root_condition``).
@@ -404,7 +414,7 @@ def optimise_pressure(
     bay = scene.bay
     wing = Wing.from_scene(scene) if getattr(bay, "airfoil", None) is not None else None
     ribs = [target if rib is None else rib] * 2
-    request = DesignRequest(variables, initial, bounds, objective, method, limits)
+    request = DesignRequest(variables, initial, bounds, objective, method, limits, tolerances)
     layout = Layout(rib_shape="shared", cut_pattern="shared", n_span=bay.n_span, n_contour=bay.n_contour)
     return _optimise([scene], [target, target], ribs, wing, request, solver, layout, name="optimise_pressure",
                      check_gaps=False)
@@ -463,7 +473,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
         problem = DesignProblem(scenes, targets, design, objective, constraints, rtol=rtol,
                                 solver_options=solver_options,
                                 rib_geometries=[g for _, g in geometries],
-                                rib_indices=[k for k, _ in geometries])
+                                rib_indices=[k for k, _ in geometries], tolerances=request.tolerances)
         problem.on_record = _notify(bar, settings.callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.start_vector()
@@ -518,6 +528,13 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: Sol
             success = False
             message = f"{message}; {'; '.join(rib_broken + broken)}{UNMET_ADVICE}"
         active, violated, report = active + rib_active, {**violated, **rib_violated}, {**report, **rib_values}
+        if problem.robust is not None:  # the limits at their percentile, and the quantile reached
+            quantiles, quantile_broken = _robust_report(problem, u, constraints, fabric)
+            report.update(quantiles)
+            if quantile_broken:
+                violated = {**violated, **quantile_broken[0]}
+                success = False
+                message = f"{message}; {'; '.join(quantile_broken[1])}{UNMET_ADVICE}"
     per_bay = PerBayResults(
         scenes=tuple(scenes), targets=tuple(targets), weights=problem.weights,
         rms_error=after["rms"], max_error=after["max"], initial_rms_error=before["rms"],
@@ -642,7 +659,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
 
 def refine_design(result: DesignResult, scene: Scene | None = None, target=None, *, layout: Layout | None = None,
                   bounds: Mapping | None = None, limits: Limits = Limits(), solver: SolverSettings = SolverSettings(),
-                  rib=None) -> DesignResult:
+                  rib=None, tolerances=None) -> DesignResult:
     """Confirm and polish a design on a finer grid, and record how far it moved.
 
     Runs the design again on the finer grid from ``result``'s design, with its
@@ -660,6 +677,7 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
             is the result's: "per_bay" when it has a cut pattern per bay).
         bounds, limits, solver: as for the coarse design.
         rib: one bay's starting rib section, as for the coarse design.
+        tolerances: of a robust design (None: the coarse design's).
 
     Returns:
         The fine grid's `DesignResult` with ``grid_change`` filled in; its
@@ -671,12 +689,13 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
         ValueError: for a one-bay design without ``scene`` and ``target``, or
             a wing without ``layout``.
     """
+    tolerances = result.request.tolerances if tolerances is None else tolerances
     if result.n_bays == 1 and scene is not None:
         if target is None:
             raise ValueError("refine_design of a one-bay design needs the finer scene and its target")
         fine = optimise_pressure(scene, target, result.variables, initial=result.parameters, bounds=bounds,
                                  objective=result.objective, method=result.method, limits=limits, solver=solver,
-                                 rib=rib)
+                                 rib=rib, tolerances=tolerances)
         grid = [scene.bay.n_span, scene.bay.n_contour]
     else:
         if layout is None or result.wing is None:
@@ -693,7 +712,7 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
         fine = optimise_wing(result.wing, result.per_bay.scenes[0].fabric, list(result.per_bay.targets),
                              result.variables,
                              initial=initial, bounds=bounds, objective=result.objective, method=result.method,
-                             limits=limits, solver=solver, layout=layout)
+                             limits=limits, solver=solver, layout=layout, tolerances=tolerances)
         grid = [layout.n_span, layout.n_contour]
     coarse_grid = list(np.shape(result.wing_solution.nodes)[1:3])
     values = {n: [_value(result, n), _value(fine, n)] for n in result.variables}
@@ -708,6 +727,41 @@ def refine_design(result: DesignResult, scene: Scene | None = None, target=None,
                                initial_max_error=result.initial_max_error,
                                violated_at_start=result.violated_at_start,
                                violated_at_start_where=result.violated_at_start_where)
+
+
+def _robust_report(problem: DesignProblem, u, constraints, fabric) -> tuple[dict, tuple | None]:
+    """A robust design's tension limits at each cell's own percentile (``min_tension_p5``, ``max_tension_p95``: the least
+    ``t - 1.645 sigma`` and the largest ``t + 1.645 sigma`` over the cells, N/m; `robust`), and, where
+    one is broken by more than `constraints.VIOLATION_TOLERANCE` of the tension scale, ``({name: {bay:
+    amount}}, [sentence])``."""
+    from .constraints import VIOLATION_TOLERANCE, floor_threshold
+    from .robust import QUANTILE_Z
+
+    values = {}
+    if constraints is None:
+        return values, None
+    sol = problem.nominal_linearised(u)[-1]
+    tensions = problem.measure(sol, u)["tensions"]
+    raw = problem.robust.raw(u, sol, derivatives=False)
+    where, sentences = {}, []
+    scale = tension_scale(sol.parameters, problem.chord)
+    floor, ceiling = constraints.min_tension, constraints.ceiling(fabric)
+    for k, (t, a) in enumerate(zip(tensions, raw["tensions"])):
+        sigma = np.sqrt(np.sum(a * a, axis=1))
+        low, high = float(np.min(t - QUANTILE_Z * sigma)), float(np.max(t + QUANTILE_Z * sigma))
+        values["min_tension_p5"] = min(values.get("min_tension_p5", math.inf), low)
+        values["max_tension_p95"] = max(values.get("max_tension_p95", -math.inf), high)
+        at = "" if len(tensions) == 1 else f" in bay {k}"
+        if floor is not None and low < floor_threshold(floor, scale):
+            where.setdefault("min_tension_p5", {})[k] = floor - low
+            sentences.append(f"min_tension_p5 violated{at}: a cell's fibre tension at its 5th percentile is "
+                             f"{low:.4g} N/m, {floor - low:.4g} N/m below the floor {floor:.4g} N/m (1 wing in 20 "
+                             "wrinkles there)")
+        if math.isfinite(ceiling) and high - ceiling > VIOLATION_TOLERANCE * scale:
+            where.setdefault("max_tension_p95", {})[k] = high - ceiling
+            sentences.append(f"max_tension_p95 violated{at}: a cell's fibre tension at its 95th percentile is "
+                             f"{high:.4g} N/m, {high - ceiling:.4g} N/m above the ceiling {ceiling:.4g} N/m")
+    return values, ((where, sentences) if where else None)
 
 
 def _largest(where: dict) -> dict:

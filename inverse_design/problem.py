@@ -119,6 +119,8 @@ class DesignProblem:
             rows (empty: none): one per rib for a shape per rib, else one per
             distinct starting section of a shared shape.
         rib_indices: the rib of each geometry (default 0, 1, ...).
+        tolerances: the manufacturing tolerances of the objective "robust"
+            (`robust.check_robust_tolerances`: None for every default).
 
     The constraint vector is the tension rows (`constraints.Constraints.names`,
     over all bays), then every rib geometry's `rib_design.RibGeometry.functions`
@@ -126,7 +128,7 @@ class DesignProblem:
     """
 
     def __init__(self, scenes, targets, variables: DesignVariables, objective, constraints, *,
-                 rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None):
+                 rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None, tolerances=None):
         self.scenes = list(scenes)
         self.bays = [scene.bay for scene in self.scenes]
         check_field_terms(variables, self.bays[0].n_contour)
@@ -161,6 +163,12 @@ class DesignProblem:
         # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
         self._measured: dict = {}
         self._recording: dict | None = None  # within a transformed evaluation: what it computes
+        # objective "robust": the tolerance columns and the quantile rows (`robust.RobustTerms`)
+        self.robust = None
+        if objective == "robust":
+            from .robust import RobustTerms, check_robust_tolerances
+
+            self.robust = RobustTerms(self, check_robust_tolerances(tolerances))
         # The ribs' manufacturability limits: no solve in them, so their Jacobian comes from forward
         # mode on the design vector alone.
         self.rib_geometries = list(rib_geometries)
@@ -357,6 +365,29 @@ class DesignProblem:
         return per_bay * len(self.bays)
 
     def linearised(self, u):
+        """`nominal_linearised`, or for the objective "robust" its stacked residual and quantile rows
+        (`robust.RobustTerms.assemble`: ``r @ r`` the majoriser of the linearised 95th percentile of the
+        mean square, less its constant)."""
+        key = key_of(u)
+        new = key not in self._cache
+        r, jr, g, jg, sol = self.nominal_linearised(u)
+        if self.robust is None:
+            return r, jr, g, jg, sol
+        stacked, jstacked, g, jg = self.robust.assemble(u, r, jr, g, jg, sol)
+        if new and self.history:  # the iterate's linearised 95th percentile of the rms, chord
+            self.history[-1]["robust_p95"] = math.sqrt(max(self.robust.quantile(r, self.robust.raw(u, sol)), 0.0))
+        return stacked, jstacked, g, jg, sol
+
+    def reweight(self, u) -> bool:
+        """At an accepted iterate ``u`` (evaluated last): the robust majoriser's weight set there
+        (`robust.RobustTerms.reweight`); False (nothing changes) for the other objectives."""
+        if self.robust is None:
+            return False
+        r, _, _, _, sol = self.nominal_linearised(u)
+        self.robust.reweight(r, self.robust.raw(u, sol))
+        return True
+
+    def nominal_linearised(self, u):
         """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`shape_residuals`, ``r @ r``
         the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
         (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation

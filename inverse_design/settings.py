@@ -192,14 +192,19 @@ class DesignRequest:
             optimised stay at these values.
         bounds: ``{name: (lower, upper)}`` of optimised names (defaults
             `variables.DEFAULT_BOUNDS`).
-        objective: per bay "mid_bay", "average" or "worst" (`objectives`).
+        objective: per bay "mid_bay", "average", "worst" or "robust" (`objectives`, `robust`).
         method: one of `METHODS` ("auto": `AUTO`, or `AUTO_FOR_WORST` for
             the objective "worst"); None for a single equilibrium
             (`optimise.evaluate_design`: nothing is optimised).
         limits: the `Limits` the design must meet.
+        tolerances: the manufacturing tolerances of the objective "robust"
+            (anything `tolerance.parse_tolerances` takes; None: every
+            default); refused with another objective.
 
     Raises:
-        ValueError: for an unknown objective or method, or limits that are not a `Limits`.
+        ValueError: for an unknown objective or method, limits that are not a
+            `Limits`, tolerances without the objective "robust", or "robust"
+            with a method other than gauss_newton.
     """
 
     variables: tuple = ("pressure",)
@@ -208,6 +213,7 @@ class DesignRequest:
     objective: str = "mid_bay"
     method: str | None = "auto"
     limits: Limits = Limits()
+    tolerances: object = None
 
     def __post_init__(self):
         if isinstance(self.variables, str):
@@ -219,6 +225,14 @@ class DesignRequest:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if not isinstance(self.limits, Limits):
             raise ValueError(f"limits must be an inverse_design.Limits, got {self.limits!r}")
+        if self.tolerances is not None and self.objective != "robust":
+            raise ValueError(f"tolerances are what objective='robust' designs for; the objective is "
+                             f"{self.objective!r}: give objective='robust', or analyse the design afterwards "
+                             "with inverse_design.tolerance.tolerance_analysis")
+        if self.objective == "robust" and self.method not in (None, "auto", "gauss_newton"):
+            raise ValueError(f"objective='robust' is a sum of squares that method='gauss_newton' minimises "
+                             f"(its derivatives are the tolerance Jacobian's); got method={self.method!r}: "
+                             "give method='auto' or 'gauss_newton'")
 
     @property
     def method_to_run(self) -> str:

@@ -230,9 +230,22 @@ class _Model:
     """The tolerance parameters of a design and their map onto each bay's `Parameters`."""
 
     def __init__(self, result, tolerances: dict):
-        sol = result.wing_solution
+        stations = np.asarray(result.wing.stations) if result.wing is not None else None
         self.result = result
-        self.n_bays = n = result.n_bays
+        self._setup(result.wing_solution, stations, result.objective, result.per_bay.targets,
+                    result.per_bay.weights, tolerances)
+
+    @classmethod
+    def at(cls, sol, targets, weights, objective: str, tolerances: dict) -> "_Model":
+        """The model of the bays' equilibrium ``sol`` (a concrete `BaysSolution`) with the rib ``targets``,
+        bay ``weights`` and ``objective`` rows of a design in progress (`robust`), not a finished result."""
+        model = cls.__new__(cls)
+        model.result = None
+        model._setup(sol, None, objective, targets, weights, tolerances)
+        return model
+
+    def _setup(self, sol, stations, objective: str, targets, weights, tolerances: dict) -> None:
+        self.n_bays = n = len(sol.bays)
         self.design_nodes = [np.asarray(sol.nodes[k]) for k in range(n)]  # (the nominal solves' start)
         self.design_solutions = list(sol.solutions) if sol.solutions is not None else [None] * n
         self.scenes = [sol.scene(k) for k in range(n)]
@@ -257,8 +270,7 @@ class _Model:
         chords = [b.chord_root for b in bays] + [bays[-1].chord_tip]
         self.rib_chords = np.array([c * float(self.nominal[min(k, n - 1)].rib_chord_scale)
                                     for k, c in enumerate(chords)])
-        self.stations = (np.asarray(result.wing.stations) if result.wing is not None
-                         else np.concatenate([[0.0], np.cumsum(self.spacing)]))
+        self.stations = stations if stations is not None else np.concatenate([[0.0], np.cumsum(self.spacing)])
         shapes = [p.rib_shapes for p in self.nominal]
         self.shape_terms = next((np.size(s[0]) for s in shapes if s[0] is not None), 2)
         # the nominal value of each column, in its source's unit
@@ -268,12 +280,10 @@ class _Model:
         self.uniform = np.array([self.tolerances[c.source].uniform for c in self.columns])
         self.std = np.where(self.uniform, self.spread / math.sqrt(3.0), self.spread)
         self.touching = [self._touching(k) for k in range(n)]
-        self.etas = station_etas(result.objective, bays[0].n_span)
-        targets = result.per_bay.targets
+        self.etas = station_etas(objective, bays[0].n_span)
         self.rows = [row_targets(targets[k], targets[k + 1], b.chord_root, b.chord_tip, self.etas)
                      for k, b in enumerate(bays)]
         self.chords = [np.asarray(local_chords(b, self.etas), np.float64) for b in bays]
-        weights = result.per_bay.weights
         self.weights = np.asarray(weights if weights is not None else np.ones(n) / n, np.float64)
 
     def __getstate__(self) -> dict:

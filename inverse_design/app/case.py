@@ -188,6 +188,8 @@ def parse_arguments(argv: list[str] | None = None) -> tuple[argparse.Namespace, 
     merged = {**defaults, **config, **given}
     # tolerances: the case file's table, then the command line's (a name given on both: the command line's)
     merged["tolerances"] = [*(config.get("tolerances") or []), *(given.get("tolerances") or [])] or None
+    if merged.get("objective") == "robust" and not merged["tolerances"]:  # (designed for the defaults)
+        merged["tolerances"] = ["defaults"]
     sources = {**{k: "config" for k in config}, **{k: "command line" for k in given}}
     args = argparse.Namespace(**merged)
     check_option_combinations(args, sources)
@@ -215,6 +217,8 @@ def check_option_combinations(args: argparse.Namespace, sources: dict) -> None:
       would solve the unshaped rib and the uniform cut).
     * ``--method root`` on a single bay with variables other than the
       pressure alone: root finding (brentq) solves for the pressure alone.
+    * ``--objective robust`` with ``--evaluate`` (nothing is designed) or
+      with a ``--method`` other than auto or gauss_newton.
 
     Raises:
         InputError: naming both options and what to change.
@@ -225,6 +229,14 @@ def check_option_combinations(args: argparse.Namespace, sources: dict) -> None:
                 raise InputError(f"{_given(name, sources)} {getattr(args, name):g} N/m contradicts "
                                  f"{_given('no_tension_constraints', sources)}, which drops both tension limits: "
                                  "give one or the other")
+    if args.objective == "robust" and args.evaluate:
+        raise InputError(f"{_given('objective', sources)} robust designs for the tolerances, and "
+                         f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: drop --evaluate, "
+                         "or give --objective average with --tolerance for the analysis of that equilibrium")
+    if args.objective == "robust" and args.method not in ("auto", "gauss_newton"):
+        raise InputError(f"{_given('objective', sources)} robust is minimised by gauss_newton (a sum of squares "
+                         f"with the tolerance Jacobian's derivatives), got {_given('method', sources)} "
+                         f"{args.method}: give --method auto or gauss_newton")
     if args.evaluate and args.refine:
         raise InputError(f"{_given('refine', sources)} polishes a design on a finer grid, and "
                          f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: give one or "

@@ -146,6 +146,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     # (a single equilibrium is solved to solve_equilibrium's default residual, not the gradients')
     equilibrium = SolverSettings(rtol=1e-8, equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
     options = dict(bounds=bounds, limits=Limits(tension=constraints, ribs=rib_limits), solver=solver)
+    if args.objective == "robust":  # (designed for the tolerances the analysis then reports)
+        options["tolerances"] = tolerances
     inputs = {"wing": None, **vars(args), "sources": sources}  # (the same keys for a bay and a case file's ribs)
     if wing_ribs is None:
         def scene_on(n_span: int) -> Scene:

@@ -205,9 +205,12 @@ OPTIONS = (
                                          help="a wing's cut pattern: one field for every bay (shared, the "
                                          "default) or one per bay, each cell's panel cut on its own (per_bay: "
                                          "n_bays x 2 K coefficients)")),
-    ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst"),
+    ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst", "robust"),
                                       help="sections that must match the target: the mid-bay one, every "
-                                      "row from rib to rib, or the worst row (default average)")),
+                                      "row from rib to rib, or the worst row (default average); robust: "
+                                      "every row's linearised 95th percentile under the tolerances "
+                                      "(--tolerance, default every default), the tension limits at their "
+                                      "own percentile (docs/tolerances.md)")),
     ("optimiser", "--method", dict(default="auto", choices=("auto", "slsqp", "gauss_newton", "least_squares",
                                                             "root", "optax"),
                                    help="optimiser: auto (gauss_newton; slsqp with --objective worst), "

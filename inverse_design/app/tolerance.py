@@ -44,6 +44,9 @@ def check_tolerance_options(args: argparse.Namespace, fabric) -> dict | None:
         tolerances = parse_tolerances(args.tolerances)
     except ValueError as exc:
         raise InputError(f"--{exc}") from None
+    if getattr(args, "objective", None) == "robust" and not any(t.value > 0 for t in tolerances.values()):
+        raise InputError("--objective robust designs for the scatter of the tolerances, and every tolerance given "
+                         "is 0: give at least one (e.g. --tolerance pressure=2%), or none for the defaults")
     for name in ("stiffness_span", "stiffness_chord"):
         t = tolerances.get(name)
         nominal = getattr(fabric, name)

@@ -80,6 +80,9 @@ def test_a_wing_with_tolerances_and_samples_writes_its_analysis(tmp_path, capsys
     (["--tolerance", "stiffness_chord=2e5"], "100% or more"),
     (["--tolerance", "pressure=2%", "--samples", "-1"], "--samples must be 0"),
     (["--tolerance", "pressure=2%", "--shape-spec", "0"], "must be a positive number (mm)"),
+    (["--objective", "robust", "--tolerance", "pressure=0"], "every tolerance given is 0"),
+    (["--objective", "robust", "--evaluate"], "designs nothing"),
+    (["--objective", "robust", "--method", "slsqp"], "is minimised by gauss_newton"),
 ])
 def test_bad_input_is_refused_before_any_solve(args, message, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -104,7 +107,8 @@ def test_the_case_file_table_and_the_command_line_merge(tmp_path):
     ([], [], ["tolerance.png", "tolerance_samples.csv"]),
     (["--tolerance", "defaults"], ["tolerance.png"], ["tolerance_samples.csv"]),
     (["--tolerance", "defaults", "--samples", "4"], ["tolerance.png", "tolerance_samples.csv"], []),
-], ids=["none", "first order", "samples"])
+    (["--objective", "robust"], ["tolerance.png"], ["tolerance_samples.csv"]),
+], ids=["none", "first order", "samples", "robust: the defaults"])
 def test_what_a_run_with_tolerances_may_write(argv, writes, never):
     from inverse_design.app import case as case_reader
 
@@ -151,3 +155,23 @@ def test_a_design_that_does_not_solve_again_keeps_its_report_and_skips_the_analy
     summary = json.loads((out / "summary.json").read_text())
     assert summary.get("tolerance") is None and not (out / "tolerance.png").exists()
     assert any(w.startswith("the tolerance analysis is skipped") for w in summary["warnings"])
+
+
+ROBUST_CASE = CASE.replace("evaluate = true\n", "objective = \"robust\"\n").replace(
+    "[tolerances]\npressure = \"2%\"\nstiffness_span = \"uniform:10%\"\ncut_chord = 0.5\nrib_station = 1.0\n", "")
+
+
+def test_a_robust_design_of_a_wing_reports_its_percentiles(tmp_path, capsys):
+    """``objective = "robust"`` without tolerances: designed for the defaults, which the analysis then
+    reports; the tension rows at their percentile are in the summary."""
+    case = tmp_path / "wing.toml"
+    case.write_text(ROBUST_CASE)
+    out = tmp_path / "out"
+    code = cli.main(["--config", str(case), "--out", str(out), "--no-compilation-cache", "--no-patterns", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["errors"]["objective"] == "robust"
+    assert set(summary["tolerance"]["inputs"]) == {"pressure", "stiffness_span", "stiffness_chord", "cut_span",
+                                                   "cut_chord", "rib_station", "rib_profile"}
+    assert summary["constraints"]["values"]["min_tension_p5"] >= 0.0
+    assert all(entry["robust_p95"] > 0 for entry in summary["history"])
