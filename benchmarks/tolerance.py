@@ -6,7 +6,8 @@ objective) is designed once and its first-order tolerance analysis with every
 source at its default run once (both compiling: the first runs), then both
 again ``--repeats`` times, alternating, on compiled functions; the ratio is of
 the medians of those runs (a compiled design takes a few tenths of a second,
-so one run is at the mercy of the machine's other work). Then ``--samples`` wings of the default bay are solved warm from the
+so one run is at the mercy of the machine's other work). BLAS runs on one
+thread, as in the command (`inverse_design.app.cli`). Then ``--samples`` wings of the default bay are solved warm from the
 nominal equilibrium (the Monte Carlo check), timed apart. Quote the machine
 and its load with the numbers.
 
@@ -52,6 +53,13 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=7)
     options = parser.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # (as the command runs)
+        measure(options)
+
+
+def measure(options) -> None:
     from inverse_design.tolerance import tolerance_analysis
 
     times = {}

@@ -7,7 +7,8 @@ functions), then its first-order analysis with every source at its default runs 
 compiled functions); the ratio is of the second runs. Then ``--samples`` wings are drawn and solved
 warm from the nominal equilibrium, each row streamed to a CSV file as the command does, and the
 process's resident memory (``/proc/self/statm``) is read after every tenth sample: a Monte Carlo
-whose memory grows with N would show it there. Quote the machine and its load with the numbers.
+whose memory grows with N would show it there. BLAS runs on one thread, as in the command. Quote the
+machine and its load with the numbers.
 
 Writes ``benchmarks/results/tolerance_wing.json`` (``benchmarks/performance_doc.py`` puts it in
 ``docs/performance.md``).
@@ -61,6 +62,13 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=100)
     parser.add_argument("--cells", type=int, default=40)
     options = parser.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):  # (as the command runs)
+        measure(options)
+
+
+def measure(options) -> None:
     from inverse_design.tolerance import tolerance_analysis
 
     load_start = os.getloadavg()[0]
