@@ -33,9 +33,10 @@ differentiates (`bay_parameters`, per bay):
 
 First order (`tolerance_analysis`): per bay, one forward-mode JVP of the
 equilibrium (`forward_solver.solve_equilibrium`'s implicit derivative,
-within `forward_solver.implicit.forward_only`: the primal solve warm from the
-design, then one back-solve per parameter touching that bay with the kept LU
-factor) gives ``J``, the Jacobian of every normal distance of the objective's
+within `forward_solver.implicit.forward_only`: the design's own equilibrium and
+LU factor where the design kept them (its last solve), else one Newton solve
+warm from the design, then one back-solve per parameter touching that bay with
+that factor) gives ``J``, the Jacobian of every normal distance of the objective's
 rows (mm) and of every cell's fibre tension (N/m) in the tolerance
 parameters. The distances are linearised, not the rms (at a design the rms
 sits at a minimum in the designed directions, so its own derivative is near
