@@ -55,6 +55,8 @@ def main() -> None:
     options = parser.parse_args()
     from threadpoolctl import threadpool_limits
 
+    import inverse_design.tolerance  # noqa: F401  (NumPy's and SciPy's BLAS loaded: the limit reaches them)
+
     with threadpool_limits(limits=1, user_api="blas"):  # (as the command runs)
         measure(options)
 
