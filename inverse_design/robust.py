@@ -22,7 +22,7 @@ normal approximation of the mean square (the rms is monotone in it). Both
 parts matter: ``|A|_F^2`` is the scatter's own mean-square growth, and the
 cross term ``A^T r`` is the scatter along the nominal's own error, the part
 that makes the rms's spread first order (a linearised rms would miss the
-first and understate the second; DESIGN.md 6d).
+first and understate the second; docs/tolerances.md, "First order").
 
 ``sqrt(Var)`` is no sum of squares, so the Gauss-Newton loop minimises the
 majoriser ``E + (z / 2 s) Var + z s / 2 >= q`` (equal at ``s = sqrt(Var)``):
