@@ -197,12 +197,15 @@ def test_the_performance_page_is_up_to_date():
 
 def test_the_readme_is_short_and_the_repository_cites_no_issue_numbers():
     # The README is for users (at most 400 lines; the detail lives in docs/), and what the repository
-    # says of itself cites the paper's equations and docs/, never a tracker the reader cannot see.
+    # says of itself cites the paper's equations and docs/, never a tracker the reader cannot see nor a
+    # design note outside the repository.
     assert len(README.read_text().splitlines()) <= 400
-    pattern = re.compile(r"\b[Ii]ssues? #?\d")
-    pages = [README, *(ROOT / "docs").glob("*.md"), *(ROOT / "notebooks").glob("*.ipynb"),
+    pattern = re.compile(r"\b[Ii]ssues? #?\d|\b(DESIGN|STYLE)\.md\b")
+    packages = [path for package in ("targets", "forward_solver", "inverse_design") for path in (ROOT / package).rglob("*.py")]
+    pages = [README, *packages, *(ROOT / "docs").glob("*.md"), *(ROOT / "notebooks").glob("*.ipynb"),
              *(ROOT / "notebooks").glob("*.md"), *(ROOT / "benchmarks").glob("*.py"),
              *(ROOT / "benchmarks").glob("*.md"), *(ROOT / "tests").rglob("*.py"), *(ROOT / "tests").rglob("*.md")]
     found = [f"{page.relative_to(ROOT)}:{n}" for page in pages
              for n, line in enumerate(page.read_text().splitlines(), 1) if pattern.search(line)]
-    assert not found, f"issue numbers in {', '.join(found)}: say what the code does and cite docs/ instead"
+    assert not found, (f"issue numbers or outside notes in {', '.join(found)}: say what the code does and cite "
+                       "docs/ instead")
