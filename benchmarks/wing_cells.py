@@ -71,8 +71,10 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     from forward_solver import Fabric, Wing
     from inverse_design import Layout, Limits, SolverSettings, optimise_wing
     from inverse_design.app.case import design_inputs, load_section, parse_arguments
+    from inverse_design.memory import fix_mmap_threshold
     from inverse_design.optimise import refine_design
 
+    fix_mmap_threshold()  # as the command does
     load_start = _load()
     variables, extra = DESIGNS[design]
     argv = ["--config", str(ROOT / "inverse_design" / "cases" / CASES[case]), "--variables", variables,
