@@ -71,8 +71,10 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     from forward_solver import Fabric, Wing
     from inverse_design import Layout, Limits, SolverSettings, optimise_wing
     from inverse_design.app.case import design_inputs, load_section, parse_arguments
+    from inverse_design.memory import fix_mmap_threshold
     from inverse_design.optimise import refine_design
 
+    fix_mmap_threshold()  # as the command does
     load_start = _load()
     variables, extra = DESIGNS[design]
     argv = ["--config", str(ROOT / "inverse_design" / "cases" / CASES[case]), "--variables", variables,
@@ -178,8 +180,9 @@ def main(argv=None) -> int:
                            "cut field (12 coefficients); per_bay = pressure + a cut field per bay; per_bay_ribs = "
                            "that + a shape per rib (8 coefficients each)",
                            "rms, max: normal distance from the target, fractions of the local chord; worst bay: "
-                           "the bay of the largest rms; QP rows kept: the tension and rib rows of the step QP that "
-                           "a step in the trust box can reach (of 2 x 2048 per bay at 17x64)",
+                           "the bay of the largest rms; QP rows kept: the most tension and rib rows any step QP's "
+                           "working set held (step_qp.solve_working_set), of 2,048 tension rows per bay at 17x64 (the "
+                           "span and chord tensions of 1,024 cells against the floor) and about 500 rows per rib",
                            "seconds: wall time of the design in its own process, compilation included; peak MB: "
                            "ru_maxrss of that process; load: the 1-minute load average at its start and end "
                            "(2-core machine shared with other work)",

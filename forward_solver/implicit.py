@@ -155,7 +155,8 @@ def forward_only(n_tangents: int | None = None):
     ``jax.vmap`` the batch is traced (`parameter_rhs` and the host callback, as one tangent is).
 
     ``n_tangents``, the batch's size when known, lets a cold solve within compile the right-hand
-    sides' program on the compile-ahead worker while it relaxes (`batched_rhs_task`).
+    sides' program on the compile-ahead worker while it relaxes (`batched_rhs_task`). An LU
+    factor registered within is dropped when its nodes are gone, not kept for a pullback.
     """
     token = _FORWARD_ONLY.set(True)
     expected = _EXPECTED_TANGENTS.set(n_tangents)
@@ -199,6 +200,11 @@ _RELEASED: collections.OrderedDict = collections.OrderedDict()
 #: Memory the released factors may keep (the newest one is always kept), bytes.
 RELEASED_FACTOR_BYTES = 512 * 2**20
 _TOKENS = itertools.count()
+#: Tokens of factors registered within `forward_only`: no pullback can call them once their nodes
+#: are gone (nothing there is transposed), so they are dropped then rather than kept among the
+#: released ones. A Gauss-Newton design of 40 bays at 17x64 registers 40 factors (about 3 MB each)
+#: per iterate; kept, they held `RELEASED_FACTOR_BYTES` after five iterates.
+_TRANSIENT: set = set()
 
 
 def _factor_bytes(factor) -> int:
@@ -209,7 +215,8 @@ def _release(token: int) -> None:
     """Move ``token``'s factor from the live to the released ones, dropping the oldest released
     factors beyond `RELEASED_FACTOR_BYTES`."""
     factor = _FACTORS.pop(token, None)
-    if factor is None:
+    if factor is None or token in _TRANSIENT:
+        _TRANSIENT.discard(token)
         return
     _RELEASED[token] = factor
     total = sum(_factor_bytes(f) for f in _RELEASED.values())
@@ -308,7 +315,8 @@ class HostLU:
     iterate: some 50 ms a tangent, and one compilation per factor). The registration is live as
     long as ``anchor`` (the equilibrium nodes, a JAX array, passed along to every call); after
     that the factor stays among the most recently released ones (`RELEASED_FACTOR_BYTES`), for a
-    pullback that holds copies of the nodes but not the nodes.
+    pullback that holds copies of the nodes but not the nodes; one registered within
+    `forward_only` is dropped then (no pullback can call it).
 
     Args:
         factor: a ``scipy.sparse.linalg.SuperLU`` of ``J`` on the free dofs.
@@ -324,6 +332,8 @@ class HostLU:
         self.free = jax.device_put(self.free_host)  # (a transfer: no eager program to compile)
         token = next(_TOKENS)
         _FACTORS[token] = factor
+        if _FORWARD_ONLY.get():
+            _TRANSIENT.add(token)
         weakref.finalize(anchor, _release, token)
         self.token = jax.device_put(np.int32(token))  # 32 bits: unchanged whether float64 is on or off
 

@@ -134,11 +134,20 @@ def decompress(compressed, row_bays, columns, n_columns: int) -> scipy.sparse.cs
     """
     compressed = np.asarray(compressed, np.float64)
     n_rows, n_seeds = compressed.shape
-    rows = np.repeat(np.arange(n_rows), n_seeds)
-    cols = np.asarray(columns)[np.asarray(row_bays)].reshape(-1)
-    values = compressed.reshape(-1)
-    keep = values != 0.0
-    return scipy.sparse.csr_matrix((values[keep], (rows[keep], cols[keep])), shape=(n_rows, n_columns))
+    columns = np.asarray(columns)
+    # Every row holds one entry per seed, in distinct columns: the CSR arrays directly, each row's
+    # columns in order (a COO matrix sorted into CSR took 0.5 s an iterate on 40 bays of 17x64).
+    row_bays = np.asarray(row_bays)
+    order = np.argsort(columns, axis=1)
+    cols = np.take_along_axis(columns, order, axis=1)[row_bays]
+    values = np.take_along_axis(compressed, order[row_bays], axis=1)
+    index = np.int32 if n_columns < 2**31 and n_rows * n_seeds < 2**31 else np.int64
+    matrix = scipy.sparse.csr_matrix((values.reshape(-1), cols.reshape(-1).astype(index),
+                                      np.arange(0, n_rows * n_seeds + 1, n_seeds, dtype=index)),
+                                     shape=(n_rows, n_columns))
+    matrix.has_sorted_indices = True
+    matrix.eliminate_zeros()
+    return matrix
 
 
 def implicit_equilibrium(scene, solution):

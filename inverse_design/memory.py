@@ -14,20 +14,35 @@ resident memory (``ru_maxrss``) of ``benchmarks/wing_cells.py`` runs of the
 built-in 40-cell wing's first 10 and 20 bays at 17x64 with a field per bay and
 a shape per rib (29 tangents), capped at 2 wing solves: 987 and 1324 MiB, 33.7
 MiB a bay (0.031 MiB a node; the tangents' share, 0.0005 MiB a node each, is
-the size of their node arrays through the force kernel, not a fit). A run of
-many iterates holds more: the archive of every solve grows with them
-(measured: the uncapped 40-bay design, 809 variables, 6.7 GiB resident after
-60 minutes at load 7-16 and still growing, against the estimate's 2.0 GiB;
-the cause is not found: the archive of solves is small and the released LU
-factors are capped at 512 MiB), so the estimate is the floor a design needs,
-and the command refuses on it.
+the size of their node arrays through the force kernel, not a fit).
+
+A design of many iterates holds little more, once two things that grew with
+every iterate are gone (found on the same wing's first 10 and 20 bays): the
+LU factors of every earlier iterate's Jacobian, kept for pullbacks that a
+forward-mode design never calls (about 3 MB a bay and iterate, up to 512 MiB;
+now dropped, `forward_solver.implicit.forward_only`), and glibc's heap, which
+its raised mmap threshold let grow by about 100 MB an iterate on 20 bays
+(`fix_mmap_threshold`). Measured with both: the whole 40-cell design with a
+field per bay and a shape per rib (809 variables, 21 wing solves) peaked at
+2,053-2,080 MiB in four runs (the estimate: 2,000 MiB), its resident memory
+level at 1.5-1.6 GB from the fourth iterate, where it had reached 6.7 GB
+after 60 minutes and was growing.
 """
 
 from __future__ import annotations
 
+import ctypes
 import math
+import sys
 
-__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "design_tangents", "design_memory"]
+__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "MMAP_THRESHOLD_BYTES", "design_tangents",
+           "design_memory", "fix_mmap_threshold"]
+
+#: The size from which glibc's ``malloc`` maps each block on its own (returned to the system when
+#: freed) under `fix_mmap_threshold`: glibc's own starting value, 128 KiB.
+MMAP_THRESHOLD_BYTES = 128 * 1024
+#: ``mallopt``'s parameter number of ``M_MMAP_THRESHOLD`` (glibc's malloc.h).
+_M_MMAP_THRESHOLD = -3
 
 #: The interpreter, JAX, the compiled programs and one bay's work, MiB.
 BASE_MIB = 650.0
@@ -74,3 +89,35 @@ def design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: int) -> 
     nodes = n_bays * n_span * n_contour
     mib = BASE_MIB + nodes * (PER_NODE_MIB + PER_TANGENT_NODE_MIB * max(n_tangents, 1))
     return math.ceil(mib * 2**20)
+
+
+def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Keep glibc's mmap threshold at ``threshold`` bytes for this process (``mallopt``), so that the
+    resident memory of a long design stops growing once its iterates repeat.
+
+    By default glibc raises the threshold to the size of each mapped block a program frees (up
+    to 32 MiB): after the first iterate, every array up to that size comes from the heap, and
+    the heap, fragmented by the arrays each iterate makes and frees (the Jacobian's tangents and
+    decompression, the LU factors, the step QP), is not given back. Measured on the first 20 bays
+    of the 40-cell wing (17x64, a field per bay and a shape per rib, 409 variables; 2-core
+    machine at load 5-7) with the released factors dropped: resident 1,057 MB after the first
+    iterate and 1,756 MB after the eighth (about 100 MB an iterate, unbounded); with the threshold
+    fixed, 943 MB and 1,141 MB, level from the third, and no slower. ``MALLOC_MMAP_THRESHOLD_``
+    in the environment does the same when the process starts.
+
+    A process setting, like `forward_solver.xla.enable_fast_compilation`: the ``optimise-pressure``
+    command calls it as it starts; a library caller running long designs may too. Nothing
+    happens outside glibc (another C library, another system).
+
+    Returns:
+        Whether the threshold was set.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        if not hasattr(libc, "gnu_get_libc_version"):  # glibc only: the parameter is its own
+            return False
+        return bool(libc.mallopt(ctypes.c_int(_M_MMAP_THRESHOLD), ctypes.c_int(int(threshold))))
+    except (OSError, AttributeError):
+        return False

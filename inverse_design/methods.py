@@ -16,7 +16,7 @@ import scipy.sparse
 from .constraints import VIOLATION_TOLERANCE
 from .objectives import section_points
 from .problem import DesignProblem, key_of
-from .step_qp import reachable_rows, solve_step_qp
+from .step_qp import reachable_rows, solve_working_set
 
 __all__ = ["gauss_newton", "slsqp", "least_squares", "optax_descent", "root", "BRACKET_FACTOR", "OPTAX_GAIN",
            "OPTAX_LEARNING_RATE", "OPTAX_PATIENCE", "OPTAX_HALVINGS",
@@ -173,10 +173,12 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     while True:
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
-        d, predicted, kept = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, penalty, GN_QP_PENALTY)
-        entry = _entry_of(problem, u)
-        if entry is not None:  # the limit rows the step's QP kept (of g.size), in the history
+        d, predicted, reachable, kept = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, penalty,
+                                              GN_QP_PENALTY)
+        entry = problem.entry_at(u)
+        if entry is not None:  # the limit rows the step's QP kept and could reach (of g.size), in the history
             entry["qp_rows"] = max(int(kept), int(entry.get("qp_rows", 0)))
+            entry["qp_reachable_rows"] = max(int(reachable), int(entry.get("qp_reachable_rows", 0)))
         if (predicted <= max(tolerance * phi, GN_RESOLUTION) and violation(g) > GN_SLACK
                 and penalty < GN_QP_PENALTY):
             # An infeasible iterate whose QP step (which all but enforces the linearised limits) the merit
@@ -215,15 +217,6 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
                     "lowers the merit (objective and constraint violation)")
 
 
-def _entry_of(problem: DesignProblem, u):
-    """The newest history entry recorded at the scaled vector ``u``, or None."""
-    key = key_of(u)
-    for entry in reversed(problem.history):
-        if key_of(problem.variables.from_values(entry["values"])) == key:
-            return entry
-    return None
-
-
 def _damping(jr) -> float:
     """`GN_DAMPING` relative to the largest diagonal entry of ``jr^T jr`` (dense or sparse ``jr``)."""
     squares = (np.asarray(jr.multiply(jr).sum(axis=0)).reshape(-1) if scipy.sparse.issparse(jr)
@@ -244,24 +237,25 @@ def _model(r, jr, g, jg, penalty):
 def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
     """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
     (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
-    from ``d = 0``, and how many limit rows the QP kept.
+    from ``d = 0``, how many limit rows a step in the box can reach (the QP's rows) and how many
+    of them the QP's working set kept.
 
     ``jr`` and ``jg`` are dense or ``scipy.sparse``. Rows that no step in the box can bring below zero
-    cannot bind and are dropped (`step_qp.reachable_rows`: of a wing's every cell tension, only those
-    near a limit stay); the QP with one slack for the largest violation is solved sparse by
-    `step_qp.solve_step_qp` (Clarabel), without forward solves.
+    cannot bind and are dropped (`step_qp.reachable_rows`); the QP with one slack for the largest
+    violation is solved sparse by Clarabel on a working set of the rest (`step_qp.solve_working_set`:
+    the rows at their limit and those a step breaks), without forward solves.
     """
     n = jr.shape[1]
     near = reachable_rows(g, jg, lo, hi)
     g, jg = g[near], jg[near]
     model = _model(r, jr, g, jg, penalty)
-    d, _, _ = solve_step_qp(r, jr, g, jg, lo, hi, _damping(jr), qp_penalty)
+    d, _, _, kept = solve_working_set(r, jr, g, jg, lo, hi, _damping(jr), qp_penalty)
     if d is None:
-        return np.zeros(n), 0.0, int(g.size)
+        return np.zeros(n), 0.0, int(g.size), kept
     predicted = model(np.zeros(n)) - model(d)
     if not predicted > 0.0:
-        return np.zeros(n), 0.0, int(g.size)
-    return d, predicted, int(g.size)
+        return np.zeros(n), 0.0, int(g.size), kept
+    return d, predicted, int(g.size), kept
 
 
 def _dense_step(r, jr, g, jg, lo, hi, penalty, qp_penalty):

@@ -170,7 +170,8 @@ class DesignResult(ParameterViews):
             slsqp; for gauss_newton each tension limit's least cell row)
             and ``steps`` (forward-solve steps of the slowest bay); gauss_newton adds
             ``jacobian`` (its bay blocks and tangents) and, at each accepted iterate,
-            ``qp_rows`` (the limit rows its step QP kept, `step_qp.reachable_rows`).
+            ``qp_rows`` (the limit rows its step QP kept, `step_qp.solve_working_set`) and
+            ``qp_reachable_rows`` (those a step in the trust box could reach, `step_qp.reachable_rows`).
         success: the method converged, every bay's final solve converged and
             no tension or rib limit is violated.
         message: the method's message, and what was violated.

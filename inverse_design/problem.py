@@ -157,6 +157,7 @@ class DesignProblem:
         self._previous_key = None
         self.solves = 0
         self.history: list[dict] = []
+        self._entries: dict = {}  # the newest history entry at each point, by `key_of`
         self.on_record = None  # called with each new history entry (progress bar, callback)
         self._cache: dict = {}  # the last evaluation with its derivatives
         self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
@@ -294,6 +295,10 @@ class DesignProblem:
     def cached(self, key):
         """The cached evaluation at ``key`` (`key_of` a vector), or None."""
         return self._cache.get(key)
+
+    def entry_at(self, u) -> dict | None:
+        """The newest history entry recorded at the scaled vector ``u`` (the same floats), or None."""
+        return self._entries.get(key_of(u))
 
     def best_iterate(self) -> np.ndarray | None:
         """Scaled vector of the best recorded iterate (None before any): the feasible one (every
@@ -531,6 +536,7 @@ class DesignProblem:
         if jacobian is not None:
             entry["jacobian"] = jacobian
         self.history.append(entry)
+        self._entries[key_of(u)] = entry
         if self.on_record is not None:
             self.on_record(entry)
 

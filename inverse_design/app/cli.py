@@ -40,7 +40,9 @@ it starts, which import matplotlib and ezdxf while the design runs
 the command's run (``threadpoolctl``): its solves (the flat panels' banded
 Cholesky, the sparse factors) are too small to gain from threads, and on a
 busy 2-core machine OpenBLAS's waiting threads made the panels of the
-default case take 29 s instead of 0.1 s.
+default case take 29 s instead of 0.1 s. It keeps glibc's mmap threshold
+fixed (`inverse_design.memory.fix_mmap_threshold`), so that a long design's
+resident memory levels off instead of growing with every iterate.
 
 Every Python warning of the run (an `targets.AirfoilWarning` among them) is
 shown as one ``optimise-pressure: warning: ...`` line. A failure line (a
@@ -66,6 +68,7 @@ from pathlib import Path
 from threadpoolctl import threadpool_limits
 
 from forward_solver.xla import enable_fast_compilation
+from inverse_design.memory import fix_mmap_threshold
 
 from . import interrupts
 from .case import parse_arguments
@@ -176,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
     enable_fast_compilation()  # before the run's first JAX computation
+    fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
     _CACHE_WARNED = False
     config = _config_without_home()
     try:
