@@ -364,20 +364,32 @@ def _mid_bay_errors(result: DesignResult) -> dict:
     return {"rms": float(np.sqrt(np.sum(weights * np.square(rms)))), "max": float(np.max(largest))}
 
 
+def le_recessions(result: DesignResult) -> np.ndarray:
+    """``(n_bays,)`` how far each bay's mid-bay section's nose lies behind its target's (positive: pulled
+    back by the prestressed skin), in fractions of the bay's chord at mid-bay."""
+    sol = result.wing_solution
+    out = []
+    for k, (bay, target) in enumerate(zip(sol.bays, mid_bay_targets(result))):
+        nodes = np.asarray(sol.nodes[k])
+        s = 0.5 * (nodes.shape[0] - 1)  # (the mid-bay row, interpolated on an even n_span: Solution.section)
+        i0 = min(int(np.floor(s)), nodes.shape[0] - 2)
+        row = (1.0 - (s - i0)) * nodes[i0] + (s - i0) * nodes[i0 + 1]
+        out.append(float(np.min(row[:, 0])) / (0.5 * (bay.chord_root + bay.chord_tip)) - float(np.min(target.x)))
+    return np.array(out)
+
+
 def _bay_entries(result: DesignResult, solutions: list, aero) -> list:
     """The bay axis of the summary: one entry per bay."""
     sol = result.wing_solution
     stations = _chords_and_stations(result)[1]
     design = bool(result.variables)
-    noses = [float(np.min(np.asarray(t.x))) for t in mid_bay_targets(result)]
+    recessions = le_recessions(result)
     entries = []
     for k, bay in enumerate(sol.bays):
         cuts = cut_lengths(sol.scene(k) if sol.fabric is not None else result.per_bay.scenes[k],
                            solutions[k].parameters)
         mid_row = bay.n_span // 2
-        mid_chord = 0.5 * (bay.chord_root + bay.chord_tip)
-        # how far the mid-bay section's nose lies behind the target's (positive: pulled back), local chord
-        recession = float(np.min(solutions[k].section(0.5)[:, 0])) / mid_chord - noses[k]
+        mid_chord, recession = 0.5 * (bay.chord_root + bay.chord_tip), float(recessions[k])
         entry = {
             "bay": k, "ribs": [k, k + 1], "span_m": [stations[k], stations[k + 1]],
             "chords_m": [bay.chord_root, bay.chord_tip], "weight": result.per_bay.weights[k],
