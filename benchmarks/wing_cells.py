@@ -174,9 +174,9 @@ def main(argv=None) -> int:
                           if r.get("message") and not r.get("success")]
                 save_result(
                     options.out.stem, title="Designs of 40-cell wings cut cell by cell (Gauss-Newton, block "
-                                            "Jacobian, sparse QP)",
-                    command="PYTHONPATH=. python benchmarks/wing_cells.py [--cases ...] [--designs ...] "
-                            "[--cells 10,20,40] [--refine]",
+                                            "Jacobian, sparse QP)" + (", re-solved on 33x64" if options.refine else ""),
+                    command="PYTHONPATH=. python benchmarks/wing_cells.py " + " ".join(argv if argv is not None
+                                                                                      else sys.argv[1:]),
                     columns=COLUMNS, rows=rows,
                     notes=["grid 17x64 per bay unless the row says otherwise; the command's defaults (objective "
                            "average, min_tension 0, max_iterations 50, start 1e4 Pa and 2% prestrain)",
