@@ -26,6 +26,17 @@ from typing import Any, Iterable, Sequence
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def blas_as_in_the_command():
+    """A context in which BLAS runs on one thread, as the ``optimise-pressure`` command runs it
+    (`inverse_design.app.cli`). The solver is imported first: ``threadpoolctl`` limits only the BLAS
+    libraries already loaded (NumPy's and SciPy's)."""
+    from threadpoolctl import threadpool_limits
+
+    import inverse_design.tolerance  # noqa: F401
+
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _processor() -> str:
     """The processor's model name where the system says it, else the architecture."""
     try:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import save_result  # noqa: E402
+from benchmarks.results import blas_as_in_the_command, save_result  # noqa: E402
 
 
 LOAD_NOTE = ("the machine's load average is in its description: on a shared machine the wall times stretch "
@@ -53,11 +53,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=256)
     parser.add_argument("--repeats", type=int, default=7)
     options = parser.parse_args()
-    from threadpoolctl import threadpool_limits
-
-    import inverse_design.tolerance  # noqa: F401  (NumPy's and SciPy's BLAS loaded: the limit reaches them)
-
-    with threadpool_limits(limits=1, user_api="blas"):  # (as the command runs)
+    with blas_as_in_the_command():
         measure(options)
 
 

@@ -10,8 +10,8 @@ process's resident memory (``/proc/self/statm``) is read after every tenth sampl
 whose memory grows with N would show it there. BLAS runs on one thread, as in the command. Quote the
 machine and its load with the numbers.
 
-Writes ``benchmarks/results/tolerance_wing.json`` (``benchmarks/performance_doc.py`` puts it in
-``docs/performance.md``).
+Writes ``benchmarks/results/tolerance_wing.json`` (``tolerance_wing_N.json`` for the first N bays,
+``--cells N``; ``benchmarks/performance_doc.py`` puts it in ``docs/performance.md``).
 
 Run:  PYTHONPATH=. python benchmarks/tolerance_wing.py [--samples 100] [--cells 40]
 """
@@ -28,7 +28,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import save_result  # noqa: E402
+from benchmarks.results import blas_as_in_the_command, save_result  # noqa: E402
 
 CASE = ROOT / "inverse_design" / "cases" / "wing_40_cells.toml"
 
@@ -62,11 +62,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=100)
     parser.add_argument("--cells", type=int, default=40)
     options = parser.parse_args()
-    from threadpoolctl import threadpool_limits
-
-    import inverse_design.tolerance  # noqa: F401  (NumPy's and SciPy's BLAS loaded: the limit reaches them)
-
-    with threadpool_limits(limits=1, user_api="blas"):  # (as the command runs)
+    with blas_as_in_the_command():
         measure(options)
 
 
@@ -124,7 +120,8 @@ def measure(options) -> None:
              "the ratio column: the analysis over the design (same run); for the samples, seconds per sample",
              f"load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2-core machine shared "
              "with other work: compare the ratio, which is of one run)"]
-    path = save_result("tolerance_wing", title=f"Tolerance analysis of the {options.cells}-cell wing (17x64 per bay)",
+    name = "tolerance_wing" if options.cells == 40 else f"tolerance_wing_{options.cells}"
+    path = save_result(name, title=f"Tolerance analysis of the {options.cells}-cell wing (17x64 per bay)",
                        command=f"PYTHONPATH=. python benchmarks/tolerance_wing.py --samples {options.samples} "
                                f"--cells {options.cells}",
                        columns=["step", "wall time (s)", "ratio or s per sample", "goal"], rows=rows, notes=notes)
