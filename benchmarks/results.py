@@ -26,6 +26,12 @@ from typing import Any, Iterable, Sequence
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def print_result(path: Path, rows, notes=()) -> None:
+    """Print a saved table's rows and notes, then where it was saved."""
+    for line in [*rows, *notes, path]:
+        print(line)
+
+
 def blas_as_in_the_command():
     """A context in which BLAS runs on one thread, as the ``optimise-pressure`` command runs it
     (`inverse_design.app.cli`). The solver is imported first: ``threadpoolctl`` limits only the BLAS

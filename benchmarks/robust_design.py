@@ -53,7 +53,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import save_result  # noqa: E402
+from benchmarks.results import print_result, save_result  # noqa: E402
 
 CASES = {"default": [], "prestrains": ["--variables", "pressure,prestrain_span,prestrain_chord,rib_thickness_scale"],
          "wing": ["--config", str(ROOT / "inverse_design" / "cases" / "wing_taper.toml")]}
@@ -150,11 +150,7 @@ def main() -> None:
                        f"{options.samples} Monte Carlo wings each",
                        command=f"PYTHONPATH=. python benchmarks/robust_design.py --samples {options.samples}",
                        columns=columns, rows=rows, notes=notes)
-    for row in rows:
-        print(row)
-    for note in notes:
-        print(note)
-    print(path)
+    print_result(path, rows, notes)
 
 
 if __name__ == "__main__":

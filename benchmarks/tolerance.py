@@ -27,7 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import blas_as_in_the_command, save_result  # noqa: E402
+from benchmarks.results import blas_as_in_the_command, print_result, save_result  # noqa: E402
 
 
 LOAD_NOTE = ("the machine's load average is in its description: on a shared machine the wall times stretch "
@@ -94,9 +94,7 @@ def measure(options) -> None:
     path = save_result("tolerance", title="Tolerance analysis against the design, default case (17x64)",
                        command=f"PYTHONPATH=. python benchmarks/tolerance.py --samples {options.samples}",
                        columns=["step", "wall time (s)", "ratio or s per sample", "goal"], rows=rows, notes=notes)
-    for row in rows:
-        print(row)
-    print(path)
+    print_result(path, rows)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import blas_as_in_the_command, save_result  # noqa: E402
+from benchmarks.results import blas_as_in_the_command, print_result, save_result  # noqa: E402
 
 CASE = ROOT / "inverse_design" / "cases" / "wing_40_cells.toml"
 
@@ -125,11 +125,7 @@ def measure(options) -> None:
                        command=f"PYTHONPATH=. python benchmarks/tolerance_wing.py --samples {options.samples} "
                                f"--cells {options.cells}",
                        columns=["step", "wall time (s)", "ratio or s per sample", "goal"], rows=rows, notes=notes)
-    for row in rows:
-        print(row)
-    for note in notes:
-        print(note)
-    print(path)
+    print_result(path, rows, notes)
 
 
 if __name__ == "__main__":
