@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 
 from .cut_field import local_prestrain
@@ -45,8 +44,6 @@ __all__ = [
     "nominal_nodes",
     "mounted_nodes",
     "prepare",
-    "prepare_compiled",
-    "mounted_compiled",
     "forces",
     "residual",
     "relative_residual",
@@ -252,14 +249,6 @@ def prepare(geometry: Geometry, params: KernelInputs, physics: Physics) -> Refer
     node_area = _scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
     return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None],
                      surface_area(x0, physics.periodic))
-
-
-#: `prepare` as one compiled program (eagerly, each of its operations compiles on its own).
-prepare_compiled = jax.jit(prepare, static_argnames=("physics",))
-
-#: `mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and dispatched one
-#: by one, on every cold start and on every bay of every wing solve).
-mounted_compiled = jax.jit(mounted_nodes)
 
 
 def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:

@@ -49,6 +49,8 @@ from jax.scipy.sparse.linalg import bicgstab
 from . import forces as fk
 from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
+from .solution import prepare_compiled
+from .stored import stored_jit
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -91,7 +93,7 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk
     return -dr, (1.0 - geometry.free[..., None]) * dnodes
 
 
-@partial(jax.jit, static_argnames=("physics",))
+@stored_jit(static_argnames=("physics",))
 def _batched_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
     """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
     program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
@@ -343,7 +345,7 @@ class HostLU:
         else a fresh one."""
         if factor is not None and factor.current:
             return cls(factor.lu, np.asarray(factor.free_dofs), x)
-        ref = fk.prepare_compiled(geometry, params, fk.static_physics(physics))
+        ref = prepare_compiled(geometry, params, fk.static_physics(physics))
         lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
         return cls(lu, free_dofs(ref), x)
 

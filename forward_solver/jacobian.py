@@ -43,6 +43,7 @@ import scipy.sparse as sp
 
 from . import forces as fk
 from ._precision import float64_scope
+from .stored import stored_jit
 
 __all__ = [
     "PERMC_SPEC",
@@ -217,7 +218,7 @@ def free_dofs(ref: fk.Reference) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ jacobian
-@functools.partial(jax.jit, static_argnames=("physics", "n_colours"))
+@stored_jit(static_argnames=("physics", "n_colours"))
 def _jacobian_values(x, ref, params, colours, gather_colour, gather_row, physics, n_colours):
     """Residual and the Jacobian's structural non-zeros from one vmap of jvp over the colours."""
     physics = fk.static_physics(physics)

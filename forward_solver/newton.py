@@ -43,7 +43,7 @@ import scipy.sparse.linalg as spla
 from . import forces as fk
 from .scene import float64_scope
 from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
-from .solution import Result, static_state
+from .solution import Result, prepare_compiled, static_state
 
 __all__ = ["NewtonResult", "newton", "chord_newton", "warm_up"]
 
@@ -286,7 +286,7 @@ def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physi
     state, the residual and the Jacobian values, called as `newton` calls them (`ahead`)."""
     with float64_scope():
         physics = fk.static_physics(physics)
-        ref = fk.prepare_compiled(geometry, params, physics)
+        ref = prepare_compiled(geometry, params, physics)
         x = jnp.asarray(x, geometry.contour_root.dtype)
         static_state(x, geometry, params, physics)
         linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))
@@ -375,7 +375,7 @@ def newton(
         if tuple(np.shape(x_init)) != shape:
             raise ValueError(f"x_init has shape {np.shape(x_init)} but this bay's grid needs {shape}")
         dtype = geometry.contour_root.dtype
-        ref = fk.prepare_compiled(geometry, params, physics)
+        ref = prepare_compiled(geometry, params, physics)
         if divergence_bound is None:
             chord = 0.5 * float(geometry.chord_root + geometry.chord_tip)
             divergence_bound = chord + float(geometry.rib_spacing)
@@ -456,7 +456,7 @@ def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rt
         return None
     with float64_scope():
         physics = fk.static_physics(physics)
-        free = free_dofs(fk.prepare_compiled(geometry, params, physics))
+        free = free_dofs(prepare_compiled(geometry, params, physics))
         if not np.array_equal(free, previous.free_dofs):
             return None
         dtype = geometry.contour_root.dtype

@@ -47,7 +47,6 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
 
 from __future__ import annotations
 
-from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -55,6 +54,7 @@ import jax.numpy as jnp
 
 from . import forces as fk
 from .loop import run_chunks
+from .stored import stored_jit
 
 __all__ = ["relax_jit", "MASS_SAFETY", "kinetic_damping_step", "mirror_rows", "half_rows"]
 
@@ -175,7 +175,7 @@ def _cast(tree, dtype):
     return jax.tree_util.tree_map(lambda a: jnp.asarray(a).astype(dtype), tree)
 
 
-@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks", "half", "precision", "with_forces"))
+@stored_jit(static_argnames=("physics", "chunk", "max_chunks", "half", "precision", "with_forces"))
 def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, chunk,
               max_chunks, half=False, precision="float64", with_forces=True):
     """Dynamic relaxation from the full-grid shape ``x_init``.

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -14,9 +13,11 @@ from . import forces as fk
 from ._precision import device_arrays
 from .jacobian import JacobianFactor
 from .parameters import Parameters, ParameterViews
+from .stored import stored_jit
 
 __all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
-           "make_solution", "initial_nodes", "static_forces", "static_state"]
+           "make_solution", "initial_nodes", "static_forces", "static_state", "prepare_compiled",
+           "mounted_compiled"]
 
 
 class Result(enum.IntEnum):
@@ -294,7 +295,7 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jn
         ValueError: when the shape does not fit the grid.
     """
     if initial is None:
-        return fk.mounted_compiled(geometry, params)
+        return mounted_compiled(geometry, params)
     solution = initial if isinstance(initial, Solution) else None
     nodes = initial if solution is None else solution.extra.get("primal_nodes", solution.nodes)
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
@@ -323,7 +324,15 @@ def _remounted(nodes, geometry: fk.Geometry, params: fk.KernelInputs, *own):
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
 
 
-@partial(jax.jit, static_argnames=("physics",))
+#: `forces.prepare` as one compiled program (eagerly, each of its operations compiles on its own).
+prepare_compiled = stored_jit(fk.prepare, static_argnames=("physics",))
+
+#: `forces.mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and
+#: dispatched one by one, on every cold start and on every bay of every wing solve).
+mounted_compiled = stored_jit(fk.mounted_nodes)
+
+
+@stored_jit(static_argnames=("physics",))
 def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
     """``(forces, relative)`` at nodes ``x``: the `forces.Forces` of the static residual (velocity
     terms dropped) and ``||R_free||_2 / (p A)`` (`forces.relative_residual`; NaN when a coordinate

@@ -21,7 +21,7 @@ from .newton import chord_newton, newton, warm_up
 from .parameters import Parameters, as_parameters
 from .relax import MASS_SAFETY, relax_jit
 from .scene import PRECISIONS, Scene, float64_scope
-from .solution import Result, Solution, initial_nodes, make_solution, static_forces
+from .solution import Result, Solution, initial_nodes, make_solution, mounted_compiled, static_forces
 from .jit_equilibrium import has_abstract_values, traced_solution
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
@@ -259,7 +259,7 @@ def _solve(scene, parameters, rtol, max_steps, method, initial, sequencing, symm
         steps = 0
         levels = []
         if initial is None and method == "newton":
-            x_init = fk.mounted_compiled(geometry, params)
+            x_init = mounted_compiled(geometry, params)
         elif initial is None:
             x_init, steps, levels = _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol,
                                                      prepared)
@@ -443,7 +443,7 @@ def _use_half(geometry, symmetric: bool) -> bool:
 def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_COARSE_RTOL, prepared=None):
     """Starting shape: the mounted shape, or the interpolated coarse-grid solution (``relax``: `_relax`
     with the solve's options; ``prepared``: `_compile_ahead`'s handles)."""
-    x0 = fk.mounted_compiled(geometry, params)
+    x0 = mounted_compiled(geometry, params)
     if not (sequencing and coarsenable(geometry.free.shape, physics.periodic)):
         return x0, 0, []
     coarse = _coarsen(geometry)
@@ -452,7 +452,7 @@ def _sequenced_start(geometry, params, physics, relax, sequencing, coarse_rtol=_
     out, _, xc_full = relax(xc, coarse, coarse_rtol)
     if int(out.result) != Result.converged:
         return x0, steps, levels  # a failed coarse level is no better than the mounted shape
-    xc0 = fk.mounted_compiled(coarse, params)
+    xc0 = mounted_compiled(coarse, params)
     Ahead.ready((prepared or {}).get(("prolong", tuple(x0.shape))))
     chunks = int(out.chunks)
     levels = levels + [{"shape": tuple(coarse.free.shape), "steps": chunks * RELAX_CHUNK}]

@@ -52,7 +52,7 @@ from .bay import Bay
 from .fabric import Fabric
 from .parameters import Parameters, as_parameters
 from .scene import Scene
-from .solution import ConvergenceError, Result, Solution, static_forces
+from .solution import ConvergenceError, Result, Solution, mounted_compiled, static_forces
 from .solve import METHODS, solve_equilibrium
 from .jit_equilibrium import relaxed_nodes
 
@@ -526,7 +526,7 @@ def _mounted(scene: Scene, parameters: Parameters):
     transfer, not a converted tracer each (an eager operation compiled or fetched apiece)."""
     geometry = scene.bay.geometry()
     params = scene.params(jax.lax.stop_gradient(parameters))
-    return jax.lax.stop_gradient(fk.mounted_compiled(geometry, params))
+    return jax.lax.stop_gradient(mounted_compiled(geometry, params))
 
 
 def _concrete_solution(solution: Solution) -> Solution:

@@ -344,11 +344,11 @@ def mounted_skin(scene, parameters) -> np.ndarray:
     """``(n_span, n_contour, 3)`` the mounted skin of a bay (`forces.mounted_nodes`), m."""
     import jax
 
-    from forward_solver import forces as fk
+    from forward_solver.solution import mounted_compiled
 
     with jax.enable_x64(True):
         geometry = scene.bay.geometry()
-        return np.asarray(fk.mounted_compiled(geometry, scene.params(parameters.as_floats())))
+        return np.asarray(mounted_compiled(geometry, scene.params(parameters.as_floats())))
 
 
 def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:

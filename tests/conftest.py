@@ -25,6 +25,7 @@ import jax
 import pytest
 
 from forward_solver.xla import enable_fast_compilation
+from inverse_design.app import cli
 
 CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
 
@@ -49,6 +50,9 @@ def pytest_configure(config):
     # reports serially (the same files), and the tests of the workers themselves
     # (tests/command/test_workers.py, tests/command/test_cli.py) turn them back on.
     os.environ["INFLATABLE_WING_SERIAL_FIGURES"] = "1"
+    # The command's runs in the test processes use the plain jitted programs that the library tests
+    # compile (its runs in subprocesses keep the exported ones in the run's cache: docs/compilation.md).
+    cli.KEEP_PROGRAMS = False
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

@@ -27,7 +27,9 @@ process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
 ``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
 else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing. A cache folder that cannot be used (a
+second run of a grid compiles nothing; beside it, in its ``programs``
+sub-folder, it keeps the solver's top-level programs exported, so that a
+second run neither traces nor lowers them (`forward_solver.stored`). A cache folder that cannot be used (a
 file, a folder it cannot write, a home folder that does not exist: the
 command never creates a user's home) or whose entries JAX cannot read gets
 one ``warning:`` line, and the run goes on without the cache. It also
@@ -178,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
+    store = _program_store()
     enable_fast_compilation()  # before the run's first JAX computation
     fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
     _CACHE_WARNED = False
@@ -199,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             for variable in _CONFIG_VARIABLES:
                 os.environ.pop(variable, None)
             config.cleanup()
+        _program_store(store)  # (a library caller's own programs are jitted as before)
         if flags is None:  # (read by XLA when its backend started: a caller's later children see theirs)
             os.environ.pop("XLA_FLAGS", None)
         else:
@@ -206,6 +210,21 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
+
+
+#: Whether `use_compilation_cache` also keeps the solver's top-level programs (`forward_solver.stored`)
+#: in the cache's ``programs`` folder. The test suite turns it off for the runs in its own processes,
+#: whose library tests have compiled the plain programs already (the exported ones would compile again).
+KEEP_PROGRAMS = True
+
+
+def _program_store(folder=False):
+    """The program store in use (`forward_solver.stored`; None if none or not imported yet), or, given a
+    ``folder``, that store put back (if the module was imported since)."""
+    stored = sys.modules.get("forward_solver.stored")
+    if stored is None:
+        return None
+    return stored.program_store() if folder is False else stored.use_program_store(folder)
 
 
 #: The home folder that does not exist, while the command runs with temporary configuration folders.
@@ -282,6 +301,10 @@ def use_compilation_cache(path: Path) -> bool:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    from forward_solver.stored import use_program_store
+
+    if KEEP_PROGRAMS:  # the solver's top-level programs, traced and lowered once (`forward_solver.stored`)
+        use_program_store(path / "programs")
     return True
 
 

@@ -258,6 +258,15 @@ def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, 
         assert _dxf_entities(base / "counted" / name) == _dxf_entities(base / "serial" / name), name
 
 
+def test_the_command_keeps_the_solvers_top_level_programs_beside_its_cache(default_run, cli_env):
+    """A run leaves its relaxation, Newton and static-state programs exported in the cache's
+    ``programs`` folder (docs/compilation.md); later runs (the two above) load them, and draw the same
+    figures to the byte."""
+    cache = Path(cli_env.get("INFLATABLE_WING_CACHE") or cli_env["JAX_COMPILATION_CACHE_DIR"])
+    names = {path.name.split("-")[0] for path in (cache / "programs").glob("*.bin")}
+    assert {"relax_jit", "static_state", "_jacobian_values", "prepare", "mounted_nodes"} <= names
+
+
 def _dxf_entities(path) -> str:
     """The ENTITIES section of a DXF file (what is drawn, without the header's dates and GUIDs)."""
     text = path.read_text()

@@ -1,0 +1,194 @@
+"""Top-level programs kept between processes as exported StableHLO (`jax.export`).
+
+JAX's persistent compilation cache keeps XLA's work, but it keys a program
+on its lowered module, so every process still traces and lowers each
+program before it can look it up. For the solver's few large top-level
+programs (the relaxation, Newton's Jacobian and residual, the tangents'
+right-hand sides) that was about 2 s of a 4 s cached run of the default
+case on the 2-core development machine (docs/performance.md).
+
+`stored_jit` is ``jax.jit`` for such a program. While a store is in use
+(`use_program_store`: the command turns it on beside the persistent cache,
+in its ``programs`` sub-folder) a call with concrete arguments runs the
+program exported by ``jax.export`` for that call's signature: loaded from
+the store when an earlier process exported it, else exported now and
+written there. Loading skips tracing and lowering the program; its
+compilation still goes through the persistent cache. Called with tracers
+(under ``jax.jit``, ``jax.vmap``, ``jax.jvp``), or with no store in use
+(the library's default), it is the jitted function itself. The exported
+module is the jitted program's own StableHLO, so the results are the same.
+
+An entry's file name is a digest of the function, its static arguments,
+the structure, shapes, dtypes and weak types of its array arguments, and
+the version of everything that shapes the program: this package's source
+and its siblings', JAX and jaxlib, ``XLA_FLAGS``, the float64 setting and
+the platform. A change of the code gives every program a new name; an
+entry that fails to load is exported again and replaced (written to a
+temporary file, then renamed, so a concurrent run never reads half a file).
+A program that cannot be exported (a host callback) runs as jitted.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import inspect
+import os
+import pickle
+import tempfile
+import threading
+from pathlib import Path
+
+import jax
+
+__all__ = ["stored_jit", "use_program_store", "program_store"]
+
+#: The packages whose source shapes the programs.
+_PACKAGES = ("forward_solver", "inverse_design", "targets")
+_FOLDER: Path | None = None
+_VERSION: str | None = None
+_LOCK = threading.Lock()
+
+
+def use_program_store(folder) -> Path | None:
+    """Keep the `stored_jit` programs in ``folder`` (created; None: no store, every call jitted as
+    usual). Returns the previous folder."""
+    global _FOLDER
+    previous = _FOLDER
+    if folder is not None:
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+    _FOLDER = folder
+    return previous
+
+
+def program_store() -> Path | None:
+    """The folder of the store in use, or None."""
+    return _FOLDER
+
+
+def _version() -> str:
+    """One digest of what, besides a call's arguments, decides its program (module docstring)."""
+    global _VERSION
+    with _LOCK:
+        if _VERSION is None:
+            digest = hashlib.sha256()
+            root = Path(__file__).resolve().parents[1]
+            for package in _PACKAGES:
+                for path in sorted((root / package).rglob("*.py")):
+                    digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
+            import jaxlib
+
+            for part in (jax.__version__, jaxlib.__version__, os.environ.get("XLA_FLAGS", ""),
+                         jax.default_backend()):
+                digest.update(b"\0" + part.encode())
+            _VERSION = digest.hexdigest()
+    return _VERSION
+
+
+class _Stored:
+    """A jitted function whose concrete calls run stored exported programs (module docstring)."""
+
+    def __init__(self, function, static_argnames: tuple):
+        self._jitted = jax.jit(function, static_argnames=static_argnames)
+        self._signature = inspect.signature(function)
+        self._static = frozenset(static_argnames)
+        self._name = f"{function.__module__}.{function.__qualname__}"
+        self._calls: dict = {}  # the signature's key -> (jitted exported call, output structure)
+        self._lock = threading.Lock()
+        if any(p.kind is inspect.Parameter.VAR_POSITIONAL for p in self._signature.parameters.values()):
+            raise TypeError(f"stored_jit: {self._name} takes *args; name its arguments")
+        functools.update_wrapper(self, function)
+
+    def _split(self, args, kwargs):
+        """The static arguments (sorted by name) and the dynamic ones (a dict by name)."""
+        bound = self._signature.bind(*args, **kwargs)
+        bound.apply_defaults()
+        static = tuple(sorted((n, v) for n, v in bound.arguments.items() if n in self._static))
+        return static, {n: v for n, v in bound.arguments.items() if n not in self._static}
+
+    def _entry(self, args, kwargs):
+        """``(entry, leaves)`` of a call: ``entry`` is ``(jitted exported call, output structure)``,
+        or None where the call runs jitted (a tracer among the arguments, a program that cannot be
+        exported)."""
+        static, dynamic = self._split(args, kwargs)
+        leaves, tree = jax.tree_util.tree_flatten(dynamic)
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
+            return None, leaves
+        key = (static, tree, jax.config.jax_enable_x64, tuple(
+            (tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)))
+            if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else type(leaf).__name__ for leaf in leaves))
+        entry = self._calls.get(key)
+        if entry is None:
+            with self._lock:  # (the compile-ahead thread and the solve may ask at once)
+                entry = self._calls.get(key)
+                if entry is None:
+                    entry = self._calls[key] = self._load(key, static, tree, leaves)
+        return entry or None, leaves
+
+    def __call__(self, *args, **kwargs):
+        if _FOLDER is not None:
+            entry, leaves = self._entry(args, kwargs)
+            if entry is not None:
+                call, out_tree = entry
+                return jax.tree_util.tree_unflatten(out_tree, call(*leaves))
+        return self._jitted(*args, **kwargs)
+
+    def __getattr__(self, name):  # the rest of ``jax.jit``'s interface (``trace``, ``_cache_size``, ...)
+        if name.startswith("__") or name == "_jitted":
+            raise AttributeError(name)
+        return getattr(self._jitted, name)
+
+    def lower(self, *args, **kwargs):
+        """``jax.jit``'s ``lower``, for `ahead.compiling`: with a store, the lowered stored program
+        of this call (its ``compile()`` is then the program the call takes)."""
+        if _FOLDER is not None:
+            entry, leaves = self._entry(args, kwargs)
+            if entry is not None:
+                return entry[0].lower(*leaves)
+        return self._jitted.lower(*args, **kwargs)
+
+    def _load(self, key, static, tree, leaves):
+        """``(jitted exported call, output structure)`` for ``key``, loaded or exported; False if the
+        program cannot be exported."""
+        digest = hashlib.sha256(f"{_version()}\0{self._name}\0{key!r}".encode()).hexdigest()[:32]
+        path = _FOLDER / f"{self._name.rsplit('.', 1)[-1]}-{digest}.bin"
+        try:
+            blob, out_tree = pickle.loads(path.read_bytes())
+            return jax.jit(jax.export.deserialize(blob).call), out_tree
+        except Exception:  # noqa: BLE001 - missing, half-written by a stopped run, or from elsewhere: export
+            pass
+        held = {}
+
+        def flat(*flat_leaves):
+            out = self._jitted(**dict(static), **jax.tree_util.tree_unflatten(tree, flat_leaves))
+            out_leaves, held["tree"] = jax.tree_util.tree_flatten(out)
+            return out_leaves
+
+        try:
+            exported = jax.export.export(jax.jit(flat))(*leaves)
+        except (ValueError, NotImplementedError, TypeError):  # e.g. a host callback: not exportable
+            return False
+        _write(path, pickle.dumps((exported.serialize(), held["tree"])))
+        return jax.jit(exported.call), held["tree"]
+
+
+def _write(path: Path, data: bytes) -> None:
+    """``data`` to ``path`` by a rename (a store that cannot be written is left as it is)."""
+    try:
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=".tmp-", delete=False) as file:
+            file.write(data)
+        os.replace(file.name, path)
+    except OSError:
+        try:
+            os.unlink(file.name)
+        except (OSError, UnboundLocalError):
+            pass
+
+
+def stored_jit(function=None, *, static_argnames=()):
+    """``jax.jit(function, static_argnames=...)``, kept between processes while a store is in use
+    (module docstring). Use as ``@stored_jit`` or ``@stored_jit(static_argnames=(...))``."""
+    if function is None:
+        return functools.partial(stored_jit, static_argnames=static_argnames)
+    return _Stored(function, tuple(static_argnames))
