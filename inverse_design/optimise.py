@@ -104,7 +104,7 @@ __all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignReques
 #: it (1e-4 of the mean square is 5e-5 of the rms error, far below what the grid resolves). On the 40-cell
 #: case a Gauss-Newton step near the optimum gains 1e-4 to 1e-5 of the merit per wing solve (linear
 #: convergence: the fit's residuals do not vanish); 1e-5 spent 6 more solves for 5e-4 of the error.
-GN_TOLERANCE = 1e-4
+GN_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True, eq=False)

@@ -83,7 +83,7 @@ class SolverSettings:
             error, far below what the grid resolves), ``ftol``/``xtol`` of
             least_squares (1e-8), the relative pressure tolerance of brentq
             (1e-8), the model's predicted fall of the merit relative to it
-            for gauss_newton (`optimise.GN_TOLERANCE`, 1e-4), the scaled
+            for gauss_newton (`optimise.GN_TOLERANCE`, 1e-3), the scaled
             gradient norm of optax relative to its starting loss (1e-8).
         optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
             None: ``optax.adam(0.05)`` on the scaled variables, its step
