@@ -56,7 +56,7 @@ DESIGNS = {
 }
 COLUMNS = ["case", "bays", "design", "variables", "success", "wing solves", "rms", "max", "worst bay",
            "worst bay rms", "LE recession, largest (mm)", "QP rows kept (max)", "seconds", "peak MB", "load start/end",
-           "33x64 rms", "33x64 move"]
+           "33x64 rms", "33x64 move", "33x64 seconds", "peak MB with 33x64"]
 
 
 def _load() -> float:

@@ -226,7 +226,7 @@ OPTIONS = (
                                            help="cap on the optimiser's iterations (default 50)")),
     ("optimiser", "--tolerance", dict(type=_tolerance_value, action=_Tolerance, default=None, metavar="TOL",
                                       help="a number: the convergence tolerance of the optimiser (default: slsqp "
-                                      "1e-6 of the starting objective, gauss_newton 1e-4 of the merit (the model's "
+                                      "1e-6 of the starting objective, gauss_newton 1e-3 of the merit (the model's "
                                       "predicted fall), the others 1e-8); NAME=VALUE (repeatable): a manufacturing "
                                       "tolerance, the standard deviation of pressure (Pa), stiffness_span, "
                                       "stiffness_chord (N/m, per bay), cut_span, cut_chord (mm, per bay), "
