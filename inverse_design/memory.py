@@ -23,8 +23,9 @@ forward-mode design never calls (about 3 MB a bay and iterate, up to 512 MiB;
 now dropped, `forward_solver.implicit.forward_only`), and glibc's heap, which
 its raised mmap threshold let grow by about 100 MB an iterate on 20 bays
 (`fix_mmap_threshold`). Measured with both: the whole 40-cell design with a
-field per bay and a shape per rib (809 variables, 21 wing solves) peaked at
-2,053-2,080 MiB in four runs (the estimate: 2,000 MiB), its resident memory
+field per bay and a shape per rib (809 variables, 21 wing solves to a Gauss-Newton
+tolerance of 1e-4) peaked at 2,053-2,080 MiB in four runs, and at 2,079 MiB in 13
+solves to the default 1e-3 (the estimate: 2,000 MiB), its resident memory
 level at 1.5-1.6 GB from the fourth iterate, where it had reached 6.7 GB
 after 60 minutes and was growing.
 """

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
-from .constraints import VIOLATION_TOLERANCE
+from .constraints import FLOOR_MARGIN, VIOLATION_TOLERANCE
 from .objectives import section_points
 from .problem import DesignProblem, key_of
 from .step_qp import reachable_rows, solve_working_set
@@ -145,7 +145,9 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     counts as a loss (a limit whose multiplier exceeds the penalty), the
     penalty grows tenfold, up to ``GN_QP_PENALTY``, without a solve.
     Converged when the model predicts a fall of at
-    most ``tolerance`` times the merit (or below `GN_RESOLUTION`). Because ``J^T J`` is the exact
+    most ``tolerance`` times the merit (or below `GN_RESOLUTION`); where a row then lies further
+    below its limit than `constraints.FLOOR_MARGIN` (inside the merit's slack, but a wrinkle the
+    report counts), restoring steps first: the QP's step, kept while it lowers the violation. Because ``J^T J`` is the exact
     Hessian of the fit up to the residuals' curvature, the number of solves
     hardly grows with the number of variables (SLSQP learns its Hessian one
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
@@ -170,6 +172,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     phi = merit(r, g)
     radius = GN_RADIUS
     solves = 1
+    restored = False  # whether a restoring step (below) failed to lower the violation since the last accepted step
     while True:
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
@@ -188,7 +191,24 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
             penalty = min(10.0 * penalty, GN_QP_PENALTY)
             phi = merit(r, g)
             continue
-        if predicted <= max(tolerance * phi, GN_RESOLUTION):
+        converged = predicted <= max(tolerance * phi, GN_RESOLUTION)
+        if converged and violation(g) > FLOOR_MARGIN and not restored and solves < max_iterations:
+            # Inside the merit's slack, but below the margin that wrinkle-free floors keep
+            # (`constraints.FLOOR_MARGIN`): a skin the report finds wrinkled. The QP's step, which aims
+            # at g >= 0, whatever it costs the fit; kept while it lowers the violation.
+            solves += 1
+            d = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, penalty, GN_QP_PENALTY, restore=True)[0]
+            try:
+                r1, jr1, g1, jg1, _ = problem.linearised(np.clip(u + d, lower, upper))
+            except BaysConvergenceError:
+                restored = True
+                continue
+            restored = not violation(g1) < violation(g)
+            if not restored:
+                u, r, jr, g, jg = np.clip(u + d, lower, upper), r1, jr1, g1, jg1
+                phi = merit(r, g)
+            continue
+        if converged:
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
         if solves >= max_iterations:
@@ -208,7 +228,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         elif ratio > 0.75 and step >= 0.99 * radius:
             radius = min(2.0 * radius, GN_MAX_RADIUS)
         if ratio > 1e-4:
-            u, r, jr, g, jg = trial, r1, jr1, g1, jg1
+            u, r, jr, g, jg, restored = trial, r1, jr1, g1, jg1, False
             if problem.reweight(u):  # the robust objective's majoriser, tight again at the new iterate
                 r, jr, g, jg, _ = problem.linearised(u)
             phi = merit(r, g)
@@ -234,11 +254,11 @@ def _model(r, jr, g, jg, penalty):
     return model
 
 
-def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
+def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty, restore=False):
     """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
     (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
     from ``d = 0``, how many limit rows a step in the box can reach (the QP's rows) and how many
-    of them the QP's working set kept.
+    of them the QP's working set kept. A step the model counts as a loss is zero, unless ``restore``.
 
     ``jr`` and ``jg`` are dense or ``scipy.sparse``. Rows that no step in the box can bring below zero
     cannot bind and are dropped (`step_qp.reachable_rows`); the QP with one slack for the largest
@@ -253,7 +273,7 @@ def _step(r, jr, g, jg, lo, hi, penalty, qp_penalty):
     if d is None:
         return np.zeros(n), 0.0, int(g.size), kept
     predicted = model(np.zeros(n)) - model(d)
-    if not predicted > 0.0:
+    if not predicted > 0.0 and not restore:
         return np.zeros(n), 0.0, int(g.size), kept
     return d, predicted, int(g.size), kept
 
