@@ -38,16 +38,24 @@ import numpy as np
 __all__ = ["bernstein_basis", "class_function", "rib_offsets", "rib_section", "offset_basis"]
 
 
+def _array_module(x):
+    """NumPy for host values (a rib template's outline: no JAX program per outline length), else
+    ``jax.numpy`` (JAX arrays and tracers)."""
+    return np if isinstance(x, (np.ndarray, np.generic, float, int)) else jnp
+
+
 def class_function(x):
     """``sqrt(x) (1 - x)`` on chord-normalised ``x`` (clipped to [0, 1]), with a finite derivative at 0."""
-    x = jnp.clip(x, 0.0, 1.0)
+    xp = _array_module(x)
+    x = xp.clip(x, 0.0, 1.0)
     positive = x > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0) * (1.0 - x)
+    return xp.where(positive, xp.sqrt(xp.where(positive, x, 1.0)), 0.0) * (1.0 - x)
 
 
 def bernstein_basis(x, n_terms: int):
     """``(len(x), n_terms)`` Bernstein polynomials of degree ``n_terms - 1`` at ``x`` in [0, 1]."""
-    x = jnp.clip(jnp.asarray(x), 0.0, 1.0)[..., None]
+    xp = _array_module(x)
+    x = xp.clip(xp.asarray(x), 0.0, 1.0)[..., None]
     degree = n_terms - 1
     k = np.arange(n_terms)
     binomial = np.array([math.comb(degree, int(i)) for i in k], dtype=np.float64)
