@@ -97,3 +97,38 @@ def test_the_worst_objective_is_refused(wing):
     res = optimise_wing(wing, Fabric(), variables=VARIABLES, initial=START, bounds=BOUNDS, objective="worst",
                         solver=SolverSettings(max_iterations=1), layout=LAYOUT)
     assert res.method == "slsqp" and res.solves >= 1
+
+
+class _CurvedLimit:
+    """A one-variable fit of ``u`` to 2 under the curved limit ``g = 1 - u^2 >= 0`` (the shape of a
+    tension floor along which the linearised limit misses its curvature), started just past it."""
+
+    variables = type("Bounds", (), {"lower": np.array([0.0]), "upper": np.array([3.0])})
+
+    def linearised(self, u):
+        import scipy.sparse
+
+        u = float(u[0])
+        return (np.array([u - 2.0]), np.array([[1.0]]), np.array([1.0 - u * u]),
+                scipy.sparse.csr_matrix([[-2.0 * u]]), None)
+
+    def entry_at(self, u):
+        return None
+
+    def reweight(self, u):
+        return False
+
+
+def test_a_stop_inside_the_slack_but_past_the_floor_margin_restores_the_limit_first():
+    """Past the wrinkle-free floor's margin (`constraints.FLOOR_MARGIN`) but inside the merit's slack
+    (`methods.GN_SLACK`) the model sees no gain in restoring the limit, so the design stopped there and
+    was reported wrinkled; now the QP's restoring step comes first."""
+    from inverse_design.constraints import FLOOR_MARGIN
+    from inverse_design.methods import GN_SLACK, gauss_newton
+
+    start = np.array([1.0 + 3e-5])  # g = -6e-5: inside the slack, past the margin
+    assert GN_SLACK > -(1.0 - start[0] ** 2) > FLOOR_MARGIN
+    u, success, message = gauss_newton(_CurvedLimit(), start, max_iterations=10, tolerance=1e-3)
+    assert success, message
+    assert 1.0 - u[0] ** 2 >= -FLOOR_MARGIN  # the limit holds to the margin
+    assert u[0] == pytest.approx(1.0, abs=1e-6)  # and the fit is the best the limit allows
