@@ -2,10 +2,13 @@
 
 JAX's persistent compilation cache keeps XLA's work, but it keys a program
 on its lowered module, so every process still traces and lowers each
-program before it can look it up. For the solver's few large top-level
-programs (the relaxation, Newton's Jacobian and residual, the tangents'
-right-hand sides) that was about 2 s of a 4 s cached run of the default
-case on the 2-core development machine (docs/performance.md).
+program before it can look it up: profiled in a cached run of the default
+case on the 2-core development machine, 1.4 s of tracing and 0.9 s of
+lowering, most of it the solver's few large top-level programs (the
+relaxation, Newton's Jacobian and residual, the tangents' right-hand sides).
+With them stored, a cached run takes 3.8-4.1 s instead of 4.2-4.4 s, and the
+first run on a grid about 1 s more (it exports them and compiles the exported
+form; docs/compilation.md).
 
 `stored_jit` is ``jax.jit`` for such a program. While a store is in use
 (`use_program_store`: the command turns it on beside the persistent cache,
@@ -19,10 +22,11 @@ compilation still goes through the persistent cache. Called with tracers
 module is the jitted program's own StableHLO, so the results are the same.
 
 An entry's file name is a digest of the function, its static arguments,
-the structure, shapes, dtypes and weak types of its array arguments, and
-the version of everything that shapes the program: this package's source
-and its siblings', JAX and jaxlib, ``XLA_FLAGS``, the float64 setting and
-the platform. A change of the code gives every program a new name; an
+the structure, shapes, dtypes and weak types of its array arguments, the
+float64 setting, and the version of everything else that shapes the
+program: this package's source and its siblings', JAX and jaxlib,
+``XLA_FLAGS`` and the platform. Loading an entry unpickles its output
+structure: keep the store in a folder only you write, as JAX's own cache. A change of the code gives every program a new name; an
 entry that fails to load is exported again and replaced (written to a
 temporary file, then renamed, so a concurrent run never reads half a file).
 A program that cannot be exported (a host callback) runs as jitted.
