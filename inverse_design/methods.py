@@ -176,8 +176,12 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     while True:
         lo = np.maximum(lower - u, -radius)
         hi = np.minimum(upper - u, radius)
+        # Past the margin that wrinkle-free floors keep (`constraints.FLOOR_MARGIN`) but inside the merit's
+        # slack, a skin the report finds wrinkled: there the QP's step, which aims at g >= 0, is taken at
+        # a would-be stop whatever it costs the fit, and kept while it lowers the violation.
+        may_restore = violation(g) > FLOOR_MARGIN and not restored and solves < max_iterations
         d, predicted, reachable, kept = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, penalty,
-                                              GN_QP_PENALTY)
+                                              GN_QP_PENALTY, restore=may_restore)
         entry = problem.entry_at(u)
         if entry is not None:  # the limit rows the step's QP kept and could reach (of g.size), in the history
             entry["qp_rows"] = max(int(kept), int(entry.get("qp_rows", 0)))
@@ -191,24 +195,8 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
             penalty = min(10.0 * penalty, GN_QP_PENALTY)
             phi = merit(r, g)
             continue
-        converged = predicted <= max(tolerance * phi, GN_RESOLUTION)
-        if converged and violation(g) > FLOOR_MARGIN and not restored and solves < max_iterations:
-            # Inside the merit's slack, but below the margin that wrinkle-free floors keep
-            # (`constraints.FLOOR_MARGIN`): a skin the report finds wrinkled. The QP's step, which aims
-            # at g >= 0, whatever it costs the fit; kept while it lowers the violation.
-            solves += 1
-            d = _step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi, penalty, GN_QP_PENALTY, restore=True)[0]
-            try:
-                r1, jr1, g1, jg1, _ = problem.linearised(np.clip(u + d, lower, upper))
-            except BaysConvergenceError:
-                restored = True
-                continue
-            restored = not violation(g1) < violation(g)
-            if not restored:
-                u, r, jr, g, jg = np.clip(u + d, lower, upper), r1, jr1, g1, jg1
-                phi = merit(r, g)
-            continue
-        if converged:
+        restoring = predicted <= max(tolerance * phi, GN_RESOLUTION)
+        if restoring and not may_restore:
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
         if solves >= max_iterations:
@@ -219,9 +207,15 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
         solves += 1
         try:
             r1, jr1, g1, jg1, _ = problem.linearised(trial)
-            ratio = (phi - merit(r1, g1)) / predicted
         except BaysConvergenceError:
-            ratio = -np.inf
+            r1 = None
+        if restoring:
+            restored = r1 is None or not violation(g1) < violation(g)
+            if not restored:
+                u, r, jr, g, jg = trial, r1, jr1, g1, jg1
+                phi = merit(r, g)
+            continue
+        ratio = -np.inf if r1 is None else (phi - merit(r1, g1)) / predicted
         step = float(np.max(np.abs(d)))
         if ratio < 0.25:
             radius = 0.25 * step
