@@ -18,6 +18,7 @@ import numpy as np
 from forward_solver import Solution
 
 from .export import deviation
+from .scales import Millimetres, same
 from ..objectives import section_errors
 from ..optimise import DesignResult
 
@@ -108,7 +109,7 @@ class _Developed:
         ticks += [float(self.edges[self.j_le])]
         ticks += [float(np.interp(t, lower_x, lower_s)) for t in stations[::-1]]
         labels = [f"{t:g}" for t in stations] + ["0"] + [f"{t:g}" for t in stations[::-1]]
-        top = ax.secondary_xaxis("top", functions=(_same, _same))  # (matplotlib's default is a lambda)
+        top = ax.secondary_xaxis("top", functions=(same, same))
         top.set_xticks(ticks, labels=labels)
         top.set_xlabel("x / chord  (upper surface | lower surface)")
         ax.set_xlim(self.edges[0], self.edges[-1] if self.periodic else self.s[-1])
@@ -116,25 +117,6 @@ class _Developed:
         ax.set_xlabel("distance along the contour from the trailing edge, m "
                       "(upper surface, leading edge, lower surface)")
         ax.set_ylabel("span position y, m")
-
-
-def _same(values):
-    return values
-
-
-class _Millimetres:
-    """A secondary axis's scale: fractions of ``chord`` (m) to mm and back. Module-level functions
-    and classes, not lambdas, so that a figure pickles (the report's workers save it:
-    `inverse_design.app.workers`)."""
-
-    def __init__(self, chord: float):
-        self.chord = chord
-
-    def forward(self, d):
-        return d * self.chord * 1e3
-
-    def inverse(self, m):
-        return m / (self.chord * 1e3)
 
 
 def _kpa(pressure: float) -> str:
@@ -231,7 +213,7 @@ def plot_section(solution: Solution, target, scene, *, magnification: float | No
     bottom.axhline(0.0, **_TARGET_STYLE, label=f"target {target.name}")
     bottom.set_xlabel("x / chord")
     bottom.set_ylabel("normal distance / chord\n(+ outside the target)")
-    mm = bottom.secondary_yaxis("right", functions=(_Millimetres(chord).forward, _Millimetres(chord).inverse))
+    mm = bottom.secondary_yaxis("right", functions=(Millimetres(chord).forward, Millimetres(chord).inverse))
     mm.set_ylabel("mm")
     bottom.grid(alpha=0.3)
     bottom.legend(fontsize="small", ncols=3, loc="best")

@@ -204,6 +204,34 @@ def test_a_bay_s_section_plot_names_its_own_ribs_and_stations():
     assert box.x0 >= 0 and box.x1 <= fig.bbox.width
 
 
+def test_a_bay_s_figures_unpickle_without_jax_or_the_solver(tmp_path):
+    """The report's workers save figures built here and pickled (`inverse_design.app.workers`): every
+    function a figure keeps (a secondary axis's scale) unpickles with matplotlib alone."""
+    import os
+    import pickle
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from forward_solver import Bay, Fabric, Scene, solve_equilibrium
+    from inverse_design.app.plots import plot_deviation, plot_section, plot_tensions
+    from targets import naca
+
+    scene = Scene(Bay.from_airfoil(naca("2412"), chord=0.8, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
+    solution = solve_equilibrium(scene, pressure=2e4, prestrain=(0.02, 0.02))
+    figures = [plot_section(solution, naca("2412"), scene), plot_deviation(solution, naca("2412"), scene),
+               plot_tensions(solution, scene)]
+    (tmp_path / "figures.pkl").write_bytes(pickle.dumps(figures))
+    code = ("import pickle, sys\nimport matplotlib.figure\n"
+            f"figures = pickle.loads(open({str(tmp_path / 'figures.pkl')!r}, 'rb').read())\n"
+            "print(len(figures), sorted(m for m in ('jax', 'scipy', 'forward_solver', 'targets') if m in sys.modules))")
+    root = Path(__file__).resolve().parents[2]
+    ran = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, PYTHONPATH=str(root)))
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.strip() == "3 []"
+
+
 def test_the_panel_label_runs_clear_of_the_warp_arrow():
     from forward_solver import Bay, Fabric, Parameters, Scene
     from inverse_design.app.cut_files import _panel_drawing
