@@ -102,26 +102,32 @@ def test_no_workers_when_switched_off_or_on_one_core(monkeypatch):
 
 _EXIT_AT_ONCE = r"""
 import os, sys
+from pathlib import Path
 from inverse_design.app import workers as report_workers
-from tests.command.test_workers import write_text
+from tests.command.test_workers import _wait_for, write_slowly, write_text
 
 workers = report_workers.ReportWorkers.start(count=1)
-workers.submit([(sys.argv[1], write_text, ("x",), {})])
-print(sorted(workers.finish()))
+out, delay = Path(sys.argv[1]), float(sys.argv[2])
+workers.submit([(out / "x.txt", write_slowly, (out / "started", delay), {}), (out / "y.txt", write_text, ("y",), {})])
+_wait_for(out / "started")  # (a worker has taken the first task)
+print(sorted(workers.finish(timeout=2.0)))
 sys.stdout.flush()
 os._exit(0)  # as the command ends: no exit functions
 """
 
 
-def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path):
+@pytest.mark.parametrize("delay, done", [(0.0, "[0, 1]"), (30.0, "[1]")])
+def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path, delay, done):
     """The command ends with ``os._exit``: the pool's semaphores must be released before (else the
-    resource tracker reports them as leaked on stderr)."""
-    ran = subprocess.run([sys.executable, "-c", _EXIT_AT_ONCE, str(tmp_path / "x.txt")], cwd=ROOT,
+    resource tracker reports them as leaked on stderr), whether every task was answered (the pool
+    goes with its last reference) or a worker's task outlasted the wait (it is killed, the pool
+    collected)."""
+    ran = subprocess.run([sys.executable, "-c", _EXIT_AT_ONCE, str(tmp_path), str(delay)], cwd=ROOT,
                          env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=120)
     time.sleep(0.5)
-    assert ran.returncode == 0 and ran.stdout.strip() == "[0]", ran.stderr
+    assert ran.returncode == 0 and ran.stdout.strip() == done, ran.stderr
     assert "leaked" not in ran.stderr and ran.stderr.strip() == "", ran.stderr
-    assert (tmp_path / "x.txt").exists()
+    assert (tmp_path / "y.txt").exists() and (tmp_path / "x.txt").exists() == (delay == 0.0)
 
 
 @pytest.mark.parametrize("name", ["ctypes", "/proc", "_run_exitfuncs", "gc.freeze", "os.fork"])
