@@ -758,6 +758,19 @@ def test_main_installs_its_signal_handlers_only_while_it_runs(tmp_path, capsys):
     assert "NACA" in capsys.readouterr().err
 
 
+def test_main_raises_the_collectors_threshold_only_while_it_runs(tmp_path, monkeypatch, capsys):
+    """The command collects cyclic garbage less often (`cli.GC_THRESHOLD`) and gives the caller's
+    thresholds back, also after a refusal."""
+    seen = []
+    real = cli._main
+    monkeypatch.setattr(cli, "_main", lambda *args: seen.append(gc.get_threshold()) or real(*args))
+    before = gc.get_threshold()
+    assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
+    assert seen == [(cli.GC_THRESHOLD, *before[1:])] and cli.GC_THRESHOLD > before[0]
+    assert gc.get_threshold() == before
+    assert "NACA" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------ grid size
 def test_a_grid_too_large_for_the_machine_is_refused_before_the_run(run_cli, tmp_path):
     # A 10000 x 64 optimisation needs tens of GB and hours: refused with the estimate before any

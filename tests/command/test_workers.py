@@ -156,11 +156,13 @@ def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priori
 
 
 def test_a_worker_imports_neither_jax_nor_the_solver():
-    """What a worker imports (`command.WORKER_MODULES`, then the workers module for its tasks) leaves
-    JAX, SciPy and the solver out: the report builds the figures and hands them over built."""
+    """What a worker imports (`command.WORKER_MODULES`, the workers module for its tasks, and the
+    command's module, which a spawned worker imports again as its main module) leaves JAX, SciPy and
+    the solver out: the report builds the figures and hands them over built."""
     from inverse_design.app.command import WORKER_MODULES
 
-    code = (f"import importlib, sys\nfor name in {WORKER_MODULES + ('inverse_design.app.workers',)!r}:\n"
+    modules = WORKER_MODULES + ("inverse_design.app.workers", "inverse_design.app.cli")
+    code = (f"import importlib, sys\nfor name in {modules!r}:\n"
             "    importlib.import_module(name)\n"
             "print(sorted(m for m in ('jax', 'scipy', 'forward_solver', 'targets') if m in sys.modules))")
     ran = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
