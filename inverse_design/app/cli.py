@@ -186,13 +186,14 @@ def main(argv: list[str] | None = None) -> int:
     previous = interrupts.install()
     flags = os.environ.get("XLA_FLAGS")
     store = _program_store()
-    from forward_solver.xla import enable_fast_compilation  # (imports JAX)
-
-    enable_fast_compilation()  # before the run's first JAX computation
-    fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
-    _CACHE_WARNED = False
-    config = _config_without_home()
+    config = None
     try:
+        from forward_solver.xla import enable_fast_compilation  # (imports JAX: a stop meanwhile ends the run)
+
+        enable_fast_compilation()  # before the run's first JAX computation
+        fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
+        _CACHE_WARNED = False
+        config = _config_without_home()
         with warnings.catch_warnings(), threadpool_limits(limits=1, user_api="blas"):
             warnings.showwarning = _show_warning
             code = _main(argv, started)
