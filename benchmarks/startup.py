@@ -113,7 +113,9 @@ def main(argv=None) -> None:
                     "new runs s", f"{args.base_label} runs s", "load average after the runs"],
         "rows": rows,
         "notes": ["each run a fresh process, each checkout with its own compilation cache folder; medians",
-                  *notes],
+                  "a phase is timed from the start of the checkout's cli.main: this checkout imports JAX there "
+                  "(setup), an older one may import it with the module, before any phase; the wall times "
+                  "are what compare", *notes],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{args.name}.json").write_text(json.dumps(result, indent=2) + "\n")
