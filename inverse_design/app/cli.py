@@ -46,8 +46,10 @@ default case take 29 s instead of 0.1 s. It keeps glibc's mmap threshold
 fixed (`inverse_design.memory.fix_mmap_threshold`), so that a long design's
 resident memory levels off instead of growing with every iterate, and
 collects cyclic garbage less often while it runs (`GC_THRESHOLD`). It
-imports JAX in `main`, not when this module is imported: a report worker,
-started by ``spawn``, imports the command's module again as its main module.
+imports JAX once the options are read and the report's workers started, not
+when this module is imported: bad input and ``--help`` answer without it,
+and a report worker, started by ``spawn``, imports the command's module
+again as its main module.
 
 Every Python warning of the run (an `targets.AirfoilWarning` among them) is
 shown as one ``optimise-pressure: warning: ...`` line. A failure line (a
@@ -188,13 +190,10 @@ def main(argv: list[str] | None = None) -> int:
     store = _program_store()
     config = None
     try:
-        from forward_solver.xla import enable_fast_compilation  # (imports JAX: a stop meanwhile ends the run)
-
-        enable_fast_compilation()  # before the run's first JAX computation
         fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
         _CACHE_WARNED = False
         config = _config_without_home()
-        with warnings.catch_warnings(), threadpool_limits(limits=1, user_api="blas"):
+        with warnings.catch_warnings():
             warnings.showwarning = _show_warning
             code = _main(argv, started)
     except Terminated:  # before the run (importing JAX) or after its folder was written
@@ -393,7 +392,10 @@ def _main(argv: list[str] | None, started: float) -> int:
         # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf while
         # the design runs (`workers.ReportWorkers`).
         workers = ReportWorkers.start(WORKER_MODULES)
-        from forward_solver import ConvergenceError  # (JAX, unless the package imported it already)
+        from forward_solver.xla import enable_fast_compilation  # (JAX, unless the package imported it already)
+
+        enable_fast_compilation()  # before the run's first JAX computation
+        from forward_solver import ConvergenceError
 
         check_platform()
         if not args.no_compilation_cache:
@@ -408,9 +410,11 @@ def _main(argv: list[str] | None, started: float) -> int:
             return 2
         raise
     try:
-        # On a thread of its own: this one stays free to take a stop (`interrupts.run_stoppable`).
-        summary = interrupts.run_stoppable(run, args, sources, progress=progress, started=started,
-                                           workers=workers)
+        # BLAS on one thread (module docstring): limited once NumPy's and SciPy's are loaded. On a thread
+        # of its own: this one stays free to take a stop (`interrupts.run_stoppable`).
+        with threadpool_limits(limits=1, user_api="blas"):
+            summary = interrupts.run_stoppable(run, args, sources, progress=progress, started=started,
+                                               workers=workers)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         if interrupts.abandoned():  # (the work may still be using the workers: they end now)
             _kill_children()

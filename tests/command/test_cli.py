@@ -381,6 +381,42 @@ def test_bad_input_exits_2_with_one_line_from_a_fresh_process(run_cli, tmp_path)
     assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
 
 
+def test_bad_input_and_help_answer_without_importing_jax(tmp_path):
+    """The options are read before JAX is imported (`cli.main`): a refusal or ``--help`` waits for
+    no import of JAX, SciPy's solvers or the solver."""
+    code = ("import contextlib, io, sys\nfrom inverse_design.app import cli\n"
+            "with contextlib.redirect_stderr(io.StringIO()):\n"
+            "    refused = cli.main(['--pressure', '-5', '--out', 'out'])\n"
+            "    try:\n"
+            "        with contextlib.redirect_stdout(io.StringIO()):\n"
+            "            cli.main(['--help'])\n"
+            "    except SystemExit as exit:\n"
+            "        helped = exit.code\n"
+            "print(refused, helped, sorted(m for m in ('jax', 'forward_solver') if m in sys.modules))")
+    ran = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                         capture_output=True, text=True, timeout=120)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.strip() == "2 0 []"
+
+
+def test_the_run_has_blas_on_one_thread_in_a_fresh_process(tmp_path):
+    """Every BLAS the run uses (NumPy's, SciPy's) runs on one thread (module docstring of `cli`): the
+    limit is taken once they are loaded, which a fresh process does after reading the options."""
+    code = ("import sys, threadpoolctl\nfrom inverse_design.app import cli\nfrom inverse_design.app.options import InputError\n"
+            "seen = []\n"
+            "def run(*args, **kwargs):\n"
+            "    seen.extend(i['num_threads'] for i in threadpoolctl.threadpool_info() if i['user_api'] == 'blas')\n"
+            "    raise InputError('enough')\n"
+            "cli.run = run\n"
+            "print(cli.main(['--out', 'out', '--quiet']), seen)")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), INFLATABLE_WING_SERIAL_FIGURES="1")
+    ran = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert ran.returncode == 0, ran.stderr
+    code, threads = ran.stdout.strip().split(" ", 1)
+    assert code == "2" and threads.startswith("[1") and set(eval(threads)) == {1}, ran.stdout
+
+
 def test_a_file_of_a_report_name_that_no_report_wrote_is_never_overwritten(run_cli, tmp_path):
     (tmp_path / "notes").mkdir()
     (tmp_path / "notes" / "thesis.tex").write_text("precious")
