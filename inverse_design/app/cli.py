@@ -364,15 +364,6 @@ def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
     return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
-def _kill_children() -> None:
-    """End this process's worker processes at once (SIGKILL): an abandoned run's report workers, whose
-    pool then closes without waiting for a task (`workers.ReportWorkers.close`)."""
-    import multiprocessing
-
-    for child in multiprocessing.active_children():
-        child.kill()
-
-
 def _error(args, kind: str, text: str, after: str = "") -> None:
     """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
     _say(f"{PROG}: {kind}: {shorten(text, REFUSAL_WIDTH if kind == 'error' else CONSOLE_WIDTH)}{after}")
@@ -389,14 +380,17 @@ def _main(argv: list[str] | None, started: float) -> int:
     progress = sys.stderr is not None and sys.stderr.isatty() and not (args.quiet or args.json)
     workers = None
     try:
-        # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf while
-        # the design runs (`workers.ReportWorkers`).
-        workers = ReportWorkers.start(WORKER_MODULES)
-        from forward_solver.xla import enable_fast_compilation  # (JAX, unless the package imported it already)
+        # A stop is held until the pool and JAX are whole (one inside a starting pool left its
+        # semaphores behind, one inside JAX's import broke the import), then raised here.
+        with interrupts.deferred():
+            # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf
+            # while the design runs (`workers.ReportWorkers`).
+            workers = ReportWorkers.start(WORKER_MODULES)
+            from forward_solver.xla import enable_fast_compilation  # (imports JAX, unless done already)
 
-        enable_fast_compilation()  # before the run's first JAX computation
-        from forward_solver import ConvergenceError
-
+            enable_fast_compilation()  # before the run's first JAX computation
+            from forward_solver import ConvergenceError
+        interrupts.check()
         check_platform()
         if not args.no_compilation_cache:
             use_compilation_cache(compilation_cache_dir())
@@ -416,8 +410,9 @@ def _main(argv: list[str] | None, started: float) -> int:
             summary = interrupts.run_stoppable(run, args, sources, progress=progress, started=started,
                                                workers=workers)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
-        if interrupts.abandoned():  # (the work may still be using the workers: they end now)
-            _kill_children()
+        # (The workers end below, `ReportWorkers.close`, also those of an abandoned work: its pool is
+        # terminated, which kills a busy worker. Killing them before hung the pool's termination: an idle
+        # worker holds the task queue's lock while it waits, and a killed one never gives it back.)
         return _interrupted(exc, args.out)
     except (ConvergenceError, ValueError, OSError) as exc:
         try:

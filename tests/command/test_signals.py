@@ -94,6 +94,39 @@ def test_a_stop_inside_a_long_compiled_call_ends_the_command_within_2_s(tmp_path
     assert not out.exists() and _leftovers(tmp_path) == []
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc (Linux)")
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stop_in_a_cold_runs_compilation_ends_the_command(tmp_path, signum, code):
+    # 2 s into a cold run the work sits in XLA's compiler (it is abandoned after the grace period) and
+    # the report's worker, its imports done, waits for a task holding the task queue's lock. Killing the
+    # workers before the pool's termination left that lock taken: the command never ended.
+    from tests.command.test_cli import _sigterm_handler_installed
+
+    from inverse_design.app.workers import SERIAL_VARIABLE
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+               INFLATABLE_WING_CACHE=str(tmp_path / "cache"))  # (an empty cache: the run compiles)
+    env.pop(SERIAL_VARIABLE, None)  # (the suite's reports are serial: this run has its worker)
+    process = subprocess.Popen([sys.executable, "-m", "inverse_design.app.cli", *SMALL,
+                                "--out", "out"], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not _sigterm_handler_installed(process.pid) and process.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        time.sleep(2.0)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    lines = [line for line in stderr.splitlines() if "span nodes, fewer than" not in line]
+    assert process.returncode == code, stderr
+    assert len(lines) == 1 and lines[0].startswith("optimise-pressure: "), stderr
+    assert not (tmp_path / "out").exists() and _leftovers(tmp_path) == []
+
+
 def test_a_work_that_does_not_unwind_is_abandoned_and_its_folder_removed(tmp_path):
     # The work sits in a call that takes no signal and reaches no safe point (a worker thread's sleep)
     # inside its staging folder, under the output folder's lock: the stop is raised in the main thread
