@@ -26,9 +26,10 @@ the structure, shapes, dtypes and weak types of its array arguments, the
 float64 setting, and the version of everything else that shapes the
 program: this package's source and its siblings', JAX and jaxlib,
 ``XLA_FLAGS`` and the platform. Loading an entry unpickles its output
-structure: keep the store in a folder only you write, as JAX's own cache. A change of the code gives every program a new name; an
-entry that fails to load is exported again and replaced (written to a
-temporary file, then renamed, so a concurrent run never reads half a file).
+structure: keep the store in a folder only you write, as JAX's own cache.
+A change of the code gives every program a new name; an entry that fails
+to load is exported again and replaced (written to a temporary file, then
+renamed, so a concurrent run never reads half a file).
 A program that cannot be exported (a host callback) runs as jitted.
 """
 

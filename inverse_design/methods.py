@@ -147,8 +147,8 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     Converged when the model predicts a fall of at
     most ``tolerance`` times the merit (or below `GN_RESOLUTION`); where a row then lies further
     below its limit than `constraints.FLOOR_MARGIN` (inside the merit's slack, but a wrinkle the
-    report counts), restoring steps first: the QP's step, kept while it lowers the violation. Because ``J^T J`` is the exact
-    Hessian of the fit up to the residuals' curvature, the number of solves
+    report counts), restoring steps first: the QP's step, kept while it lowers the violation.
+    Because ``J^T J`` is the exact Hessian of the fit up to the residuals' curvature, the number of solves
     hardly grows with the number of variables (SLSQP learns its Hessian one
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
     squares) is refused by `optimise.optimise_wing`.
@@ -195,8 +195,8 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
             penalty = min(10.0 * penalty, GN_QP_PENALTY)
             phi = merit(r, g)
             continue
-        restoring = predicted <= max(tolerance * phi, GN_RESOLUTION)
-        if restoring and not may_restore:
+        at_stop = predicted <= max(tolerance * phi, GN_RESOLUTION)  # (a restoring step, if may_restore)
+        if at_stop and not may_restore:
             return u, True, (f"converged: the Gauss-Newton model predicts a fall of {predicted:.2e} of the "
                              f"merit {phi:.4g} (tolerance {tolerance:g} of it) after {solves} wing solves")
         if solves >= max_iterations:
@@ -209,7 +209,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
             r1, jr1, g1, jg1, _ = problem.linearised(trial)
         except BaysConvergenceError:
             r1 = None
-        if restoring:
+        if at_stop:
             restored = r1 is None or not violation(g1) < violation(g)
             if not restored:
                 u, r, jr, g, jg = trial, r1, jr1, g1, jg1
