@@ -6,7 +6,7 @@ ways. A batch of ``B`` pressures spread evenly over 5-50 kPa is solved to a
 relative residual of 1e-8 two ways:
 
 * **vmap**: ``jax.jit(jax.vmap(solve))`` of `solve_equilibrium` with
-  ``throw=False`` (the pure-JAX relaxation of `forward_solver.jit_equilibrium`:
+  ``throw=False`` (the pure-JAX relaxation of `forward_solver.solvers.traced`:
   mounted start, no grid sequencing); timed on a second call with pressures
   1% higher (the first call compiles; compile time is printed apart);
 * **loop**: a Python loop of eager `solve_equilibrium` calls (grid
@@ -52,8 +52,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.results import save_result  # noqa: E402
 from forward_solver import Bay, Fabric, Parameters, Scene, forces, solve_equilibrium
-from forward_solver.implicit import ImplicitAdjoint
-from forward_solver.krylov import KRYLOV_RTOL, jacobian_operator
+from forward_solver.derivatives.implicit import ImplicitAdjoint
+from forward_solver.derivatives.krylov import KRYLOV_RTOL, jacobian_operator
 from targets import naca
 
 RTOL = 1e-8

@@ -77,7 +77,7 @@ def main() -> None:
         return wing_main(args)
 
     from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
-    from forward_solver.cut_field import field_values
+    from forward_solver.model.cut_field import field_values
     from inverse_design import SolverSettings, optimise_pressure
     from inverse_design.objectives import design_errors, section_errors
     from targets import naca
@@ -210,7 +210,7 @@ def wing_main(args) -> None:
     import jax
 
     from forward_solver import Fabric
-    from forward_solver.wing import Wing
+    from forward_solver import Wing
     from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
     from inverse_design.objectives import section_errors
     from inverse_design.problem import DesignProblem

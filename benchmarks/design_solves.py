@@ -61,7 +61,7 @@ def bay_case(method):
 
 def wing3_case(method):
     from forward_solver import Fabric
-    from forward_solver.wing import Wing
+    from forward_solver import Wing
     from inverse_design import Constraints, Layout, Limits, SolverSettings, optimise_wing
     from targets import naca
 

@@ -5,7 +5,7 @@ For each Courant coefficient ``alpha_k`` (eq. 16) and fabric viscosity ``eta``
 a bay with `forward_solver.simulate` (physical mass, pressure ramp) until rest
 or the step cap, and records the result code and the steps taken. The time
 step already shortens itself for the damping terms (see
-`forward_solver.explicit.stable_time_step`), so the map shows where the
+`forward_solver.solvers.explicit.stable_time_step`), so the map shows where the
 Courant coefficient alone breaks the scheme and how damping changes the
 number of steps to rest.
 

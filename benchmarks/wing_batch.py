@@ -57,8 +57,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from forward_solver import Fabric, Parameters, Scene, forces, solve_equilibrium
-from forward_solver._precision import float64_scope
-from forward_solver.wing import BATCH_CHUNK, Wing, stack_trees, batched_equilibrium, solve_bays, solve_wing
+from forward_solver.precision import float64_scope
+from forward_solver.solvers.bays import BATCH_CHUNK, stack_trees, batched_equilibrium, solve_bays, solve_wing
+from forward_solver import Wing
 from targets import naca
 
 RTOL = 1e-10

@@ -22,24 +22,26 @@ Analytic references for validation: `closed_forms`; an independent numpy
 residual: `independent_residual`.
 """
 
-from .bay import Bay as Bay
-from .explicit import DEFAULT_COURANT as DEFAULT_COURANT
-from .explicit import PressureRamp as PressureRamp
-from .explicit import simulate as simulate
-from .fabric import Fabric as Fabric
-from .parameters import Parameters as Parameters
-from .rib_shape import rib_section as rib_section
-from .scene import Scene as Scene
+from .model.bay import Bay as Bay
+from .solvers.explicit import DEFAULT_COURANT as DEFAULT_COURANT
+from .solvers.explicit import PressureRamp as PressureRamp
+from .solvers.explicit import simulate as simulate
+from .model.fabric import Fabric as Fabric
+from .model.parameters import Parameters as Parameters
+from .model.rib_shape import rib_section as rib_section
+from .model.scene import Scene as Scene
+from .model.wing import Wing as Wing
+from .solution import BaysSolution as BaysSolution
 from .solution import ConvergenceError as ConvergenceError
 from .solution import Result as Result
 from .solution import Solution as Solution
 from .solve import solve_equilibrium as solve_equilibrium
-from .wing import Wing as Wing
-from .wing import solve_bays as solve_bays
-from .wing import solve_wing as solve_wing
+from .solvers.bays import solve_bays as solve_bays
+from .solvers.bays import solve_wing as solve_wing
 
 __all__ = [
     "Bay",
+    "BaysSolution",
     "ConvergenceError",
     "DEFAULT_COURANT",
     "Fabric",

@@ -32,8 +32,8 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from .cut_field import local_prestrain
-from .rib_shape import rib_offsets
+from .model.cut_field import local_prestrain
+from .model.rib_shape import rib_offsets
 
 __all__ = [
     "Geometry",

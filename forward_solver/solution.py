@@ -10,12 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
-from ._precision import device_arrays
-from .jacobian import JacobianFactor
-from .parameters import Parameters, ParameterViews
-from .stored import stored_jit
+from .precision import device_arrays
+from .solvers.jacobian import JacobianFactor
+from .model.fabric import Fabric
+from .model.parameters import Parameters, ParameterViews, bay_parameters
+from .model.scene import Scene
+from .precision import float64_scope
+from .compilation.stored import stored_jit
 
-__all__ = ["Result", "Solution", "ConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
+__all__ = ["Result", "Solution", "ConvergenceError", "BaysSolution", "BaysConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
            "make_solution", "initial_nodes", "static_forces", "static_state", "prepare_compiled",
            "mounted_compiled"]
 
@@ -352,3 +355,116 @@ def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.
 def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> fk.Forces:
     """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped); `static_state`."""
     return static_state(x, geometry, params, physics)[0]
+
+
+@dataclass(frozen=True)
+class BaysSolution:
+    """The equilibrium of N >= 1 bays sharing one `Parameters` (`solve_bays`; one bay for `optimise_pressure`).
+
+    Attributes:
+        nodes: ``(n_bays, n_span, n_contour, 3)`` m, each bay in its own frame
+            (its root rib at y = 0); differentiable in the parameters.
+        result: ``(n_bays,)`` `Result` codes.
+        residual: ``(n_bays,)`` relative residuals ``||R_free|| / (p A)``.
+        steps: ``(n_bays,)`` relaxation steps (the batch runs until its
+            slowest bay stops).
+        bays: the `Bay` of each.
+        parameters: the shared `Parameters`.
+        fabric: the skin's `Fabric` (for `bay_solution`).
+        tension_only: the scene switch it was solved with.
+        mounted: ``(n_bays, n_span, n_contour, 3)`` m, each bay's mounted
+            (nominal) shape in this solve (ribs with their scales and shapes).
+        rib_shapes: ``(n_ribs, 2 K)`` per-rib shape coefficients it was
+            solved with, or None (the ribs take ``parameters.rib_shape``).
+        cut_patterns: ``(n_bays, 2 K)`` per-bay cut fields it was solved
+            with, or None (every bay takes ``parameters.cut_pattern``).
+        solutions: the per-bay `Solution`s of the "loop" strategy (concrete:
+            under ``jax.grad`` their primal values, with the factor a warm
+            start reuses), or None (the "batch" strategy).
+        scenes: the `Scene` of each bay.
+    """
+
+    nodes: jnp.ndarray
+    result: jnp.ndarray
+    residual: jnp.ndarray
+    steps: jnp.ndarray
+    bays: list
+    parameters: Parameters
+    fabric: Fabric | None = None
+    tension_only: bool = True
+    mounted: jnp.ndarray | None = None
+    rib_shapes: jnp.ndarray | None = None
+    solutions: list | None = None
+    scenes: list | None = None
+    cut_patterns: jnp.ndarray | None = None
+
+    @property
+    def converged(self) -> bool:
+        """Whether every bay converged."""
+        return bool(np.all(np.asarray(self.result) == Result.converged))
+
+    def failed_bays(self) -> list[int]:
+        """Indices of the bays whose solve did not converge (root to tip)."""
+        return [int(k) for k in np.flatnonzero(np.asarray(self.result) != Result.converged)]
+
+    def scene(self, bay: int) -> Scene:
+        """The `Scene` of bay ``bay`` (its `Bay`, the wing's fabric and switches)."""
+        if self.scenes is not None:
+            return self.scenes[bay]
+        return Scene(self.bays[bay], self.fabric, tension_only=self.tension_only)
+
+    def bay_solution(self, bay: int) -> Solution:
+        """Bay ``bay`` as a concrete `Solution` (float64 numpy arrays; tensions of eq. 10 at its nodes).
+
+        Its ``nodes`` are NaN where the bay did not converge (the implicit
+        fixed point is undefined there); ``result``, ``steps`` and
+        ``residual`` say why. On the "loop" strategy it is that loop's own
+        `Solution` (its nodes as solved, its factor).
+        """
+        if self.solutions is not None:
+            return self.solutions[bay]
+        if self.fabric is None:
+            raise ValueError("this BaysSolution carries no fabric; solve it with solve_wing")
+        scene = self.scene(bay)
+        parameters = self.bay_parameters(bay)
+        with float64_scope():
+            nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
+            f = static_forces(nodes, scene.bay.geometry(),
+                              scene.params(parameters), scene.physics(dynamic=False))
+            return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
+                            tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
+                            result=Result(int(np.asarray(self.result[bay]))), steps=int(self.steps[bay]),
+                            residual=float(self.residual[bay]), wall_time=None, method="relax",
+                            parameters=parameters, rib_spacing=scene.bay.rib_spacing,
+                            extra={"precision": "float64", "wing_bay": bay})
+
+    def bay_parameters(self, bay: int) -> Parameters:
+        """The concrete `Parameters` of bay ``bay``: the shared ones with, for per-rib shapes, its
+        root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``, and for per-bay cut fields
+        its row as ``cut_pattern``."""
+        as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
+        return bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
+                               as_array(self.cut_patterns))
+
+    def displacements(self) -> np.ndarray:
+        """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""
+        return np.asarray(self.nodes) - np.asarray(self.mounted)
+
+
+class BaysConvergenceError(ConvergenceError):
+    """A bay did not converge; ``.bay`` is its index, ``.failed`` every failed bay, ``.solution`` its `Solution`."""
+
+    def __init__(self, wing_solution: BaysSolution, bay: int):
+        solution = wing_solution.bay_solution(bay)
+        super().__init__(solution)
+        failed = wing_solution.failed_bays()
+        y0 = sum(b.rib_spacing for b in wing_solution.bays[:bay])
+        values = wing_solution.parameters
+        self.bay = bay
+        self.failed = failed
+        self.n_bays = len(wing_solution.bays)
+        self.args = (f"bay {bay} (ribs {bay} and {bay + 1}, y = {y0:.4g} to "
+                     f"{y0 + wing_solution.bays[bay].rib_spacing:.4g} m; {len(failed)} of "
+                     f"{len(wing_solution.bays)} bays failed) at pressure {float(values.pressure):.6g} Pa, "
+                     f"prestrain ({float(values.prestrain_span):.6g}, {float(values.prestrain_chord):.6g}): "
+                     f"{self.args[0]}",)

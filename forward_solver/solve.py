@@ -10,19 +10,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
-from ._precision import float32_floor, precision_extra
-from .ahead import Ahead, compiling, signature
-from .adjoint import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
-from .explicit import simulate
-from .fallback import run_chain
-from .implicit import batched_rhs_task, expected_tangents
-from .loop import LoopOutput
-from .newton import chord_newton, newton, warm_up
-from .parameters import Parameters, as_parameters
-from .relax import MASS_SAFETY, relax_jit
-from .scene import PRECISIONS, Scene, float64_scope
+from .precision import float32_floor, precision_extra
+from .compilation.ahead import Ahead, compiling, signature
+from .derivatives.custom_jvp import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
+from .solvers.explicit import simulate
+from .solvers.chain import run_chain
+from .derivatives.implicit import batched_rhs_task, expected_tangents
+from .solvers.loop import LoopOutput
+from .solvers.newton import chord_newton, newton, warm_up
+from .model.parameters import Parameters, as_parameters
+from .solvers.relax import MASS_SAFETY, relax_jit
+from .model.scene import PRECISIONS, Scene, float64_scope
 from .solution import Result, Solution, initial_nodes, make_solution, mounted_compiled, static_forces
-from .jit_equilibrium import has_abstract_values, traced_solution
+from .solvers.traced import has_abstract_values, traced_solution
 
 __all__ = ["solve_equilibrium", "float32_residual_floor", "METHODS", "FLOAT32_METHODS"]
 

@@ -34,8 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
-from forward_solver.adjoint import _concrete, _kernel_tangent
-from forward_solver.implicit import ImplicitAdjoint, forward_only
+from forward_solver.derivatives.custom_jvp import _concrete, _kernel_tangent
+from forward_solver.derivatives.implicit import ImplicitAdjoint, forward_only
 
 __all__ = ["bay_columns", "compressed_seeds", "decompress", "implicit_equilibrium", "bay_jacobian", "block_rows"]
 
@@ -155,9 +155,9 @@ def implicit_equilibrium(scene, solution):
 
     The primal is ``solution.nodes`` whatever the parameters (they must be the
     ones it was solved at); the tangent is ``-J^-1 dR/dtheta . dtheta`` plus
-    the ribs' motion (`forward_solver.implicit.ImplicitAdjoint` with the
+    the ribs' motion (`forward_solver.derivatives.implicit.ImplicitAdjoint` with the
     solve's own LU factor when it is current, else a fresh one, made once).
-    Under ``jax.vmap`` of ``jax.jvp`` within `forward_solver.implicit.forward_only`
+    Under ``jax.vmap`` of ``jax.jvp`` within `forward_solver.derivatives.implicit.forward_only`
     every tangent of the batch is back-solved in one host call.
 
     Args:

@@ -39,7 +39,7 @@ the seam allowance (a miter offset of the closed polygon, sharp convex
 corners rounded).
 
 `rib_template` gives a rib's template: the outline of the rib itself, the
-designed section (`forward_solver.rib_shape`: thickness scale about the
+designed section (`forward_solver.model.rib_shape`: thickness scale about the
 camber line, the rib shape's offset, the chord scale, at the rib's chord)
 evaluated on the section's smooth contour, not the grid's polygon, at
 points chosen so that no chord of the outline strays more than
@@ -396,7 +396,7 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
     The rib is mounted as `forces.nominal_nodes` mounts the grid's nodes, but
     on the smooth contour of ``section`` (`targets.Airfoil.contour_points`):
     ``x = x0 c s_c``, ``z = (camber(x0) + s_t (z0 - camber(x0)) + dz(x0)) c``,
-    with ``dz`` the rib shape's outward offset (`forward_solver.rib_shape`;
+    with ``dz`` the rib shape's outward offset (`forward_solver.model.rib_shape`;
     upper surface before the leading edge, lower after). Points are added by
     halving every interval whose chord lies more than ``chordal_error`` from
     the curve at a quarter, half or three quarters of it, until none does.
@@ -414,7 +414,7 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
         leading edge, lower surface, trailing edge; a closed trailing edge's
         point once).
     """
-    from forward_solver.rib_shape import bernstein_basis, class_function
+    from forward_solver.model.rib_shape import bernstein_basis, class_function
 
     if not chordal_error > 0:
         raise ValueError(f"chordal_error must be a positive length in metres, got {chordal_error!r}")
@@ -424,7 +424,7 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
     def mounted(t: np.ndarray) -> np.ndarray:
         x0, z0 = section.contour_points(t).T
         station = np.clip(x0, 0.0, 1.0)
-        camber = np.asarray(section.camber(station))  # as `forward_solver.bay` takes it at the nodes
+        camber = np.asarray(section.camber(station))  # as `forward_solver.model.bay` takes it at the nodes
         z = camber + thickness_scale * (z0 - camber)
         if coefficients is not None and coefficients.size:
             k = coefficients.size // 2

@@ -20,7 +20,7 @@ A design of many iterates holds little more, once two things that grew with
 every iterate are gone (found on the same wing's first 10 and 20 bays): the
 LU factors of every earlier iterate's Jacobian, kept for pullbacks that a
 forward-mode design never calls (about 3 MB a bay and iterate, up to 512 MiB;
-now dropped, `forward_solver.implicit.forward_only`), and glibc's heap, which
+now dropped, `forward_solver.derivatives.implicit.forward_only`), and glibc's heap, which
 its raised mmap threshold let grow by about 100 MB an iterate on 20 bays
 (`fix_mmap_threshold`). Measured with both: the whole 40-cell design with a
 field per bay and a shape per rib (809 variables, 21 wing solves to a Gauss-Newton
@@ -106,7 +106,7 @@ def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
     fixed, 943 MB and 1,141 MB, level from the third, and no slower. ``MALLOC_MMAP_THRESHOLD_``
     in the environment does the same when the process starts.
 
-    A process setting, like `forward_solver.xla.enable_fast_compilation`: the ``optimise-pressure``
+    A process setting, like `forward_solver.compilation.xla.enable_fast_compilation`: the ``optimise-pressure``
     command calls it as it starts; a library caller running long designs may too. Nothing
     happens outside glibc (another C library, another system).
 

@@ -153,7 +153,7 @@ def gauss_newton(problem: DesignProblem, u0, max_iterations, tolerance):
     iterate at a time). The objective "worst" (a smooth maximum, no sum of
     squares) is refused by `optimise.optimise_wing`.
     """
-    from .problem import BaysConvergenceError
+    from forward_solver.solution import BaysConvergenceError
 
     design = problem.variables
     lower, upper = design.lower, design.upper

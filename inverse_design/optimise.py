@@ -62,7 +62,7 @@ the bay or rib, and the amount).
 
 Every forward solve warm-starts from the previous iterate's equilibrium
 (chord Newton with its LU factor) and is solved to
-`forward_solver.adjoint.GRADIENT_RTOL`. All JAX work runs inside
+`forward_solver.derivatives.custom_jvp.GRADIENT_RTOL`. All JAX work runs inside
 ``jax.enable_x64(True)`` (thread-local; the caller's configuration is
 untouched).
 """
@@ -81,16 +81,18 @@ import numpy as np
 from tqdm import tqdm
 
 from forward_solver import ConvergenceError, Fabric, Parameters, Scene, Solution, Wing, solve_bays
-from forward_solver.parameters import ParameterViews
+from forward_solver.model.parameters import ParameterViews
 from forward_solver.solution import Result
-from forward_solver.wing import BaysSolution, check_rib_gaps
+from forward_solver.solution import BaysSolution
+from forward_solver.solvers.bays import check_rib_gaps
 from targets import Airfoil
 
 from .constraints import UNMET_ADVICE, cell_tensions, constraint_report, tension_scale
 from .methods import SLSQP_EVALUATIONS_PER_ITERATION, gauss_newton, least_squares, optax_descent, root, slsqp
 from .objectives import (bay_distances, bay_weights, check_objective, distance_errors, local_chords,
                          row_targets, same_section, station_etas)
-from .problem import DesignProblem, BaysConvergenceError
+from .problem import DesignProblem
+from forward_solver.solution import BaysConvergenceError
 from .rib_design import RibGeometry, rib_crossings, rib_report
 from .settings import (AUTO, AUTO_FOR_WORST, METHODS, ROOT_CONDITIONS, DesignRequest, Layout, Limits,
                        SolverSettings, refuse_moved)
@@ -159,7 +161,7 @@ class DesignResult(ParameterViews):
             the square root of the bays' area-weighted mean squares, and the
             largest over the bays (one bay: its own).
         initial_rms_error, initial_max_error: the same at the start.
-        wing_solution: the `forward_solver.wing.BaysSolution` at the design
+        wing_solution: the `forward_solver.solvers.bays.BaysSolution` at the design
             (``solution``: one bay's `Solution`, or the wing's).
         history: one dict per iterate (forward solve): ``values`` (the
             optimised variables), ``objective`` (mean square distance, chord^2,
@@ -425,7 +427,7 @@ def optimise_pressure(
 def _optimise(scenes, targets, ribs, wing, request: DesignRequest, settings: SolverSettings, layout: Layout, *,
               name: str, check_gaps: bool) -> DesignResult:
     """The design ``request`` of the bays ``scenes`` (ribs' targets ``targets``, starting sections ``ribs``;
-    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.wing.check_rib_gaps`;
+    ``check_gaps``: refuse ribs of ``wing`` too close for the grid, `forward_solver.solvers.bays.check_rib_gaps`;
     ``name``: the progress bar's)."""
     if not isinstance(settings, SolverSettings):
         raise ValueError(f"solver must be an inverse_design.SolverSettings, got {settings!r}")

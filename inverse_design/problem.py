@@ -6,7 +6,7 @@ bay, or the bays of a `forward_solver.Wing`), solved together by
 Newton with its LU factor). Every forward solve warm-starts from the previous
 iterate's equilibrium and is solved to the optimiser's ``rtol`` by the
 ``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm solve is
-retried cold, then by Newton; `forward_solver.fallback`) unless
+retried cold, then by Newton; `forward_solver.solvers.chain`) unless
 ``solver_options`` name one method (then a failed warm solve is retried cold
 here). The objective (`objectives.mean_square` of each bay,
 weighted by `objectives.bay_weights`) and the smooth tension constraints
@@ -29,10 +29,12 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
-from forward_solver import ConvergenceError, solve_bays
-from forward_solver.adjoint import GRADIENT_RTOL
-from forward_solver.implicit import forward_only
-from forward_solver.wing import BaysSolution, default_strategy
+from forward_solver import solve_bays
+from forward_solver.solution import BaysConvergenceError
+from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
+from forward_solver.derivatives.implicit import forward_only
+from forward_solver.solution import BaysSolution
+from forward_solver.solvers.bays import default_strategy
 
 from .blocks import compressed_seeds, decompress
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
@@ -44,25 +46,6 @@ __all__ = ["DesignProblem", "BaysConvergenceError", "check_field_terms", "check_
 
 #: The forward solves' options when none are given.
 DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
-
-
-class BaysConvergenceError(ConvergenceError):
-    """A bay did not converge; ``.bay`` is its index, ``.failed`` every failed bay, ``.solution`` its `Solution`."""
-
-    def __init__(self, wing_solution: BaysSolution, bay: int):
-        solution = wing_solution.bay_solution(bay)
-        super().__init__(solution)
-        failed = wing_solution.failed_bays()
-        y0 = sum(b.rib_spacing for b in wing_solution.bays[:bay])
-        values = wing_solution.parameters
-        self.bay = bay
-        self.failed = failed
-        self.n_bays = len(wing_solution.bays)
-        self.args = (f"bay {bay} (ribs {bay} and {bay + 1}, y = {y0:.4g} to "
-                     f"{y0 + wing_solution.bays[bay].rib_spacing:.4g} m; {len(failed)} of "
-                     f"{len(wing_solution.bays)} bays failed) at pressure {float(values.pressure):.6g} Pa, "
-                     f"prestrain ({float(values.prestrain_span):.6g}, {float(values.prestrain_chord):.6g}): "
-                     f"{self.args[0]}",)
 
 
 @jax.jit
@@ -543,7 +526,7 @@ class DesignProblem:
 
 def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
     """Refuse a cut field with more terms per fibre direction than the bay's ``n_contour`` contour nodes:
-    beyond one term per node a term's B-spline spans no node (`forward_solver.cut_field`), so it moves
+    beyond one term per node a term's B-spline spans no node (`forward_solver.model.cut_field`), so it moves
     nothing and the design's Jacobian is singular in it.
 
     Raises:
@@ -562,10 +545,10 @@ def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
 def check_solver_options(options) -> dict:
     """``{"method", "max_steps"}`` of the design's forward solves, checked, over the defaults.
 
-    ``method`` is one of `forward_solver.fallback.EQUILIBRIUM_METHODS` ("auto":
+    ``method`` is one of `forward_solver.solvers.chain.EQUILIBRIUM_METHODS` ("auto":
     the fallback chain), ``max_steps`` the step cap of each relaxation.
     """
-    from forward_solver.fallback import EQUILIBRIUM_METHODS
+    from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
 
     if options is None:
         return dict(DEFAULT_SOLVER_OPTIONS)

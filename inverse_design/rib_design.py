@@ -1,6 +1,6 @@
 """Rib design: manufacturability limits of a shaped rib, and the fabric's cut lengths.
 
-A rib shape (`forward_solver.rib_shape`, the design variable ``rib_shape``)
+A rib shape (`forward_solver.model.rib_shape`, the design variable ``rib_shape``)
 must stay a rib that can be made:
 
 * minimum thickness: at every chordwise station the designed rib's
@@ -45,8 +45,8 @@ import numpy as np
 
 from forward_solver import Parameters
 from forward_solver import forces as fk
-from forward_solver.cut_field import local_prestrain
-from forward_solver.rib_shape import rib_offsets
+from forward_solver.model.cut_field import local_prestrain
+from forward_solver.model.rib_shape import rib_offsets
 
 from targets.airfoil import self_crossings
 

@@ -138,7 +138,8 @@ class RobustTerms:
     def raw(self, u, sol, derivatives: bool = True) -> dict:
         """The columns at ``u`` (solved: ``sol``) and, with ``derivatives``, their central differences in
         every scaled design variable (each side a wing solve warm from ``sol``)."""
-        from .problem import BaysConvergenceError, key_of
+        from forward_solver.solution import BaysConvergenceError
+        from .problem import key_of
 
         key = key_of(u)
         held = self._raw.get(key)

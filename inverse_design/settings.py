@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
-from forward_solver.adjoint import GRADIENT_RTOL
+from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
 
 from .constraints import Constraints
 from .objectives import check_objective
@@ -90,9 +90,9 @@ class SolverSettings:
             halved whenever the loss stops falling).
         rtol: relative residual every bay is solved to (the implicit
             gradient is only as good as the equilibrium; default
-            `forward_solver.adjoint.GRADIENT_RTOL`).
+            `forward_solver.derivatives.custom_jvp.GRADIENT_RTOL`).
         equilibrium_method: the method of every forward solve, one of
-            `forward_solver.fallback.EQUILIBRIUM_METHODS`: "auto" (default:
+            `forward_solver.solvers.chain.EQUILIBRIUM_METHODS`: "auto" (default:
             relax+newton, then Newton from where it stopped, then Newton with
             load continuation), "relax", "newton" or "relax+newton".
         max_steps: step cap of each bay's relaxation (default 200000).
@@ -121,7 +121,7 @@ class SolverSettings:
     callback: Callable | None = field(default=None, compare=False)
 
     def __post_init__(self):
-        from forward_solver.fallback import EQUILIBRIUM_METHODS
+        from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
 
         if isinstance(self.max_iterations, bool) or not (isinstance(self.max_iterations, int)
                                                          and self.max_iterations >= 1):

@@ -22,7 +22,7 @@ differentiates (`bay_parameters`, per bay):
   is left out, against the span tension's change (``db / b`` over the
   prestrain: 20% for 1 mm on a 2% prestrain).
 * ``rib_profile`` (mm): rib k's outline offset outward by the rib shape's
-  class function alone (`forward_solver.rib_shape`: every Bernstein
+  class function alone (`forward_solver.model.rib_shape`: every Bernstein
   coefficient of both surfaces raised by the same ``a``): ``dz = a C(x)
   c``, ``C(x) = sqrt(x) (1 - x)``, with ``a`` chosen so that the offset's
   rms over the chord is the value given (``a = dn / (c C_rms)``, ``C_rms =
@@ -33,7 +33,7 @@ differentiates (`bay_parameters`, per bay):
 
 First order (`tolerance_analysis`): per bay, one forward-mode JVP of the
 equilibrium (`forward_solver.solve_equilibrium`'s implicit derivative,
-within `forward_solver.implicit.forward_only`: the design's own equilibrium and
+within `forward_solver.derivatives.implicit.forward_only`: the design's own equilibrium and
 LU factor where the design kept them (its last solve), else one Newton solve
 warm from the design, then one back-solve per parameter touching that bay with
 that factor) gives ``J``, the Jacobian of every normal distance of the objective's
@@ -52,7 +52,7 @@ tolerance that meets the spec is found by bisection without a solve.
 
 Monte Carlo (``samples``): draws wings from the stated distributions and
 solves each bay warm from the nominal equilibrium (chord Newton with its
-kept factor, the fallbacks of `forward_solver.fallback` where not) to
+kept factor, the fallbacks of `forward_solver.solvers.chain` where not) to
 `SAMPLE_RTOL`, in this process, or on a Dask cluster (``scheduler``: the
 samples in chunks, each worker making the nominal factor once by the same
 solve as here, so the same seed gives the same numbers). A sample whose solve
@@ -76,8 +76,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from forward_solver import Parameters, solve_equilibrium
-from forward_solver.adjoint import GRADIENT_RTOL
-from forward_solver.implicit import forward_only
+from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
+from forward_solver.derivatives.implicit import forward_only
 
 from .constraints import cell_tensions
 from .objectives import bay_distances, local_chords, row_targets, station_etas
@@ -103,7 +103,7 @@ LINEAR_SAMPLES = 4000
 #: Relative residual of a Monte Carlo wing's solves (the residual force 1e-8 of the pressure load: the
 #: command's equilibrium tolerance; its error in the distances is far below their scatter).
 SAMPLE_RTOL = 1e-8
-#: rms over x in [0, 1] of the rib shape's class function sqrt(x) (1 - x) (`forward_solver.rib_shape`).
+#: rms over x in [0, 1] of the rib shape's class function sqrt(x) (1 - x) (`forward_solver.model.rib_shape`).
 CLASS_RMS = 1.0 / math.sqrt(12.0)
 #: The largest common or single-source scale of the tolerances the budget searches.
 BUDGET_SCALE_CAP = 1e3

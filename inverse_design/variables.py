@@ -8,14 +8,14 @@ value, so derivatives flow from the parameters' to the scaled variables.
 
 One set of variables serves a wing of N >= 1 bays: the pressure, prestrains
 and rib scales are shared by every bay. ``rib_shape`` is a vector variable
-(2 K Bernstein coefficients, `forward_solver.rib_shape`, each with the same
+(2 K Bernstein coefficients, `forward_solver.model.rib_shape`, each with the same
 bounds; K = `DEFAULT_RIB_SHAPE_TERMS` from a zero offset when the start has
 none), laid out one of two ways (`RIB_SHAPE_LAYOUTS`): ``"shared"``, one
 shape for every rib (2 K places in ``u``; a single bay's default), or
 ``"per_rib"``, one shape per rib (``n_ribs`` x 2 K places, root to tip; bay
 ``k`` lies between rib ``k``'s shape and rib ``k + 1``'s).
 
-``cut_pattern`` is the cut as a field (`forward_solver.cut_field`): 2 K
+``cut_pattern`` is the cut as a field (`forward_solver.model.cut_field`): 2 K
 B-spline coefficients added to the (fixed) uniform prestrains, K for the
 span fibres then K for the contour fibres (K = `DEFAULT_CUT_PATTERN_TERMS`
 from a zero field when the start has none), laid out one of two ways
@@ -41,7 +41,7 @@ import jax
 import numpy as np
 
 from forward_solver import Parameters
-from forward_solver.wing import bay_parameters
+from forward_solver.model.parameters import bay_parameters
 
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START",
            "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables",

@@ -126,8 +126,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         targets = [(load_section(r["target"], f"{where}: rib {k}: target") if "target" in r else
                     common if common is not None else sections[k]) for k, r in enumerate(wing_ribs)]
     from forward_solver import Bay, Fabric, Scene, Wing
-    from forward_solver.adjoint import GRADIENT_RTOL
-    from forward_solver.wing import check_rib_gaps, default_strategy
+    from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
+    from forward_solver.solvers.bays import check_rib_gaps, default_strategy
 
     from ..optimise import evaluate_design, optimise_pressure, optimise_wing, refine_design
     from ..settings import Layout, Limits, SolverSettings

@@ -229,7 +229,7 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     ``span_mounted_m`` (its mounted length), ``span_prestrain`` (the local
     prestrain of that span fibre) and ``contour_prestrain`` (that of the
     contour edge from the node to the next; both the uniform prestrains
-    unless a cut pattern, `forward_solver.cut_field`, varies them). The
+    unless a cut pattern, `forward_solver.model.cut_field`, varies them). The
     ``# `` header lines give the prestrains and each row's cut perimeter.
     """
     from ..rib_design import cut_lengths

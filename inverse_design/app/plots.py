@@ -644,7 +644,7 @@ def plot_cut_fields(arc: np.ndarray, span_prestrain: np.ndarray, contour_prestra
 
     Two images side by side, the span fibres' local prestrain and the contour
     fibres' (`rib_design.cut_lengths`: the uniform prestrain plus the bay's
-    cut field, `forward_solver.cut_field`), bays on the vertical axis (root at
+    cut field, `forward_solver.model.cut_field`), bays on the vertical axis (root at
     the bottom) and the contour arc on the horizontal one, on one colour
     scale. Whatever the number of bays, one figure.
 

@@ -316,7 +316,7 @@ def _rib_entry(result: DesignResult) -> dict | None:
     return {"layout": "shared" if result.per_bay.rib_shapes is None else "per_rib",
             "coefficients": coefficients.tolist(), "terms_per_surface": int(coefficients.shape[-1]) // 2,
             "parametrisation": "outward z offset sqrt(x)(1-x) sum_k c_k B_k(x), chord-normalised; "
-                               "upper-surface coefficients, then lower (forward_solver.rib_shape)",
+                               "upper-surface coefficients, then lower (forward_solver.model.rib_shape)",
             "limits": list(result.per_bay.rib_limits), "files": _rib_files(result)}
 
 
@@ -423,7 +423,7 @@ def _shared_names(result: DesignResult) -> tuple:
 def _local_prestrain_range(result: DesignResult) -> dict | None:
     """``{"span": [low, high], "chord": [low, high]}``: the local prestrain of the design's cut field(s)
     over the contour (every bay's for per-bay fields), or None for a uniform cut."""
-    from forward_solver.cut_field import field_values
+    from forward_solver.model.cut_field import field_values
 
     p = result.parameters
     rows = [p.cut_pattern] if result.per_bay.cut_patterns is None else list(np.asarray(result.per_bay.cut_patterns))

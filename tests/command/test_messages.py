@@ -106,7 +106,8 @@ def test_a_newton_failure_names_its_real_cause_not_the_step_cap():
 
 def test_ribs_too_close_for_the_grid_are_refused_naming_them(tmp_path, capsys):
     from forward_solver import Fabric
-    from forward_solver.wing import Wing, solve_wing
+    from forward_solver import Wing
+    from forward_solver.solvers.bays import solve_wing
 
     section = naca("2412")
     close = Wing((section,) * 3, (1.0, 1.0, 0.9), (0.0, 1e-6, 0.25))

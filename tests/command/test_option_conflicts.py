@@ -92,7 +92,7 @@ def test_equilibrium_methods_that_the_batch_cannot_run_are_refused_there_only():
 
 
 def test_newton_on_a_wing_is_honoured_on_the_cpu(tmp_path, capsys, monkeypatch):
-    from forward_solver.wing import default_strategy
+    from forward_solver.solvers.bays import default_strategy
     from inverse_design import problem
 
     if default_strategy() != "loop":

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Parameters, Scene, Solution, solve_equilibrium
-from forward_solver.adjoint import DIFFERENTIABLE
-from forward_solver.implicit import HostLU, forward_only
+from forward_solver.derivatives.custom_jvp import DIFFERENTIABLE
+from forward_solver.derivatives.implicit import HostLU, forward_only
 from inverse_design.objectives import objective_residuals
 from targets import naca
 
@@ -235,7 +235,7 @@ def test_host_solve_receives_float64_exactly_on_a_thread_without_float64(scene, 
     derivatives off by 6e-8 relative). Its uint32 words pass unchanged: replayed on a fresh thread."""
     import threading
 
-    from forward_solver.implicit import _bits, _host_solve
+    from forward_solver.derivatives.implicit import _bits, _host_solve
 
     with jax.enable_x64(True):
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
@@ -265,7 +265,7 @@ def test_a_pullback_finds_its_lu_factor_and_released_factors_stay_within_their_b
     factor outlives them among the released ones); the released factors keep to their budget."""
     import gc
 
-    from forward_solver import implicit
+    from forward_solver.derivatives import implicit
 
     with jax.enable_x64(True):
         _, pullback = jax.vjp(lambda q: jnp.sum(weights * _solve(scene, q, initial=reference).nodes), THETA)

@@ -1,4 +1,4 @@
-"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.jit_equilibrium`).
+"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.solvers.traced`).
 
 One 9 x 32 NACA 2412 bay and a few module-scoped compiled functions are
 shared by every test (compilation dominates). Tolerances:
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, ConvergenceError, Parameters, Scene, Solution, solve_equilibrium
-from forward_solver.adjoint import default_linear_solver
+from forward_solver.derivatives.custom_jvp import default_linear_solver
 from forward_solver.solution import Result
 from targets import naca
 

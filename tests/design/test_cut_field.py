@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_bays, solve_equilibrium
-from forward_solver.cut_field import contour_parameter, field_values, spline_basis
-from forward_solver.wing import Wing
+from forward_solver.model.cut_field import contour_parameter, field_values, spline_basis
+from forward_solver import Wing
 from inverse_design import optimise_pressure, optimise_wing
 from inverse_design.app.export import write_cut_pattern
 from inverse_design.rib_design import cut_lengths

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Fabric
-from forward_solver.wing import Wing
+from forward_solver import Wing
 from inverse_design import Constraints, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
 from inverse_design.problem import DesignProblem

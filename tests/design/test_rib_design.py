@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, rib_section
-from forward_solver.rib_shape import class_function
+from forward_solver.model.rib_shape import class_function
 from inverse_design import optimise_pressure
 from inverse_design.rib_design import RibGeometry, RibLimits, curvature, cut_lengths
 from inverse_design.app.report import ReportOptions, write_report

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, rib_section, solve_equilibrium
-from forward_solver.rib_shape import bernstein_basis, class_function, offset_basis, rib_offsets
+from forward_solver.model.rib_shape import bernstein_basis, class_function, offset_basis, rib_offsets
 from targets import naca
 
 COEFFICIENTS = np.array([0.01, -0.005, 0.0, 0.002, 0.0, -0.003])

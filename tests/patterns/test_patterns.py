@@ -202,7 +202,7 @@ def test_a_bay_whose_layout_runs_the_damping_down_develops_without_a_singular_so
     # Bay 10 of inverse_design/cases/wing_40_cells.toml at its design (1 kPa, 2.54% span prestrain):
     # the exact phase's damping fell until it was lost in rounding, and scipy's "Matrix is exactly
     # singular" warning reached the user's console (the step was then rejected, the layout exact).
-    from forward_solver.wing import Wing
+    from forward_solver import Wing
     from inverse_design.flat_panels import bay_panels
 
     af = naca("4415")

@@ -39,7 +39,7 @@ from forward_solver import (
     simulate,
     solve_equilibrium,
 )
-from forward_solver.explicit import MEASURED_COURANT_LIMIT, RINGING_RATIO
+from forward_solver.solvers.explicit import MEASURED_COURANT_LIMIT, RINGING_RATIO
 from targets import naca
 
 EXAMPLES = int(os.environ.get("STRESS_EXAMPLES", "50"))

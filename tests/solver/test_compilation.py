@@ -92,7 +92,7 @@ def test_a_derivative_reuses_the_plain_solves_programs(first):
 
 
 def test_fast_compilation_adds_its_flags_once_and_never_overrides_the_callers(monkeypatch):
-    from forward_solver import xla
+    from forward_solver.compilation import xla
 
     monkeypatch.setattr(xla, "_backend_started", lambda: False)
     monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/x")
@@ -108,7 +108,7 @@ def test_fast_compilation_adds_its_flags_once_and_never_overrides_the_callers(mo
 
 
 def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(monkeypatch):
-    from forward_solver import xla
+    from forward_solver.compilation import xla
     from inverse_design.app import cli
 
     from inverse_design.app.options import InputError
@@ -131,12 +131,12 @@ def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(mon
 
 
 def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
-    """`forward_solver.ahead`: the coarsest relaxation compiles on the caller's thread while the
+    """`forward_solver.compilation.ahead`: the coarsest relaxation compiles on the caller's thread while the
     finer level and Newton's programs compile on the worker; each is compiled once (a 9x48 bay:
     levels 5x24 and 9x48, shapes no other test of this module solves)."""
     import threading
 
-    from forward_solver import ahead
+    from forward_solver.compilation import ahead
 
     threads = []
 
@@ -171,8 +171,8 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
 
     import jax.numpy as jnp
 
-    from forward_solver import ahead
-    from forward_solver.implicit import forward_only
+    from forward_solver.compilation import ahead
+    from forward_solver.derivatives.implicit import forward_only
 
     threads = []
 
@@ -221,7 +221,7 @@ def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     import concurrent.futures
     import threading
 
-    from forward_solver import ahead
+    from forward_solver.compilation import ahead
 
     previous = ahead.set_compile_ahead(True)
     started, gate, ran = threading.Event(), threading.Event(), []

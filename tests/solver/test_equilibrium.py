@@ -14,8 +14,8 @@ from forward_solver import (
     simulate,
     solve_equilibrium,
 )
-from forward_solver.closed_forms import strip_elongation, strip_sag
-from forward_solver.relax import relax_jit
+from forward_solver.reference.closed_forms import strip_elongation, strip_sag
+from forward_solver.solvers.relax import relax_jit
 
 PRESSURE = 2e4
 PRESTRAIN = (0.005, 0.005)

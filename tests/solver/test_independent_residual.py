@@ -1,4 +1,4 @@
-"""Returned equilibria satisfy an independent residual (`forward_solver.independent_residual`).
+"""Returned equilibria satisfy an independent residual (`forward_solver.reference.independent_residual`).
 
 The reference is a plain numpy residual written from the paper (eq. 10, 12-15)
 cell by cell, sharing no code with `forward_solver.forces`; the validation
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Scene, solve_equilibrium
-from forward_solver.independent_residual import numpy_residual
+from forward_solver.reference.independent_residual import numpy_residual
 from targets import naca
 
 

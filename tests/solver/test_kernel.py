@@ -7,8 +7,8 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene
 from forward_solver import forces as fk
-from forward_solver.closed_forms import circle_contour, fabric_tensions, flat_panel_pressure_force
-from forward_solver.parameters import as_parameters
+from forward_solver.reference.closed_forms import circle_contour, fabric_tensions, flat_panel_pressure_force
+from forward_solver.model.parameters import as_parameters
 
 
 def _setup(bay, pressure=2e4, prestrain=(0.005, 0.005), fabric=Fabric()):

@@ -14,9 +14,9 @@ import pytest
 
 from forward_solver import Bay, Result, Scene, solve_equilibrium
 from forward_solver import forces as fk
-from forward_solver.jacobian import assemble_jacobian, free_dofs, jacobian_sparsity
-from forward_solver.newton import newton
-from forward_solver.parameters import as_parameters
+from forward_solver.solvers.jacobian import assemble_jacobian, free_dofs, jacobian_sparsity
+from forward_solver.solvers.newton import newton
+from forward_solver.model.parameters import as_parameters
 
 DESIGN_PRESSURE = 2e4  # Pa
 PRESTRAIN = 0.005

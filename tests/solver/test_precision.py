@@ -1,6 +1,6 @@
 """float32: an opt-in precision of the explicit solvers, used only where it meets the tolerance.
 
-The rule (`forward_solver._precision`): the iteration runs in float32, the
+The rule (`forward_solver.precision`): the iteration runs in float32, the
 stop test and the returned `Solution` in float64; an ``rtol`` below the
 scene's float32 rounding floor is refused with a ValueError; Newton stays
 float64. One 9x33 panel is shared by every test (JAX compilation dominates).
@@ -21,7 +21,7 @@ from forward_solver import (
     solve_equilibrium,
 )
 from forward_solver.solve import float32_residual_floor
-from forward_solver.parameters import as_parameters
+from forward_solver.model.parameters import as_parameters
 
 PRESSURE = 2e4
 PRESTRAIN = (0.005, 0.005)

@@ -57,7 +57,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         seen.update(kwargs)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(forward_solver.wing, "solve_equilibrium", spy)  # (each bay's solve, evaluate_design's)
+    monkeypatch.setattr(forward_solver.solvers.bays, "solve_equilibrium", spy)  # (each bay's solve, evaluate_design's)
     args, _ = case_reader.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
                                    "newton", "--max-steps", "777", "--out", str(tmp_path / "out")])
     command.run(args)
@@ -92,7 +92,7 @@ def test_bad_equilibrium_options_are_refused():
 
 
 def test_design_loop_uses_the_solver_options(monkeypatch):
-    import forward_solver.wing as bays  # the design's solves: solve_bays's loop of solve_equilibrium
+    import forward_solver.solvers.bays as bays  # the design's solves: solve_bays's loop of solve_equilibrium
 
     seen = []
     real = bays.solve_equilibrium

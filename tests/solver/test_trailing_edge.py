@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric
-from forward_solver.wing import Wing, solve_wing
+from forward_solver import Wing
+from forward_solver.solvers.bays import solve_wing
 from inverse_design.app import cli
 from targets import AirfoilWarning, common_trailing_edge, load_airfoil, naca
 

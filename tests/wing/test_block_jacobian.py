@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Fabric
-from forward_solver.wing import Wing
+from forward_solver import Wing
 from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
 from inverse_design.blocks import bay_columns, bay_jacobian, compressed_seeds, implicit_equilibrium
 from inverse_design.constraints import cell_tensions

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, Solution, solve_bays, solve_equilibrium
-from forward_solver.implicit import ImplicitAdjoint
-from forward_solver.wing import Wing, solve_wing
+from forward_solver.derivatives.implicit import ImplicitAdjoint
+from forward_solver import Wing
+from forward_solver.solvers.bays import solve_wing
 from targets import naca
 
 GRID = dict(n_span=5, n_contour=32)

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from forward_solver import Fabric, Parameters, Scene, solve_equilibrium
-from forward_solver.wing import Wing, solve_wing
+from forward_solver import Wing
+from forward_solver.solvers.bays import solve_wing
 from targets import naca
 
 GRID = dict(n_span=9, n_contour=32)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Scene, solve_equilibrium
-from forward_solver.closed_forms import circle_contour, cylinder_radius, hoop_tension
+from forward_solver.reference.closed_forms import circle_contour, cylinder_radius, hoop_tension
 from forward_solver.solve import coarsenable
 from targets import Airfoil, naca
 

@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Scene
-from forward_solver.wing import Wing
+from forward_solver import Wing
 from inverse_design import Constraints, optimise_pressure, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
 from inverse_design.objectives import bay_distances, bay_weights, row_targets
-from inverse_design.problem import DesignProblem, BaysConvergenceError
+from inverse_design.problem import DesignProblem
+from forward_solver.solution import BaysConvergenceError
 from inverse_design.rib_design import RibGeometry, RibLimits
 from inverse_design.variables import DesignVariables
 from inverse_design.settings import Layout, Limits, SolverSettings

@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 __all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES", "PARAMETER_UNITS",
-           "as_parameters", "ParameterViews"]
+           "as_parameters", "bay_parameters", "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
 
@@ -41,11 +41,11 @@ PARAMETER_NAMES = (
 )
 
 #: Array-valued fields of `Parameters`: the rib-shape coefficients
-#: (`forward_solver.rib_shape`), None when the ribs keep their sections.
+#: (`forward_solver.model.rib_shape`), None when the ribs keep their sections.
 SHAPE_NAMES = ("rib_shape", "rib_shape_tip")
 
 #: Array-valued fields of `Parameters` that are not rib shapes: the cut
-#: pattern's coefficients (`forward_solver.cut_field`), None for a uniform cut.
+#: pattern's coefficients (`forward_solver.model.cut_field`), None for a uniform cut.
 FIELD_NAMES = ("cut_pattern",)
 
 _ARRAY_NAMES = SHAPE_NAMES + FIELD_NAMES
@@ -82,14 +82,14 @@ class Parameters:
         rib_chord_scale: multiplies the rib chord (> 0).
         rib_shape: None, or ``(2 K,)`` Bernstein coefficients of the rib
             contour's outward offset (K for the upper surface, then K for the
-            lower; chord-normalised; `forward_solver.rib_shape`), applied to
+            lower; chord-normalised; `forward_solver.model.rib_shape`), applied to
             both ribs of the bay unless ``rib_shape_tip`` is given.
         rib_shape_tip: None (the tip rib takes ``rib_shape``), or the tip
             rib's own ``(2 K,)`` coefficients (a wing's bays, per-rib shapes).
         cut_pattern: None (a uniform cut), or ``(2 K,)`` B-spline
             coefficients of the prestrain added along the contour (K for the
             span fibres, then K for the contour fibres;
-            `forward_solver.cut_field`): the local prestrain is
+            `forward_solver.model.cut_field`): the local prestrain is
             ``prestrain_span + sum_k a_k N_k(s)`` (likewise chord), so zero
             coefficients are the uniform cut and a constant ``a`` the uniform
             prestrain ``prestrain_span + a``.
@@ -286,7 +286,7 @@ class ParameterViews:
 
     @property
     def cut_pattern(self):
-        """Cut-pattern coefficients (None: a uniform cut; `forward_solver.cut_field`)."""
+        """Cut-pattern coefficients (None: a uniform cut; `forward_solver.model.cut_field`)."""
         return self.parameters.cut_pattern
 
 
@@ -340,3 +340,14 @@ def as_parameters(parameters=None, prestrain=None, *, pressure=None, stiffness=N
                       stiffness_chord=ec,
                       rib_thickness_scale=1.0 if rib_thickness_scale is None else rib_thickness_scale,
                       rib_chord_scale=1.0 if rib_chord_scale is None else rib_chord_scale)
+
+
+def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:
+    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes`` (per-rib
+    shapes, ``(n_ribs, 2 K)``) and its row of ``fields`` (per-bay cut fields, ``(n_bays, 2 K)``);
+    either may be None. JAX values stay traced (the design loop's `DesignVariables.bay_parameters`)."""
+    if shapes is not None:
+        parameters = parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
+    if fields is not None:
+        parameters = parameters.replace(cut_pattern=fields[k])
+    return parameters

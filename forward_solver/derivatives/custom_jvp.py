@@ -71,14 +71,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import forces as fk
-from ._precision import float64_scope
+from .. import forces as fk
+from ..precision import float64_scope
 from .implicit import LINEAR_SOLVERS, ImplicitAdjoint, default_linear_solver
-from .loop import LoopOutput
-from .parameters import PARAMETER_NAMES, Parameters
-from .relax import MASS_SAFETY, kinetic_damping_step
-from .scene import Scene
-from .solution import Result, Solution, make_solution, static_forces
+from ..solvers.loop import LoopOutput
+from ..model.parameters import PARAMETER_NAMES, Parameters
+from ..solvers.relax import MASS_SAFETY, kinetic_damping_step
+from ..model.scene import Scene
+from ..solution import Result, Solution, make_solution, static_forces
 
 #: Runs concrete host work at top level, outside a caller's transformation (see
 #: `differentiable_solution`); a JAX without ``jax.core.eval_context`` runs it under the caller's

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 
 from .bay import Bay
 from .fabric import Fabric
-from ._precision import device_arrays, float64_scope
-from .forces import KernelInputs, Physics
+from ..precision import device_arrays, float64_scope
+from ..forces import KernelInputs, Physics
 from .parameters import Parameters
 
 __all__ = ["Scene", "float64_scope"]

@@ -52,9 +52,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from . import forces as fk
+from .. import forces as fk
 from .loop import run_chunks
-from .stored import stored_jit
+from ..compilation.stored import stored_jit
 
 __all__ = ["relax_jit", "MASS_SAFETY", "kinetic_damping_step", "mirror_rows", "half_rows"]
 

@@ -12,7 +12,7 @@ function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
 and rib ``k + 1``'s, and they are differentiated like the parameters. Per-bay
 cut fields (``cut_patterns``: one row of cut-pattern coefficients per bay,
-`forward_solver.cut_field`) are mapped the same way: bay ``k``'s skin is cut
+`forward_solver.model.cut_field`) are mapped the same way: bay ``k``'s skin is cut
 by row ``k`` (each cell's panel is cut on its own).
 
 A warm start (``initial``: an earlier `BaysSolution`) starts every bay from
@@ -35,7 +35,6 @@ batch elsewhere. Both give the same nodes within the solver tolerance.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
 from functools import partial
 
@@ -43,20 +42,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from targets.airfoil import common_trailing_edge
+from .. import forces as fk
+from ..precision import float64_scope
+from ..derivatives.custom_jvp import nodes_only
+from ..model.fabric import Fabric
+from ..model.parameters import Parameters, as_parameters, bay_parameters
+from ..model.scene import Scene
+from ..model.wing import Wing
+from ..solution import BaysSolution, ConvergenceError, Result, Solution, mounted_compiled
+from ..solve import METHODS, solve_equilibrium
+from .traced import relaxed_nodes
 
-from . import forces as fk
-from ._precision import float64_scope
-from .adjoint import nodes_only
-from .bay import Bay
-from .fabric import Fabric
-from .parameters import Parameters, as_parameters
-from .scene import Scene
-from .solution import ConvergenceError, Result, Solution, mounted_compiled, static_forces
-from .solve import METHODS, solve_equilibrium
-from .jit_equilibrium import relaxed_nodes
-
-__all__ = ["Wing", "BaysSolution", "bay_parameters", "check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
+__all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
 
 #: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
 #: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
@@ -71,191 +68,6 @@ BATCH_CHUNK = 100
 #: 3e-5 m apart (estimates 7.5e3 and 830 times rtol = 1e-8) ran their 200,000 and 50,000 steps
 #: without converging, while 1e-4 m (75 times) converged in 600 steps.
 ROUNDING_MARGIN = 100.0
-
-
-@dataclass(frozen=True)
-class Wing:
-    """Ribs along the span: sections, chords and span stations.
-
-    Args:
-        airfoils: the rib sections (`targets.Airfoil`), root to tip, N + 1 >= 2.
-        chords: the rib chords, m, one per rib.
-        stations: the ribs' span positions y, m, strictly increasing.
-        trailing_edge: how ribs with open and closed trailing edges are brought
-            to one form (every bay runs one seam form): "close" (default:
-            close the open ones, as a fabric wing's seam is), "open" (open the
-            closed ones to the largest gap) or "as-given" (refuse a mix);
-            `targets.common_trailing_edge`.
-        fix_trailing_edge: hold every bay's trailing-edge line (a seam; see
-            `Bay.from_airfoil`).
-
-    Attributes:
-        sections: the rib sections the bays are built on: ``airfoils`` with
-            their trailing edges brought to one form.
-        trailing_edge_changes: a note per changed rib (``index`` = the rib,
-            ``label``, ``gap_before``, ``gap_after`` in chord units, ``blend``).
-
-    Raises:
-        ValueError: for fewer than two ribs, lists of different lengths,
-            stations that do not increase or a non-positive chord, or ribs of
-            both trailing-edge forms with ``trailing_edge="as-given"``.
-    """
-
-    airfoils: tuple
-    chords: tuple
-    stations: tuple
-    trailing_edge: str = "close"
-    fix_trailing_edge: bool = True
-
-    def __post_init__(self):
-        n = len(self.airfoils)
-        if n < 2:
-            raise ValueError(f"a wing needs at least two ribs, got {n}")
-        if not (len(self.chords) == len(self.stations) == n):
-            raise ValueError(f"give one chord and one station per rib: {n} airfoils, "
-                             f"{len(self.chords)} chords, {len(self.stations)} stations")
-        if not all(np.isfinite(c) and c > 0 for c in self.chords):
-            raise ValueError(f"rib chords must be positive lengths in m, got {self.chords}")
-        if not (np.all(np.isfinite(self.stations)) and np.all(np.diff(self.stations) > 0)):
-            raise ValueError(f"rib stations must increase strictly from root to tip (m), got {self.stations}")
-        labels = [f"rib {k} ({getattr(a, 'name', 'airfoil')})" for k, a in enumerate(self.airfoils)]
-        sections, changes = common_trailing_edge(self.airfoils, self.trailing_edge, labels)
-        object.__setattr__(self, "sections", tuple(sections))
-        object.__setattr__(self, "trailing_edge_changes", tuple(changes))
-
-    @property
-    def n_bays(self) -> int:
-        return len(self.airfoils) - 1
-
-    def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
-        """The bays, root to tip, each between ribs k and k + 1, all on one grid shape.
-
-        Made once per grid shape (bays are immutable): the command, the design and its report
-        ask for them several times (40 bays: 0.35 s each time).
-        """
-        made = self.__dict__.setdefault("_bays", {})  # a cache, not a field (frozen dataclass)
-        key = (int(n_span), int(n_contour))
-        if key not in made:
-            made[key] = tuple(Bay.from_airfoil(self.sections[k], chord=self.chords[k],
-                                               rib_spacing=self.stations[k + 1] - self.stations[k], n_span=n_span,
-                                               n_contour=n_contour, fix_trailing_edge=self.fix_trailing_edge,
-                                               tip_airfoil=self.sections[k + 1], tip_chord=self.chords[k + 1])
-                              for k in range(self.n_bays))
-        return list(made[key])
-
-    def scenes(self, fabric: Fabric, n_span: int = 17, n_contour: int = 64, **switches) -> list[Scene]:
-        """The bays as `Scene`s of one fabric and one set of physics switches (`Scene`'s keywords)."""
-        return [Scene(bay, fabric, **switches) for bay in self.bays(n_span, n_contour)]
-
-    @classmethod
-    def from_scene(cls, scene: Scene) -> "Wing":
-        """The one-bay wing of ``scene``'s bay (built with `Bay.from_airfoil`): its two ribs'
-        sections and chords at stations ``(0, rib_spacing)``; ``bays`` on the bay's grid rebuilds it.
-
-        Raises:
-            ValueError: for a bay not built from an airfoil (a flat panel).
-        """
-        bay = scene.bay if isinstance(scene, Scene) else scene
-        if getattr(bay, "airfoil", None) is None:
-            raise ValueError("Wing.from_scene needs a bay built with Bay.from_airfoil (it keeps the rib "
-                             "sections); solve a flat panel with solve_bays([scene]) or solve_equilibrium")
-        tip = bay.airfoil if bay.tip_airfoil is None else bay.tip_airfoil
-        return cls(airfoils=(bay.airfoil, tip), chords=(bay.chord_root, bay.chord_tip),
-                   stations=(0.0, bay.rib_spacing), fix_trailing_edge=bay.fix_trailing_edge)
-
-
-@dataclass(frozen=True)
-class BaysSolution:
-    """The equilibrium of N >= 1 bays sharing one `Parameters` (`solve_bays`; one bay for `optimise_pressure`).
-
-    Attributes:
-        nodes: ``(n_bays, n_span, n_contour, 3)`` m, each bay in its own frame
-            (its root rib at y = 0); differentiable in the parameters.
-        result: ``(n_bays,)`` `Result` codes.
-        residual: ``(n_bays,)`` relative residuals ``||R_free|| / (p A)``.
-        steps: ``(n_bays,)`` relaxation steps (the batch runs until its
-            slowest bay stops).
-        bays: the `Bay` of each.
-        parameters: the shared `Parameters`.
-        fabric: the skin's `Fabric` (for `bay_solution`).
-        tension_only: the scene switch it was solved with.
-        mounted: ``(n_bays, n_span, n_contour, 3)`` m, each bay's mounted
-            (nominal) shape in this solve (ribs with their scales and shapes).
-        rib_shapes: ``(n_ribs, 2 K)`` per-rib shape coefficients it was
-            solved with, or None (the ribs take ``parameters.rib_shape``).
-        cut_patterns: ``(n_bays, 2 K)`` per-bay cut fields it was solved
-            with, or None (every bay takes ``parameters.cut_pattern``).
-        solutions: the per-bay `Solution`s of the "loop" strategy (concrete:
-            under ``jax.grad`` their primal values, with the factor a warm
-            start reuses), or None (the "batch" strategy).
-        scenes: the `Scene` of each bay.
-    """
-
-    nodes: jnp.ndarray
-    result: jnp.ndarray
-    residual: jnp.ndarray
-    steps: jnp.ndarray
-    bays: list
-    parameters: Parameters
-    fabric: Fabric | None = None
-    tension_only: bool = True
-    mounted: jnp.ndarray | None = None
-    rib_shapes: jnp.ndarray | None = None
-    solutions: list | None = None
-    scenes: list | None = None
-    cut_patterns: jnp.ndarray | None = None
-
-    @property
-    def converged(self) -> bool:
-        """Whether every bay converged."""
-        return bool(np.all(np.asarray(self.result) == Result.converged))
-
-    def failed_bays(self) -> list[int]:
-        """Indices of the bays whose solve did not converge (root to tip)."""
-        return [int(k) for k in np.flatnonzero(np.asarray(self.result) != Result.converged)]
-
-    def scene(self, bay: int) -> Scene:
-        """The `Scene` of bay ``bay`` (its `Bay`, the wing's fabric and switches)."""
-        if self.scenes is not None:
-            return self.scenes[bay]
-        return Scene(self.bays[bay], self.fabric, tension_only=self.tension_only)
-
-    def bay_solution(self, bay: int) -> Solution:
-        """Bay ``bay`` as a concrete `Solution` (float64 numpy arrays; tensions of eq. 10 at its nodes).
-
-        Its ``nodes`` are NaN where the bay did not converge (the implicit
-        fixed point is undefined there); ``result``, ``steps`` and
-        ``residual`` say why. On the "loop" strategy it is that loop's own
-        `Solution` (its nodes as solved, its factor).
-        """
-        if self.solutions is not None:
-            return self.solutions[bay]
-        if self.fabric is None:
-            raise ValueError("this BaysSolution carries no fabric; solve it with solve_wing")
-        scene = self.scene(bay)
-        parameters = self.bay_parameters(bay)
-        with float64_scope():
-            nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
-            f = static_forces(nodes, scene.bay.geometry(),
-                              scene.params(parameters), scene.physics(dynamic=False))
-            return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
-                            tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
-                            result=Result(int(np.asarray(self.result[bay]))), steps=int(self.steps[bay]),
-                            residual=float(self.residual[bay]), wall_time=None, method="relax",
-                            parameters=parameters, rib_spacing=scene.bay.rib_spacing,
-                            extra={"precision": "float64", "wing_bay": bay})
-
-    def bay_parameters(self, bay: int) -> Parameters:
-        """The concrete `Parameters` of bay ``bay``: the shared ones with, for per-rib shapes, its
-        root rib's as ``rib_shape`` and its tip rib's as ``rib_shape_tip``, and for per-bay cut fields
-        its row as ``cut_pattern``."""
-        as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
-        return bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
-                               as_array(self.cut_patterns))
-
-    def displacements(self) -> np.ndarray:
-        """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""
-        return np.asarray(self.nodes) - np.asarray(self.mounted)
 
 
 def stack_trees(trees):
@@ -302,7 +114,7 @@ def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, 
 
 
 def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> None:
-    from ._precision import rounding_floor
+    from ..precision import rounding_floor
 
     eps = float(np.finfo(np.float64).eps)
     for k, bay in enumerate(bays):
@@ -339,13 +151,13 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         initial: None or an earlier `BaysSolution` of this wing on this grid
             (a warm start, see `solve_bays`).
         rib_shapes: None, or ``(n_ribs, 2 K)`` rib-shape coefficients, one row
-            per rib root to tip (`forward_solver.rib_shape`; K for the upper
+            per rib root to tip (`forward_solver.model.rib_shape`; K for the upper
             surface, then K for the lower): bay ``k`` is mounted between rib
             ``k``'s shape and rib ``k + 1``'s (its ``rib_shape`` and
             ``rib_shape_tip``). JAX values allowed (differentiated like the
             parameters). Without it every rib takes ``parameters.rib_shape``.
         cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
-            row per bay root to tip (`forward_solver.cut_field`): bay ``k``'s
+            row per bay root to tip (`forward_solver.model.cut_field`): bay ``k``'s
             skin is cut by row ``k`` (its ``cut_pattern``). JAX values
             allowed. Without it every bay takes ``parameters.cut_pattern``.
         strategy: "auto", "loop" or "batch" (`solve_bays`).
@@ -399,7 +211,7 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
             row per rib: bay ``k`` lies between rows ``k`` and ``k + 1`` (its
             ``rib_shape`` and ``rib_shape_tip``). JAX values allowed.
         cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
-            row per bay (its ``cut_pattern``, `forward_solver.cut_field`).
+            row per bay (its ``cut_pattern``, `forward_solver.model.cut_field`).
             JAX values allowed.
         strategy: "loop" (per-bay `solve_equilibrium`: grid sequencing,
             half-bay symmetry, Newton and factor reuse, host sparse LU
@@ -505,17 +317,6 @@ def _check_scenes(scenes) -> None:
         if differs:
             raise ValueError(f"the bays of one solve share one fabric, physics switches and grid; scene {k} "
                              f"differs from scene 0 in: {', '.join(differs)}")
-
-
-def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:
-    """Bay ``k``'s `Parameters`: the shared ones, with its two ribs' rows of ``shapes`` (per-rib
-    shapes, ``(n_ribs, 2 K)``) and its row of ``fields`` (per-bay cut fields, ``(n_bays, 2 K)``);
-    either may be None. JAX values stay traced (the design loop's `DesignVariables.bay_parameters`)."""
-    if shapes is not None:
-        parameters = parameters.replace(rib_shape=shapes[k], rib_shape_tip=shapes[k + 1])
-    if fields is not None:
-        parameters = parameters.replace(cut_pattern=fields[k])
-    return parameters
 
 
 def _mounted(scene: Scene, parameters: Parameters):

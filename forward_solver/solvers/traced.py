@@ -28,13 +28,13 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from . import forces as fk
-from ._precision import float64_scope
-from .implicit import implicit_nodes
-from .parameters import Parameters
+from .. import forces as fk
+from ..precision import float64_scope
+from ..derivatives.implicit import implicit_nodes
+from ..model.parameters import Parameters
 from .relax import MASS_SAFETY, relax_jit
-from .scene import Scene
-from .solution import Result, Solution, initial_nodes, static_forces
+from ..model.scene import Scene
+from ..solution import Result, Solution, initial_nodes, static_forces
 
 __all__ = ["has_abstract_values", "relaxed_nodes", "traced_solution"]
 

@@ -46,11 +46,11 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from jax.scipy.sparse.linalg import bicgstab
 
-from . import forces as fk
-from .jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
+from .. import forces as fk
+from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
-from .solution import prepare_compiled
-from .stored import stored_jit
+from ..solution import prepare_compiled
+from ..compilation.stored import stored_jit
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -108,7 +108,7 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
     batched, float64 and strongly typed), and trace the
     one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""
-    from .ahead import compiling, signature
+    from ..compilation.ahead import compiling, signature
 
     physics = fk.static_physics(physics)
     x = jax.ShapeDtypeStruct(tuple(geometry.free.shape) + (3,), jnp.float64)
@@ -231,7 +231,7 @@ def _registered_factor(token):
     factor = _FACTORS.get(key, _RELEASED.get(key))
     if factor is None:
         raise RuntimeError("the sparse LU of this implicit derivative was released: its equilibrium is "
-                           "gone and newer factors filled forward_solver.implicit.RELEASED_FACTOR_BYTES; "
+                           "gone and newer factors filled forward_solver.derivatives.implicit.RELEASED_FACTOR_BYTES; "
                            "call the pullback before solving much more, or differentiate again")
     return factor
 

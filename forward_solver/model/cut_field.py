@@ -29,7 +29,7 @@ today's uniform cut, at no cost.
 root's and the tip's), not from the mounted rib, so it does not depend on
 the design: the derivatives of the equilibrium in the coefficients enter
 only through the cut lengths (the implicit adjoint's right-hand side,
-`forward_solver.implicit`). The field varies along the contour, not the
+`forward_solver.derivatives.implicit`). The field varies along the contour, not the
 span, so a symmetric bay stays symmetric about mid-span; a wing's bays share
 one field, or each has its own (`solve_bays`'s ``cut_patterns``, one row per
 bay).

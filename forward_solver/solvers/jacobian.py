@@ -41,9 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
-from . import forces as fk
-from ._precision import float64_scope
-from .stored import stored_jit
+from .. import forces as fk
+from ..precision import float64_scope
+from ..compilation.stored import stored_jit
 
 __all__ = [
     "PERMC_SPEC",

@@ -39,7 +39,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .solution import Result
+from ..solution import Result
 
 __all__ = ["LoopOutput", "run_chunks", "GUARD_STEPS"]
 

@@ -21,8 +21,8 @@ import numpy as np
 
 from targets.airfoil import common_trailing_edge
 
-from ._precision import device_arrays, float64_scope
-from .forces import Geometry, nominal_nodes, surface_area
+from ..precision import device_arrays, float64_scope
+from ..forces import Geometry, nominal_nodes, surface_area
 
 __all__ = ["Bay"]
 
@@ -279,7 +279,7 @@ class Bay:
 
         The skin is the ruled surface between the two rib contours. The rib
         thickness scale multiplies the distance from the camber line; the rib
-        shape adds its offset (`forward_solver.rib_shape`; ``rib_shape_tip``
+        shape adds its offset (`forward_solver.model.rib_shape`; ``rib_shape_tip``
         None: the tip rib takes ``rib_shape``); the rib chord scale
         multiplies x. All may be traced JAX values.
         """

@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from .solution import Result, Solution
+from ..solution import Result, Solution
 
 __all__ = ["AUTO_CHAIN", "EQUILIBRIUM_METHODS", "run_chain"]
 

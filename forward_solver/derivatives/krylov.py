@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import forces as fk
+from .. import forces as fk
 
 __all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "jacobian_operator"]
 

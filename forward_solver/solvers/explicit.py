@@ -21,11 +21,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import forces as fk
-from ._precision import precision_extra
-from .parameters import Parameters, as_parameters
-from .scene import PRECISIONS, Scene, float64_scope
-from .solution import Solution, initial_nodes, make_solution
+from .. import forces as fk
+from ..precision import precision_extra
+from ..model.parameters import Parameters, as_parameters
+from ..model.scene import PRECISIONS, Scene, float64_scope
+from ..solution import Solution, initial_nodes, make_solution
 
 __all__ = ["PressureRamp", "simulate", "stable_time_step", "wave_speed", "plane_strain_modulus",
            "DEFAULT_COURANT"]
@@ -202,7 +202,7 @@ RINGING_RATIO = -0.5
 def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
                      precision: str, floor: float | None) -> str:
     """What to change after a failed run of the paper's scheme (the `Solution.detail`)."""
-    from .solution import Result
+    from ..solution import Result
 
     if code == Result.converged:
         return ""

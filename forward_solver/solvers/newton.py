@@ -40,10 +40,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import forces as fk
-from .scene import float64_scope
+from .. import forces as fk
+from ..model.scene import float64_scope
 from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
-from .solution import Result, prepare_compiled, static_state
+from ..solution import Result, prepare_compiled, static_state
 
 __all__ = ["NewtonResult", "newton", "chord_newton", "warm_up"]
 
