@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from targets.airfoil import common_trailing_edge
+from targets import common_trailing_edge
 
 from ..precision import device_arrays, float64_scope
 from ..forces import Geometry, nominal_nodes, surface_area

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from targets.airfoil import common_trailing_edge
+from targets import common_trailing_edge
 
 from .bay import Bay
 from .fabric import Fabric
