@@ -16,7 +16,7 @@ from .model.fabric import Fabric
 from .model.parameters import Parameters, ParameterViews, bay_parameters
 from .model.scene import Scene
 from .precision import float64_scope
-from .compilation.stored import stored_jit
+from .compilation import stored_jit
 
 __all__ = ["Result", "Solution", "ConvergenceError", "BaysSolution", "BaysConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
            "make_solution", "initial_nodes", "static_forces", "static_state", "prepare_compiled",

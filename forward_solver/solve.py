@@ -11,7 +11,7 @@ import numpy as np
 
 from . import forces as fk
 from .precision import float32_floor, precision_extra
-from .compilation.ahead import Ahead, compiling, signature
+from .compilation import Ahead, compiling, signature
 from .derivatives.custom_jvp import ADJOINTS, LINEAR_SOLVERS, default_linear_solver, differentiable_solution
 from .solvers.explicit import simulate
 from .solvers.chain import run_chain

@@ -50,7 +50,7 @@ from .. import forces as fk
 from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
 from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
 from ..solution import prepare_compiled
-from ..compilation.stored import stored_jit
+from ..compilation import compiling, signature, stored_jit
 
 __all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
            "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
@@ -108,8 +108,6 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
     batched, float64 and strongly typed), and trace the
     one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""
-    from ..compilation.ahead import compiling, signature
-
     physics = fk.static_physics(physics)
     x = jax.ShapeDtypeStruct(tuple(geometry.free.shape) + (3,), jnp.float64)
     dparams = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((n_tangents,) + tuple(np.shape(a)),

@@ -43,7 +43,7 @@ import scipy.sparse as sp
 
 from .. import forces as fk
 from ..precision import float64_scope
-from ..compilation.stored import stored_jit
+from ..compilation import stored_jit
 
 __all__ = [
     "PERMC_SPEC",

@@ -54,7 +54,7 @@ import jax.numpy as jnp
 
 from .. import forces as fk
 from .loop import run_chunks
-from ..compilation.stored import stored_jit
+from ..compilation import stored_jit
 
 __all__ = ["relax_jit", "MASS_SAFETY", "kinetic_damping_step", "mirror_rows", "half_rows"]
 

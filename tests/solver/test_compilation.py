@@ -131,12 +131,12 @@ def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(mon
 
 
 def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
-    """`forward_solver.compilation.ahead`: the coarsest relaxation compiles on the caller's thread while the
+    """`forward_solver.compilation.Ahead`: the coarsest relaxation compiles on the caller's thread while the
     finer level and Newton's programs compile on the worker; each is compiled once (a 9x48 bay:
     levels 5x24 and 9x48, shapes no other test of this module solves)."""
     import threading
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
 
     threads = []
 
@@ -171,7 +171,7 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
 
     import jax.numpy as jnp
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
     from forward_solver.derivatives.implicit import forward_only
 
     threads = []
@@ -221,7 +221,7 @@ def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     import concurrent.futures
     import threading
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
 
     previous = ahead.set_compile_ahead(True)
     started, gate, ran = threading.Event(), threading.Event(), []
