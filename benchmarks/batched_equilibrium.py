@@ -122,7 +122,7 @@ def krylov_products(n_span: int, n_contour: int) -> dict:
 
         dpressure = jax.tree_util.tree_map(jnp.zeros_like, params)._replace(pressure=jnp.float64(1.0))
         # b = J dx for the pressure tangent dx: the right-hand side the derivative solves.
-        rhs = matvec(ImplicitAdjoint(x, geometry, params, physics, "iterative").tangent(dpressure) * free)
+        rhs = matvec(ImplicitAdjoint("iterative").at(x, geometry, params, physics).tangent(dpressure) * free)
         random = jnp.asarray(np.random.default_rng(0).normal(size=x.shape)) * free
         counts = {}
         for name, b in (("pressure", rhs), ("random", random)):
