@@ -6,7 +6,7 @@ ways. A batch of ``B`` pressures spread evenly over 5-50 kPa is solved to a
 relative residual of 1e-8 two ways:
 
 * **vmap**: ``jax.jit(jax.vmap(solve))`` of `solve_equilibrium` with
-  ``throw=False`` (the pure-JAX relaxation of `forward_solver.solvers.traced`:
+  ``throw=False`` (the pure-JAX relaxation of `forward_solver.solvers.relax.traced_solution`:
   mounted start, no grid sequencing); timed on a second call with pressures
   1% higher (the first call compiles; compile time is printed apart);
 * **loop**: a Python loop of eager `solve_equilibrium` calls (grid

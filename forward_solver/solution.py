@@ -127,7 +127,7 @@ class Solution(ParameterViews):
     are traced and differentiable; the other fields are the concrete solve's.
 
     Under ``jax.jit`` or ``jax.vmap`` of the parameters (the pure-JAX path,
-    `jit_equilibrium`), ``result``, ``steps``, ``residual`` and ``parameters`` are
+    `relax.traced_solution`), ``result``, ``steps``, ``residual`` and ``parameters`` are
     arrays and leaves of the pytree too (a batch has a leading axis on every
     leaf): ``result`` is then an int32 array of `Result` codes, `converged`
     an array, ``wall_time`` None (not measured inside a compiled call), and

@@ -5,9 +5,8 @@ solver's JAX programs are traced, compiled and kept:
 
 * `stored_jit`, `use_program_store`, `program_store`: top-level programs
   kept between processes as exported StableHLO (`stored`);
-* `Ahead`, `compiling`, `signature`, `compile_ahead_enabled`,
-  `set_compile_ahead`: the programs a cold solve needs next, compiled on a
-  second thread meanwhile (`ahead`);
+* `Ahead`, `compiling`, `signature`, `set_compile_ahead`: the programs a
+  cold solve needs next, compiled on a second thread meanwhile (`ahead`);
 * `enable_fast_compilation`, `FAST_COMPILATION_FLAGS`: XLA's faster-compiling
   CPU loop emitters (`xla`).
 
@@ -17,7 +16,6 @@ import it at all. docs/compilation.md describes the whole.
 """
 
 from .ahead import Ahead as Ahead
-from .ahead import compile_ahead_enabled as compile_ahead_enabled
 from .ahead import compiling as compiling
 from .ahead import set_compile_ahead as set_compile_ahead
 from .ahead import signature as signature
@@ -27,5 +25,5 @@ from .stored import use_program_store as use_program_store
 from .xla import FAST_COMPILATION_FLAGS as FAST_COMPILATION_FLAGS
 from .xla import enable_fast_compilation as enable_fast_compilation
 
-__all__ = ["Ahead", "FAST_COMPILATION_FLAGS", "compile_ahead_enabled", "compiling", "enable_fast_compilation",
+__all__ = ["Ahead", "FAST_COMPILATION_FLAGS", "compiling", "enable_fast_compilation",
            "program_store", "set_compile_ahead", "signature", "stored_jit", "use_program_store"]

@@ -66,7 +66,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from ..model.parameters import PARAMETER_NAMES, Parameters
+from ..model.parameters import Parameters
 from ..model.scene import Scene
 from ..precision import float64_scope
 from ..programs import static_forces
@@ -74,14 +74,11 @@ from ..solution import Solution
 from .implicit import ImplicitAdjoint, top_level
 from .unrolled import UnrolledAdjoint
 
-__all__ = ["ADJOINTS", "as_adjoint", "concrete_parameters", "DIFFERENTIABLE", "GRADIENT_RTOL",
+__all__ = ["ADJOINTS", "as_adjoint", "concrete_parameters", "GRADIENT_RTOL",
            "differentiable_solution", "nodes_only"]
 
 #: How `solve_equilibrium` is differentiated, by shortcut name.
 ADJOINTS = {"implicit": ImplicitAdjoint(), "unrolled": UnrolledAdjoint()}
-
-#: Parameters the equilibrium can be differentiated in (the `Parameters` fields).
-DIFFERENTIABLE = PARAMETER_NAMES
 
 #: Whether a differentiated solve's tensions are traced too (`nodes_only` turns it off).
 _TRACED_TENSIONS = contextvars.ContextVar("traced_tensions", default=True)

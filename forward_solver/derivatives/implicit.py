@@ -62,7 +62,7 @@ top_level = getattr(jax.core, "eval_context", contextlib.nullcontext)
 
 
 def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, n_tangents: int):
-    """``(key, task)`` for `ahead.Ahead.submit`: compile `rhs.batched_rhs` for ``n_tangents`` tangents at
+    """``(key, task)`` for `compilation.Ahead.submit`: compile `rhs.batched_rhs` for ``n_tangents`` tangents at
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
     batched, float64 and strongly typed), and trace the
     one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""

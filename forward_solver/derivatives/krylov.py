@@ -36,7 +36,7 @@ relative residual ``||J dx - b|| / ||b||`` of 1e-10, for the pressure
 tangent's right-hand side: 242 on 9x32, 336 on 17x64, 666 on 17x128
 (scalar Jacobi: 364, 744, 1106); for a random one 308, 466, 810 (scalar
 376, 804, 1150). `KRYLOV_RTOL` = 1e-10 keeps the linear-solve error far
-below the equilibrium's own (`adjoint.GRADIENT_RTOL`); the gradients agree
+below the equilibrium's own (`custom_jvp.GRADIENT_RTOL`); the gradients agree
 with the host LU's to about 1e-10 relative on 9x32.
 """
 
@@ -57,7 +57,7 @@ from .rhs import parameter_rhs
 __all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "BiCGStab", "jacobian_operator"]
 
 #: Relative residual ``||J dx - b|| / ||b||`` the BiCGStab solve stops at:
-#: well below the equilibrium's own error (`adjoint.GRADIENT_RTOL`) in the tangent.
+#: well below the equilibrium's own error (`custom_jvp.GRADIENT_RTOL`) in the tangent.
 KRYLOV_RTOL = 1e-10
 #: Cap on BiCGStab iterations (two matrix-vector products each); about ten
 #: times what 17x128 needs.

@@ -19,12 +19,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import jax
 import numpy as np
 
-__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES", "PARAMETER_UNITS",
+__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES",
            "as_parameters", "bay_parameters", "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
@@ -49,21 +49,6 @@ SHAPE_NAMES = ("rib_shape", "rib_shape_tip")
 FIELD_NAMES = ("cut_pattern",)
 
 _ARRAY_NAMES = SHAPE_NAMES + FIELD_NAMES
-
-#: Unit of each parameter, for messages and reports.
-PARAMETER_UNITS = {
-    "pressure": "Pa",
-    "prestrain_span": "",
-    "prestrain_chord": "",
-    "stiffness_span": "N/m",
-    "stiffness_chord": "N/m",
-    "rib_thickness_scale": "",
-    "rib_chord_scale": "",
-    "rib_shape": "chord",
-    "rib_shape_tip": "chord",
-    "cut_pattern": "",
-}
-
 
 @dataclass(frozen=True, eq=False)
 class Parameters:
@@ -153,15 +138,6 @@ class Parameters:
     def rib_shapes(self) -> tuple:
         """``(root, tip)`` rib-shape coefficients (the tip takes the root's unless set; None: unchanged)."""
         return (self.rib_shape, self.rib_shape if self.rib_shape_tip is None else self.rib_shape_tip)
-
-    @classmethod
-    def from_mapping(cls, values: Mapping) -> "Parameters":
-        """From ``{name: value}``; unknown names raise a ValueError naming them."""
-        unknown = sorted(set(values) - set(PARAMETER_NAMES + _ARRAY_NAMES))
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; the parameters are "
-                             f"{PARAMETER_NAMES + _ARRAY_NAMES}")
-        return cls(**values)
 
     def is_traced(self) -> bool:
         """Whether any value is a JAX tracer (the solve is being transformed)."""

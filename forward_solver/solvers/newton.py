@@ -284,7 +284,7 @@ def _continuation(problem, params, x_start, rtol, options: NewtonOptions, log):
 
 def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> None:
     """Compile (running each once) the programs of a `newton` solve on ``x``'s grid: the reference
-    state, the residual and the Jacobian values, called as `newton` calls them (`ahead`)."""
+    state, the residual and the Jacobian values, called as `newton` calls them (`compilation.Ahead`)."""
     with float64_scope():
         physics = fk.static_physics(physics)
         ref = prepare_compiled(geometry, params, physics)

@@ -24,7 +24,7 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
   such growth, the best residual's rate of fall is extrapolated, and if it
   would need more than `GIVE_UP_CHUNKS` further chunks to reach ``rtol``
   the run ends ``stalled`` instead of spending its step cap (the caller
-  then hands over to Newton, `fallback`). Measured need: slack fabric
+  then hands over to Newton, `chain.Auto`). Measured need: slack fabric
   (NACA 2412, 1e4 Pa, prestrain -5%, 17x64) cycles at a residual of 1e-4 to
   4e-3 up to the 200,000-step cap; and where the force is not the gradient
   of an energy, kinetic damping (which stops at kinetic-energy peaks, the
