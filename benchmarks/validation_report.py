@@ -43,7 +43,7 @@ from forward_solver.reference.closed_forms import (
     strip_sag,
 )
 from forward_solver.reference.independent_residual import numpy_relative_residual
-from forward_solver.solvers.relax import MASS_SAFETY, relax_jit
+from forward_solver.solvers.relax import MASS_SAFETY, RelaxOptions, relax_jit
 from forward_solver.solve import float32_residual_floor
 from forward_solver.model.parameters import PARAMETER_NAMES, Parameters, as_parameters
 from targets import Airfoil, naca
@@ -393,8 +393,8 @@ def _float32_stagnation(scene, steps):
         params = scene.params(as_parameters(PRESSURE, PRESTRAIN))
         out, _, nodes = relax_jit(jnp.asarray(bay.nominal_nodes()), bay.geometry(), params,
                                   jnp.asarray(1e-14), jnp.asarray(bay.divergence_bound),
-                                  MASS_SAFETY, scene.physics(dynamic=False), 100, steps // 100,
-                                  half=True, precision="float32", with_forces=False)
+                                  MASS_SAFETY, scene.physics(dynamic=False),
+                                  RelaxOptions(steps // 100, half=True, precision="float32", with_forces=False))
         return np.asarray(nodes), float(out.residual)
 
 

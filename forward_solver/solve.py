@@ -80,38 +80,25 @@ def solve_equilibrium(scene: Scene, parameters=None, prestrain=None, *, pressure
     vanishes on the free nodes; it does not depend on the fabric's mass,
     viscosity or the aerodynamic damping.
 
-    Methods. ``method`` is a value with its own knobs, or a shortcut name
-    for its default (`METHODS`): `methods.Relax` ("relax", dynamic
-    relaxation with grid sequencing, half-bay symmetry and an optional
-    float32 iteration), `methods.Newton` ("newton", sparse Newton from the
-    start shape, with load continuation), `methods.RelaxNewton`
-    ("relax+newton": relaxation to `methods.NEWTON_SWITCH_RTOL`, then Newton;
-    its factorised Jacobian is kept in `Solution.factor` for adjoint solves;
-    warm-started from such a solution it first tries chord Newton with that
-    factor), `methods.Explicit` ("explicit", the paper's physical-mass scheme
-    via `simulate`; it needs the scene's viscosity or aerodynamic damping to
-    come to rest), or `chain.Auto` ("auto": relax+newton, then Newton from
-    where it stopped, then Newton with load continuation from the mounted
-    shape, until one converges; a failure's message names every try).
+    Methods. ``method`` is a value with its own knobs (`solvers.methods`:
+    `Relax`, `Newton`, `RelaxNewton`, `Explicit`; `solvers.chain.Auto`), or
+    the shortcut name of its default (`METHODS`: "relax", "newton",
+    "relax+newton", "explicit", "auto").
 
     Derivatives. Under ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` or
     ``jax.vjp`` of the parameters, the returned `Solution`'s nodes and
     tensions are differentiable: ``jax.grad(lambda q: f(solve_equilibrium(
     scene, q).nodes))(parameters)`` returns a `Parameters` of derivatives.
-    ``adjoint`` is a value too: `implicit.ImplicitAdjoint` ("implicit",
-    default) differentiates the equilibrium by the implicit function theorem
-    (eq. 10-15 residual): one linear solve with the Jacobian ``J`` per
-    tangent or gradient, whatever the number of parameters, by its
-    ``linear_solver``: `implicit.SparseLU` ("lu", the sparse LU of ``J`` on
-    the host, scipy through ``jax.pure_callback``; the factor of a Newton
-    solve is reused) or `krylov.BiCGStab` ("iterative", matrix-free in JAX:
-    no host callback, so it runs on any backend); None picks the LU when
-    JAX's default backend is the CPU and BiCGStab otherwise. Either way the
-    derivative's error is of the order of the relative residual, so solve to
-    a tight ``rtol`` (`custom_jvp.GRADIENT_RTOL`) where it must be accurate.
-    `unrolled.UnrolledAdjoint` ("unrolled") differentiates through
-    ``max_steps`` steps of a pure-JAX dynamic relaxation instead (slow; for
-    checks on small grids).
+    ``adjoint`` is a value too (`derivatives`): `ImplicitAdjoint`
+    ("implicit", default) differentiates the equilibrium by the implicit
+    function theorem, one linear solve with the Jacobian per tangent or
+    gradient whatever the number of parameters, by its ``linear_solver``
+    (`SparseLU`, "lu", on the host; `BiCGStab`, "iterative", matrix-free in
+    JAX; None: the LU on a CPU backend, else BiCGStab). The derivative's
+    error is of the order of the relative residual, so solve to a tight
+    ``rtol`` (`custom_jvp.GRADIENT_RTOL`) where it must be accurate.
+    `UnrolledAdjoint` ("unrolled") differentiates through ``max_steps``
+    steps of a pure-JAX relaxation instead (slow; for checks on small grids).
 
     Under ``jax.jit`` and ``jax.vmap``. When the parameters are abstract
     (traced by ``jax.jit``, or batched by ``jax.vmap``), the solve cannot

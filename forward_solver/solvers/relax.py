@@ -90,7 +90,7 @@ try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
 except ImportError:  # pragma: no cover - older JAX
     from jax.core import concrete_or_error
 
-__all__ = ["relax_jit", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows", "half_rows",
+__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows", "half_rows",
            "has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
@@ -212,13 +212,30 @@ def _cast(tree, dtype):
     return jax.tree_util.tree_map(lambda a: jnp.asarray(a).astype(dtype), tree)
 
 
-@stored_jit(static_argnames=("physics", "chunk", "max_chunks", "half", "precision", "with_forces"))
-def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, chunk,
-              max_chunks, half=False, precision="float64", with_forces=True):
+class RelaxOptions(NamedTuple):
+    """The static choices of one `relax_jit` program (a change compiles another).
+
+    Attributes:
+        max_chunks: chunk cap.
+        half: solve half the bay (rows ``0 .. m`` and a ghost row, module docstring).
+        precision: "float64" or "float32", the iteration's type.
+        with_forces: return the float64 forces at the end.
+        chunk: steps per chunk.
+    """
+
+    max_chunks: int
+    half: bool = False
+    precision: str = "float64"
+    with_forces: bool = True
+    chunk: int = RELAX_CHUNK
+
+
+@stored_jit(static_argnames=("physics", "options"))
+def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, options: RelaxOptions):
     """Dynamic relaxation from the full-grid shape ``x_init``.
 
     ``x_init``, ``geometry`` and ``params`` are float64; the iteration runs
-    in ``precision`` ("float64" or "float32") and the stop test in float64.
+    in ``options.precision`` ("float64" or "float32") and the stop test in float64.
 
     Returns the loop output (its state on the solved rows, in ``precision``)
     and the float64 forces (None without ``with_forces``) and nodes on the
@@ -226,6 +243,7 @@ def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, phy
     relaxation that Newton finishes) leaves them out: one copy of the force
     kernel less to compile (0.15 s of 1.2 s at 17x64) and to run.
     """
+    max_chunks, half, precision, with_forces, chunk = options
     physics = fk.static_physics(physics)
     ref64 = fk.prepare(geometry, params, physics)
     make_grid = _half_grid if half else _full_grid
@@ -322,7 +340,7 @@ def relaxed_nodes(x_init, geometry, params, rtol, bound, physics, max_chunks: in
     """
     fixed = jax.lax.stop_gradient(params)
     out, _, x_star = relax_jit(jax.lax.stop_gradient(x_init), geometry, fixed, rtol, bound, MASS_SAFETY,
-                               physics, RELAX_CHUNK, max_chunks, half=half, with_forces=False)
+                               physics, RelaxOptions(max_chunks, half=half, with_forces=False))
     return implicit_nodes(solver, physics, x_star, geometry, params, out.result == Result.converged), out
 
 

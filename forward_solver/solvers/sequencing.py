@@ -31,7 +31,7 @@ from ..derivatives.implicit import batched_rhs_task, default_linear_solver, expe
 from ..programs import mounted_compiled
 from ..solution import Result
 from .newton import warm_up
-from .relax import MASS_SAFETY, RELAX_CHUNK, relax_jit
+from .relax import MASS_SAFETY, RELAX_CHUNK, RelaxOptions, relax_jit
 
 __all__ = ["COARSEST_SPAN", "COARSEST_CONTOUR", "COARSE_RTOL", "Relaxation", "coarsenable", "coarsen",
            "prolong", "use_half", "sequenced_start", "compile_ahead"]
@@ -67,20 +67,17 @@ class Relaxation(NamedTuple):
 
     def _arguments(self, x, geometry, rtol, with_forces):
         # (NumPy scalars: the same float64 avals as JAX's, without an eager conversion compiled for them)
-        args = (x, geometry, self.params, np.asarray(rtol, np.float64), np.asarray(self.bound, np.float64),
-                MASS_SAFETY, self.physics, RELAX_CHUNK, self.max_chunks)
-        options = dict(half=use_half(geometry, self.symmetric), precision=self.precision, with_forces=with_forces)
-        return args, options
+        options = RelaxOptions(self.max_chunks, use_half(geometry, self.symmetric), self.precision, with_forces)
+        return (x, geometry, self.params, np.asarray(rtol, np.float64), np.asarray(self.bound, np.float64),
+                MASS_SAFETY, self.physics, options)
 
     def __call__(self, x, geometry, rtol, with_forces=False):
         """``(loop output, forces or None, nodes)`` of the relaxation from ``x`` on ``geometry``'s grid."""
-        args, options = self._arguments(x, geometry, rtol, with_forces)
-        return relax_jit(*args, **options)
+        return relax_jit(*self._arguments(x, geometry, rtol, with_forces))
 
     def compiling(self, x, geometry, rtol, with_forces=False):
         """The task that compiles the program a call with these arguments takes."""
-        args, options = self._arguments(x, geometry, rtol, with_forces)
-        return compiling(relax_jit, *args, **options)
+        return compiling(relax_jit, *self._arguments(x, geometry, rtol, with_forces))
 
 
 def coarsenable(shape, periodic: bool) -> bool:
