@@ -1,4 +1,5 @@
-"""Results of a solve: the `Solution`, its result codes, and the error a failed solve raises."""
+"""Results of a solve: the `Solution` (built by `make_solution` alone), its result codes, the error a failed
+solve raises, a warm start's nodes (`initial_nodes`), and the same for N bays (`BaysSolution`)."""
 
 from __future__ import annotations
 
