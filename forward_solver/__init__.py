@@ -60,32 +60,7 @@ from .solvers.methods import Newton as Newton
 from .solvers.methods import Relax as Relax
 from .solvers.methods import RelaxNewton as RelaxNewton
 
-__all__ = [
-    "Auto",
-    "Batch",
-    "Bay",
-    "BaysSolution",
-    "BiCGStab",
-    "ConvergenceError",
-    "DEFAULT_COURANT",
-    "Explicit",
-    "Fabric",
-    "ImplicitAdjoint",
-    "Loop",
-    "Newton",
-    "Parameters",
-    "PressureRamp",
-    "Relax",
-    "RelaxNewton",
-    "Result",
-    "rib_section",
-    "Scene",
-    "Solution",
-    "SparseLU",
-    "simulate",
-    "solve_equilibrium",
-    "solve_bays",
-    "solve_wing",
-    "UnrolledAdjoint",
-    "Wing",
-]
+__all__ = ["Auto", "Batch", "Bay", "BaysSolution", "BiCGStab", "ConvergenceError", "DEFAULT_COURANT", "Explicit",
+           "Fabric", "ImplicitAdjoint", "Loop", "Newton", "Parameters", "PressureRamp", "Relax", "RelaxNewton",
+           "Result", "rib_section", "Scene", "Solution", "SparseLU", "simulate", "solve_equilibrium", "solve_bays",
+           "solve_wing", "UnrolledAdjoint", "Wing"]
