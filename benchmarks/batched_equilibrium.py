@@ -6,7 +6,7 @@ ways. A batch of ``B`` pressures spread evenly over 5-50 kPa is solved to a
 relative residual of 1e-8 two ways:
 
 * **vmap**: ``jax.jit(jax.vmap(solve))`` of `solve_equilibrium` with
-  ``throw=False`` (the pure-JAX relaxation of `forward_solver.solvers.traced`:
+  ``throw=False`` (the pure-JAX relaxation of `forward_solver.solvers.relax.traced_solution`:
   mounted start, no grid sequencing); timed on a second call with pressures
   1% higher (the first call compiles; compile time is printed apart);
 * **loop**: a Python loop of eager `solve_equilibrium` calls (grid
@@ -122,7 +122,7 @@ def krylov_products(n_span: int, n_contour: int) -> dict:
 
         dpressure = jax.tree_util.tree_map(jnp.zeros_like, params)._replace(pressure=jnp.float64(1.0))
         # b = J dx for the pressure tangent dx: the right-hand side the derivative solves.
-        rhs = matvec(ImplicitAdjoint(x, geometry, params, physics, "iterative").tangent(dpressure) * free)
+        rhs = matvec(ImplicitAdjoint("iterative").at(x, geometry, params, physics).tangent(dpressure) * free)
         random = jnp.asarray(np.random.default_rng(0).normal(size=x.shape)) * free
         counts = {}
         for name, b in (("pressure", rhs), ("random", random)):

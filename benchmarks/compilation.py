@@ -11,13 +11,13 @@ name). Runs:
    (it fills it), (c) with that cache; and (d) as (a) with XLA's default
    CPU emitters (``XLA_FLAGS=--xla_cpu_use_fusion_emitters=true``, which the
    command leaves as the caller set it), for the ratio of
-   `forward_solver.compilation.xla.enable_fast_compilation`;
+   `forward_solver.compilation.enable_fast_compilation`;
 2. ``first_solve``: a notebook's first ``solve_equilibrium`` on the default
    bay (NACA 2412, chord 1 m, ribs 0.25 m apart, default fabric, 1 kPa,
    prestrain 2%) at 17x256, no persistent cache, imports included; then a
    second solve at a new pressure and prestrain (the compilations it adds
    must be none); once as the library does by default and once after
-   ``forward_solver.compilation.xla.enable_fast_compilation()``;
+   ``forward_solver.compilation.enable_fast_compilation()``;
 3. ``resolve``: for the ratio of item 3, one process: the default bay
    (17x64) at the default case's start (10 kPa, prestrain 2%), re-solved
    (method "auto") warm-started from its equilibrium after a 1% change of
@@ -89,7 +89,7 @@ atexit.register(_dump)
 _FIRST_SOLVE = r"""
 _MARKS["imports_start"] = time.perf_counter() - _T0
 if __FAST__:
-    from forward_solver.compilation.xla import enable_fast_compilation
+    from forward_solver.compilation import enable_fast_compilation
     enable_fast_compilation()
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
 from targets import naca

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy
 
-from forward_solver import Bay, Fabric, PressureRamp, Scene, simulate, solve_equilibrium
+from forward_solver import Bay, Fabric, PressureRamp, Relax, Scene, simulate, solve_equilibrium
 from forward_solver import forces as fk
 from forward_solver.reference.closed_forms import (
     circle_contour,
@@ -43,7 +43,7 @@ from forward_solver.reference.closed_forms import (
     strip_sag,
 )
 from forward_solver.reference.independent_residual import numpy_relative_residual
-from forward_solver.solvers.relax import MASS_SAFETY, relax_jit
+from forward_solver.solvers.relax import MASS_SAFETY, RelaxOptions, relax_jit
 from forward_solver.solve import float32_residual_floor
 from forward_solver.model.parameters import PARAMETER_NAMES, Parameters, as_parameters
 from targets import Airfoil, naca
@@ -360,7 +360,8 @@ def float32_error():
         scene = Scene(bay, Fabric())
         reference = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=1e-11)
         floor = float32_residual_floor(scene, PRESSURE, PRESTRAIN)
-        single = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=floor, precision="float32", throw=False)
+        single = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=floor, method=Relax(precision="float32"),
+                                   throw=False)
         stalled, stalled_residual = _float32_stagnation(scene, STAGNATION_STEPS)
         error_at_floor = np.abs(single.nodes - reference.nodes).max() / bay.chord
         error = np.abs(stalled - reference.nodes).max() / bay.chord
@@ -391,9 +392,9 @@ def _float32_stagnation(scene, steps):
     with jax.enable_x64(True):
         params = scene.params(as_parameters(PRESSURE, PRESTRAIN))
         out, _, nodes = relax_jit(jnp.asarray(bay.nominal_nodes()), bay.geometry(), params,
-                                  jnp.asarray(1e-14), jnp.asarray(bay.chord + bay.rib_spacing),
-                                  MASS_SAFETY, scene.physics(dynamic=False), 100, steps // 100,
-                                  half=True, precision="float32", with_forces=False)
+                                  jnp.asarray(1e-14), jnp.asarray(bay.divergence_bound),
+                                  MASS_SAFETY, scene.physics(dynamic=False),
+                                  RelaxOptions(steps // 100, half=True, precision="float32", with_forces=False))
         return np.asarray(nodes), float(out.residual)
 
 
@@ -408,8 +409,8 @@ def _float32_speed() -> str:
         for repeat in range(4):
             for precision in ("float64", "float32"):
                 # From the mounted shape, one grid level, to float32's floor (an rtol both accept).
-                sol = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=floor, precision=precision,
-                                        sequencing=False, throw=False)
+                sol = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=floor, throw=False,
+                                        method=Relax(sequencing=False, precision=precision))
                 if repeat:  # the first round compiles
                     best[precision] = min(best.get(precision, np.inf), sol.wall_time / sol.steps)
         lines.append(f"{n_span}x{n_contour}: {best['float64'] / best['float32']:.2f}x "

@@ -58,7 +58,8 @@ import numpy as np
 
 from forward_solver import Fabric, Parameters, Scene, forces, solve_equilibrium
 from forward_solver.precision import float64_scope
-from forward_solver.solvers.bays import BATCH_CHUNK, stack_trees, batched_equilibrium, solve_bays, solve_wing
+from forward_solver.solvers.bays import stack_trees, batched_equilibrium, solve_bays, solve_wing
+from forward_solver.solvers.relax import RELAX_CHUNK
 from forward_solver import Wing
 from targets import naca
 
@@ -105,11 +106,11 @@ def jit_loop(wing, fabric, grid):
         params = scene.params(PARAMETERS.resolved(fabric))
         for bay in bays:
             geometry = stack_trees([bay.geometry()])
-            bound = jnp.asarray([bay.chord + bay.rib_spacing], jnp.float64)
+            bound = jnp.asarray([bay.divergence_bound], jnp.float64)
             zeros = jnp.zeros((1, *bay.shape, 3), jnp.float64)
             nodes, result, _, s, _ = batched_equilibrium(geometry, bound, zeros, None, None, None, params,
                                                        jnp.asarray(RTOL, jnp.float64), physics,
-                                                       -(-MAX_STEPS // BATCH_CHUNK))
+                                                       -(-MAX_STEPS // RELAX_CHUNK))
             jax.block_until_ready(nodes)
             assert int(result[0]) == 0
             steps.append(int(s[0]))

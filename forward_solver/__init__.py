@@ -2,30 +2,41 @@
 
 Public names::
 
-    Fabric, Bay, Scene, Parameters, Solution, Result, ConvergenceError,
-    PressureRamp, solve_equilibrium, simulate, Wing, solve_wing, solve_bays,
-    rib_section
+    Fabric, Bay, Scene, Parameters, Solution, BaysSolution, Result,
+    ConvergenceError, PressureRamp, solve_equilibrium, simulate, Wing,
+    solve_wing, solve_bays, rib_section
 
-``Parameters.rib_shape`` offsets the rib contours (`rib_shape`: Bernstein
-coefficients of a class-shape offset); `rib_section` is the designed rib as
-an airfoil.
+and the choices as values (the shortcut strings name their defaults)::
+
+    Relax, Newton, RelaxNewton, Explicit, Auto        # solve_equilibrium(method=...)
+    ImplicitAdjoint, UnrolledAdjoint                  # solve_equilibrium(adjoint=...)
+    SparseLU, BiCGStab                                # ImplicitAdjoint(linear_solver=...)
+    Loop, Batch                                       # solve_bays(strategy=...)
+
+``Parameters.rib_shape`` offsets the rib contours (`model.rib_shape`:
+Bernstein coefficients of a class-shape offset); `rib_section` is the
+designed rib as an airfoil.
 
 ``solve_equilibrium`` is differentiable in its `Parameters` (``jax.grad``,
-``jax.jacfwd``; implicit adjoint by default, see `adjoint`).
+``jax.jacfwd``; implicit adjoint by default, see `derivatives`).
+
+The layers are folders: `model` (bay, fabric, scene, parameters, wing, cut
+field, rib shape), `forces` (the kernel), `solvers`, `derivatives`,
+`reference` (closed forms and an independent residual for validation) and
+`compilation` (the compile machinery, which the physics never imports).
 
 Importing this package changes no JAX configuration: solvers run in float64
-inside a thread-local ``jax.enable_x64`` scope (see `scene.float64_scope`).
-The explicit solvers iterate in float32 on request (``precision="float32"``),
-only for tolerances float32 can meet (the rule is in `_precision`).
-
-Analytic references for validation: `closed_forms`; an independent numpy
-residual: `independent_residual`.
+inside a thread-local ``jax.enable_x64`` scope (`precision.float64_scope`).
+The explicit solvers iterate in float32 on request
+(``method=Relax(precision="float32")``), only for tolerances float32 can
+meet (the rule is in `precision`).
 """
 
+from .derivatives.implicit import ImplicitAdjoint as ImplicitAdjoint
+from .derivatives.implicit import SparseLU as SparseLU
+from .derivatives.krylov import BiCGStab as BiCGStab
+from .derivatives.unrolled import UnrolledAdjoint as UnrolledAdjoint
 from .model.bay import Bay as Bay
-from .solvers.explicit import DEFAULT_COURANT as DEFAULT_COURANT
-from .solvers.explicit import PressureRamp as PressureRamp
-from .solvers.explicit import simulate as simulate
 from .model.fabric import Fabric as Fabric
 from .model.parameters import Parameters as Parameters
 from .model.rib_shape import rib_section as rib_section
@@ -36,24 +47,20 @@ from .solution import ConvergenceError as ConvergenceError
 from .solution import Result as Result
 from .solution import Solution as Solution
 from .solve import solve_equilibrium as solve_equilibrium
+from .solvers.bays import Batch as Batch
+from .solvers.bays import Loop as Loop
 from .solvers.bays import solve_bays as solve_bays
 from .solvers.bays import solve_wing as solve_wing
+from .solvers.chain import Auto as Auto
+from .solvers.explicit import DEFAULT_COURANT as DEFAULT_COURANT
+from .solvers.explicit import PressureRamp as PressureRamp
+from .solvers.explicit import simulate as simulate
+from .solvers.methods import Explicit as Explicit
+from .solvers.methods import Newton as Newton
+from .solvers.methods import Relax as Relax
+from .solvers.methods import RelaxNewton as RelaxNewton
 
-__all__ = [
-    "Bay",
-    "BaysSolution",
-    "ConvergenceError",
-    "DEFAULT_COURANT",
-    "Fabric",
-    "Parameters",
-    "PressureRamp",
-    "Result",
-    "rib_section",
-    "Scene",
-    "Solution",
-    "simulate",
-    "solve_equilibrium",
-    "solve_bays",
-    "solve_wing",
-    "Wing",
-]
+__all__ = ["Auto", "Batch", "Bay", "BaysSolution", "BiCGStab", "ConvergenceError", "DEFAULT_COURANT", "Explicit",
+           "Fabric", "ImplicitAdjoint", "Loop", "Newton", "Parameters", "PressureRamp", "Relax", "RelaxNewton",
+           "Result", "rib_section", "Scene", "Solution", "SparseLU", "simulate", "solve_equilibrium", "solve_bays",
+           "solve_wing", "UnrolledAdjoint", "Wing"]

@@ -1,26 +1,27 @@
-"""Results of a solve: the `Solution`, its result codes, and the error a failed solve raises."""
+"""Results of a solve: the `Solution` (built by `make_solution` alone), its result codes, the error a failed
+solve raises, a warm start's nodes (`initial_nodes`), and the same for N bays (`BaysSolution`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import forces as fk
-from .precision import device_arrays
-from .solvers.jacobian import JacobianFactor
 from .model.fabric import Fabric
 from .model.parameters import Parameters, ParameterViews, bay_parameters
 from .model.scene import Scene
-from .precision import float64_scope
-from .compilation.stored import stored_jit
+from .precision import device_arrays, float64_scope
+from .programs import mounted_compiled, static_forces
+from .solvers.jacobian import JacobianFactor
 
-__all__ = ["Result", "Solution", "ConvergenceError", "BaysSolution", "BaysConvergenceError", "RESULT_MESSAGES", "RESULT_ADVICE",
-           "make_solution", "initial_nodes", "static_forces", "static_state", "prepare_compiled",
-           "mounted_compiled"]
+__all__ = ["Result", "Solution", "ConvergenceError", "BaysSolution", "BaysConvergenceError", "RESULT_MESSAGES",
+           "RESULT_ADVICE", "Stop", "make_solution", "initial_nodes"]
 
 
 class Result(enum.IntEnum):
@@ -63,9 +64,8 @@ RESULT_ADVICE = {
         "is unstable"
     ),
     Result.stalled: (
-        "use method='auto' or 'newton' (command: --equilibrium-method auto or newton): Newton's "
-        "method does not cycle; slack fabric (negative "
-        "prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
+        "use method='auto', which hands over to Newton's method: it does not cycle; slack fabric "
+        "(negative prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
         "stiffnesses make the relaxation cycle"
     ),
 }
@@ -116,7 +116,10 @@ class Solution(ParameterViews):
         factor: the sparse LU of the Jacobian (`jacobian.JacobianFactor`)
             when a Newton method made one, else None. A warm start from this
             solution reuses it (chord Newton) and, when it is current, the
-            implicit derivative's adjoint solves do too.
+            implicit derivative's adjoint solves do too. A live object of this
+            process: `without_factor` drops it, and so does pickling.
+
+    Every `Solution` is built by `make_solution`.
 
     A `Solution` is a JAX pytree whose leaves are ``nodes``, the tensions and
     ``wrinkled`` (everything else is static), so it may be returned as the
@@ -125,7 +128,7 @@ class Solution(ParameterViews):
     are traced and differentiable; the other fields are the concrete solve's.
 
     Under ``jax.jit`` or ``jax.vmap`` of the parameters (the pure-JAX path,
-    `jit_equilibrium`), ``result``, ``steps``, ``residual`` and ``parameters`` are
+    `relax.traced_solution`), ``result``, ``steps``, ``residual`` and ``parameters`` are
     arrays and leaves of the pytree too (a batch has a leading axis on every
     leaf): ``result`` is then an int32 array of `Result` codes, `converged`
     an array, ``wall_time`` None (not measured inside a compiled call), and
@@ -151,6 +154,22 @@ class Solution(ParameterViews):
     extra: dict = field(default_factory=dict)
     detail: str = ""
     factor: JacobianFactor | None = None
+
+    def replace(self, **changes) -> "Solution":
+        """A copy with some fields changed (unknown names raise TypeError)."""
+        return dataclasses.replace(self, **changes)
+
+    def without_factor(self) -> "Solution":
+        """This solution without its LU factor: what is kept beside others, pickled or saved.
+
+        The factor is a live host object of this process (scipy's SuperLU, megabytes on a fine grid,
+        and it does not pickle); a pickled `Solution` drops it by itself (`__getstate__`).
+        """
+        return self if self.factor is None else self.replace(factor=None)
+
+    def __getstate__(self) -> dict:
+        """Pickled without the LU factor (`without_factor`)."""
+        return {**self.__dict__, "factor": None}
 
     @property
     def converged(self):
@@ -242,37 +261,54 @@ jax.tree_util.register_pytree_with_keys(
 )
 
 
-def make_solution(out, f, steps, wall, method, parameters: Parameters, bay, history=None, extra=None,
-                  nodes=None, detail="", factor=None) -> Solution:
-    """A `Solution` from a solver's loop output ``out`` and forces ``f`` at the returned nodes.
+class Stop(NamedTuple):
+    """Where a solve stopped, for `make_solution` (as a `loop.LoopOutput` or `newton.NewtonResult` says it)."""
+
+    result: object  # the `Result` code (an int, or an int32 array under jax.jit / jax.vmap)
+    residual: object  # ||R_free|| / (p A)
+
+
+def make_solution(out, forces, nodes, steps, wall_time, method: str, parameters: Parameters, bay,
+                  **fields) -> Solution:
+    """A `Solution` from where a solver stopped and the forces at its nodes: every `Solution` is built here.
+
+    Concrete (``out.result`` not a JAX tracer): float64 numpy arrays, a
+    `Result`, an int and floats, the parameters as floats. Under ``jax.jit``
+    or ``jax.vmap`` (an abstract ``out.result``): the arrays as they are, the
+    status fields leaves of the pytree too (see `Solution`).
 
     Args:
-        out: a `loop.LoopOutput` (result code, residual; its state's nodes
-            unless ``nodes`` is given).
-        f: `forces.Forces` at the returned nodes (tensions, wrinkles).
+        out: where the solver stopped: anything with ``result`` (a `Result`
+            code) and ``residual``: a `loop.LoopOutput`, a
+            `newton.NewtonResult`, a `Stop`.
+        forces: `forces.Forces` at ``nodes`` (tensions, wrinkles).
+        nodes: ``(n_span, n_contour, 3)`` the returned nodes, m.
         steps: explicit steps or iterations taken.
-        wall: seconds.
+        wall_time: seconds, or None (not measured inside a compiled call).
         method: the solver's name.
         parameters: the resolved `Parameters` of the solve.
         bay: the `Bay` (for the rib spacing).
-        history, extra, detail, factor: as on `Solution`.
+        **fields: the optional `Solution` fields ``history``, ``extra``,
+            ``detail`` and ``factor``.
     """
+    if isinstance(out.result, jax.core.Tracer):
+        return Solution(nodes=nodes, tension_span=forces.tension_span, tension_chord=forces.tension_chord,
+                        wrinkled=forces.wrinkled, result=out.result, steps=steps, residual=out.residual,
+                        wall_time=wall_time, method=method, parameters=parameters, rib_spacing=bay.rib_spacing,
+                        **fields)
     return Solution(
-        nodes=np.asarray(out.state.x if nodes is None else nodes, dtype=np.float64),
-        tension_span=np.asarray(f.tension_span, dtype=np.float64),
-        tension_chord=np.asarray(f.tension_chord, dtype=np.float64),
-        wrinkled=np.asarray(f.wrinkled),
+        nodes=np.asarray(nodes, dtype=np.float64),
+        tension_span=np.asarray(forces.tension_span, dtype=np.float64),
+        tension_chord=np.asarray(forces.tension_chord, dtype=np.float64),
+        wrinkled=np.asarray(forces.wrinkled),
         result=Result(int(out.result)),
         steps=int(steps),
         residual=float(out.residual),
-        wall_time=wall,
+        wall_time=wall_time,
         method=method,
         parameters=parameters.as_floats(),
         rib_spacing=bay.rib_spacing,
-        history=history,
-        extra=extra or {},
-        detail=detail,
-        factor=factor,
+        **fields,
     )
 
 
@@ -325,36 +361,6 @@ def _remounted(nodes, geometry: fk.Geometry, params: fk.KernelInputs, *own):
     if own:
         nodes = mounted + (nodes - fk.nominal_nodes(geometry, *own))
     return jnp.where(geometry.free[..., None] > 0, nodes, mounted)
-
-
-#: `forces.prepare` as one compiled program (eagerly, each of its operations compiles on its own).
-prepare_compiled = stored_jit(fk.prepare, static_argnames=("physics",))
-
-#: `forces.mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and
-#: dispatched one by one, on every cold start and on every bay of every wing solve).
-mounted_compiled = stored_jit(fk.mounted_nodes)
-
-
-@stored_jit(static_argnames=("physics",))
-def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
-    """``(forces, relative)`` at nodes ``x``: the `forces.Forces` of the static residual (velocity
-    terms dropped) and ``||R_free||_2 / (p A)`` (`forces.relative_residual`; NaN when a coordinate
-    is not finite).
-
-    One compiled program serves Newton's residuals and line search, chord Newton and the
-    returned solution's tensions (`static_forces`): every extra program of the force kernel is
-    another XLA compilation of it (about a second on a 2-core machine).
-    """
-    physics = fk.static_physics(physics)
-    ref = fk.prepare(geometry, params, physics)
-    f = fk.forces(x, ref, params, physics)
-    rel = fk.safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
-    return f, jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
-
-
-def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> fk.Forces:
-    """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped); `static_state`."""
-    return static_state(x, geometry, params, physics)[0]
 
 
 @dataclass(frozen=True)
@@ -431,12 +437,9 @@ class BaysSolution:
             nodes = jnp.asarray(np.asarray(self.nodes[bay]), jnp.float64)
             f = static_forces(nodes, scene.bay.geometry(),
                               scene.params(parameters), scene.physics(dynamic=False))
-            return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(f.tension_span),
-                            tension_chord=np.asarray(f.tension_chord), wrinkled=np.asarray(f.wrinkled),
-                            result=Result(int(np.asarray(self.result[bay]))), steps=int(self.steps[bay]),
-                            residual=float(self.residual[bay]), wall_time=None, method="relax",
-                            parameters=parameters, rib_spacing=scene.bay.rib_spacing,
-                            extra={"precision": "float64", "wing_bay": bay})
+            stop = Stop(np.asarray(self.result[bay]), self.residual[bay])
+            return make_solution(stop, f, nodes, self.steps[bay], None, "relax", parameters, scene.bay,
+                                 extra={"precision": "float64", "wing_bay": bay})
 
     def bay_parameters(self, bay: int) -> Parameters:
         """The concrete `Parameters` of bay ``bay``: the shared ones with, for per-rib shapes, its
@@ -445,6 +448,12 @@ class BaysSolution:
         as_array = (lambda a: None if a is None else np.asarray(a, np.float64))
         return bay_parameters(self.parameters.as_floats(), as_array(self.rib_shapes), bay,
                                as_array(self.cut_patterns))
+
+    def without_factors(self) -> "BaysSolution":
+        """This solution with its bays' `Solution.without_factor` (what is kept beside others)."""
+        if self.solutions is None:
+            return self
+        return dataclasses.replace(self, solutions=[s.without_factor() for s in self.solutions])
 
     def displacements(self) -> np.ndarray:
         """``(n_bays, n_span, n_contour, 3)`` m: the nodes less each bay's mounted shape (a warm start)."""

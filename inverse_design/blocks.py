@@ -34,8 +34,9 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse
 
-from forward_solver.derivatives.custom_jvp import _concrete, _kernel_tangent
+from forward_solver.derivatives.custom_jvp import concrete_parameters
 from forward_solver.derivatives.implicit import ImplicitAdjoint, forward_only
+from forward_solver.derivatives.rhs import kernel_tangent
 
 __all__ = ["bay_columns", "compressed_seeds", "decompress", "implicit_equilibrium", "bay_jacobian", "block_rows"]
 
@@ -181,10 +182,10 @@ def implicit_equilibrium(scene, solution):
     def nodes_jvp(primals, tangents):
         (parameters,), (dparameters,) = primals, tangents
         x = jnp.asarray(x_host, jnp.float64)
-        params = scene.params(_concrete(parameters))
+        params = scene.params(concrete_parameters(parameters))
         if "adjoint" not in made:
-            made["adjoint"] = ImplicitAdjoint(x, geometry, params, physics, "lu", factor=solution.factor)
-        return x, made["adjoint"].tangent(_kernel_tangent(dparameters, params))
+            made["adjoint"] = ImplicitAdjoint("lu").at(x, geometry, params, physics, factor=solution.factor)
+        return x, made["adjoint"].tangent(kernel_tangent(dparameters, params))
 
     return nodes
 

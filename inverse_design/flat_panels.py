@@ -344,7 +344,7 @@ def mounted_skin(scene, parameters) -> np.ndarray:
     """``(n_span, n_contour, 3)`` the mounted skin of a bay (`forces.mounted_nodes`), m."""
     import jax
 
-    from forward_solver.solution import mounted_compiled
+    from forward_solver.programs import mounted_compiled
 
     with jax.enable_x64(True):
         geometry = scene.bay.geometry()

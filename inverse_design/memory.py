@@ -106,7 +106,7 @@ def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
     fixed, 943 MB and 1,141 MB, level from the third, and no slower. ``MALLOC_MMAP_THRESHOLD_``
     in the environment does the same when the process starts.
 
-    A process setting, like `forward_solver.compilation.xla.enable_fast_compilation`: the ``optimise-pressure``
+    A process setting, like `forward_solver.compilation.enable_fast_compilation`: the ``optimise-pressure``
     command calls it as it starts; a library caller running long designs may too. Nothing
     happens outside glibc (another C library, another system).
 

@@ -247,8 +247,7 @@ class DesignProblem:
     def remember(self, sol: BaysSolution, u) -> BaysSolution:
         """Keep ``sol`` as the next warm start and in the archive of solves (without LU factors)."""
         self.previous, self._previous_key = sol, key_of(u)
-        light = None if sol.solutions is None else [dataclasses.replace(s, factor=None) for s in sol.solutions]
-        self._solved[key_of(u)] = dataclasses.replace(sol, solutions=light)
+        self._solved[key_of(u)] = sol.without_factors()
         return sol
 
     def final_solution(self, u) -> BaysSolution:

@@ -48,7 +48,7 @@ from forward_solver import forces as fk
 from forward_solver.model.cut_field import local_prestrain
 from forward_solver.model.rib_shape import rib_offsets
 
-from targets.airfoil import self_crossings
+from targets.checks import self_crossings
 
 
 __all__ = ["RIB_POINTS", "RibLimits", "RibGeometry", "rib_report", "rib_crossings", "cut_lengths"]
@@ -213,7 +213,7 @@ def rib_crossings(sections: list, parameters: Parameters, rib_shapes=None) -> tu
     Each rib's designed section (`RibGeometry.section_z`: thickness scale and
     shape applied to its starting section, at `RIB_POINTS` points) is
     searched for a crossing or a pinch to zero thickness inside the chord
-    (`targets.airfoil.self_crossings`). Such a rib cannot be made, so a design
+    (`targets.checks.self_crossings`). Such a rib cannot be made, so a design
     that has one is a failure, with the amount: the largest negative
     thickness (lower surface above the upper one at the same x), chord.
 

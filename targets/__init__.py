@@ -19,13 +19,13 @@ import its other names with ``from targets.naca import ...``.
 """
 
 from .airfoil import Airfoil as Airfoil
-from .airfoil import Projection as Projection
-from .airfoil import common_trailing_edge as common_trailing_edge
+from .contour import Projection as Projection
 from .dat import AirfoilWarning as AirfoilWarning
 from .dat import load_airfoil as load_airfoil
 from .naca import NacaSection as NacaSection
 from .naca import naca as naca
 from .naca import parse_naca as parse_naca
+from .trailing_edge import common_trailing_edge as common_trailing_edge
 
 __all__ = [
     "Airfoil",

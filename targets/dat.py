@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .airfoil import CHORD_TOLERANCE, MIN_POINTS, Airfoil, crossing_error, order_error
+from .airfoil import Airfoil
+from .checks import CHORD_TOLERANCE, MIN_POINTS, crossing_error, order_error
 
 RENORMALISE_LIMIT = 5e-3
 """Largest chord error (chord units) that :func:`load_airfoil` renormalises: the
@@ -160,7 +161,7 @@ def _renormalised(
     The trailing edge is the mid-point of the first and last points and the
     leading edge the minimum-x point, as :class:`~targets.Airfoil` defines
     them. Only a trailing edge off x = 1 (beyond
-    :data:`~targets.airfoil.CHORD_TOLERANCE`) triggers the renormalisation:
+    :data:`~targets.checks.CHORD_TOLERANCE`) triggers the renormalisation:
     with the trailing edge in place, a minimum-x point a little off x = 0 is
     no chord error (a NACA section bulges ahead of x = 0, a nose not sampled
     at its tip lies behind it).
@@ -208,7 +209,7 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     (leading edge at x = 0, trailing edge at x = 1) up to
     :data:`RENORMALISE_LIMIT`: a file whose trailing edge (mid-point of the
     first and last points) is off x = 1 by more than
-    :data:`~targets.airfoil.CHORD_TOLERANCE`, but by no more than that limit,
+    :data:`~targets.checks.CHORD_TOLERANCE`, but by no more than that limit,
     with its minimum x as close to 0, is mapped onto unit chord (x from the
     minimum-x point to the trailing edge becomes 0 to 1, z scaled alike, so
     thickness and camber ratios are kept) and an :class:`AirfoilWarning` says

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .airfoil import Airfoil, checked_n_points
+from .airfoil import Airfoil
+from .checks import checked_n_points
 
 THICKNESS_COEFFICIENTS = (0.2969, -0.1260, -0.3516, 0.2843)
 """Coefficients of sqrt(x), x, x^2, x^3 in y_t / (5 t) (Report 824)."""

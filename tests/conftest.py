@@ -13,7 +13,7 @@ cold as on CI, and no test writes to the user's own cache
 (``~/.cache/inflatable-wing``).
 
 The run compiles as the command does, with XLA's faster-compiling CPU loop
-emitters (`forward_solver.compilation.xla.enable_fast_compilation`, set before any test
+emitters (`forward_solver.compilation.enable_fast_compilation`, set before any test
 starts JAX's backend; its subprocesses inherit it).
 """
 
@@ -24,7 +24,7 @@ import tempfile
 import jax
 import pytest
 
-from forward_solver.compilation.xla import enable_fast_compilation
+from forward_solver.compilation import enable_fast_compilation
 from inverse_design.app import cli
 
 CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"

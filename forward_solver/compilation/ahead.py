@@ -2,7 +2,7 @@
 
 JAX compiles one program at a time, on the thread that first calls it, and
 a cold solve calls its programs one after another: the relaxation of each
-grid-sequencing level (`solve._sequenced_start`), then Newton's residual and
+grid-sequencing level (`solvers.sequencing.sequenced_start`), then Newton's residual and
 Jacobian (`newton`). XLA's compiler releases Python's lock, so on a machine
 with a second core the later programs can compile while the first one
 compiles and runs. `Ahead` is that: a single worker thread that lowers and
@@ -28,18 +28,12 @@ import threading
 
 import jax
 
-__all__ = ["compile_ahead_enabled", "set_compile_ahead", "compiling", "signature", "Ahead"]
+__all__ = ["set_compile_ahead", "compiling", "signature", "Ahead"]
 
 _ENABLED = (os.cpu_count() or 1) > 1
 _LOCK = threading.Lock()
 _EXECUTOR = None
 _SUBMITTED: set = set()
-
-
-def compile_ahead_enabled() -> bool:
-    """Whether cold solves compile their later programs on a second thread (default: on a machine
-    with more than one core)."""
-    return _ENABLED
 
 
 def set_compile_ahead(enabled: bool) -> bool:

@@ -45,6 +45,7 @@ import threading
 from pathlib import Path
 
 import jax
+import jaxlib
 
 __all__ = ["stored_jit", "use_program_store", "program_store"]
 
@@ -78,12 +79,10 @@ def _version() -> str:
     with _LOCK:
         if _VERSION is None:
             digest = hashlib.sha256()
-            root = Path(__file__).resolve().parents[1]
+            root = Path(__file__).resolve().parents[2]  # the repository: forward_solver/compilation/stored.py
             for package in _PACKAGES:
                 for path in sorted((root / package).rglob("*.py")):
                     digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes())
-            import jaxlib
-
             for part in (jax.__version__, jaxlib.__version__, os.environ.get("XLA_FLAGS", ""),
                          jax.default_backend()):
                 digest.update(b"\0" + part.encode())

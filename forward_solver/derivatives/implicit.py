@@ -1,18 +1,13 @@
-"""The implicit derivative of an equilibrium: one right-hand side, one linear solve, two linear solvers.
+"""The implicit derivative of an equilibrium, as a value: `ImplicitAdjoint`, and its host sparse LU.
 
 At an equilibrium the static residual of eq. (10)-(15) vanishes on the free
 degrees of freedom, ``R(x*(theta), theta) = 0``, so (implicit function
 theorem) ``dx*/dtheta = -J^-1 dR/dtheta`` with ``J = dR/dx`` on the free
-dofs. `ImplicitAdjoint` is that rule at one equilibrium:
+dofs. `ImplicitAdjoint` is that rule, the value ``adjoint=`` of
+`solve_equilibrium` (the shortcut "implicit" names its default):
 
-* the right-hand side (`parameter_rhs`) is built here only: one ``jax.jvp``
-  of `forces.residual` in the kernel parameters, through `forces.prepare`
-  (the cut lengths see the prestrain) and through the held (rib) nodes,
-  which move with the rib scales and shapes; that motion is the tangent of
-  the held nodes;
-* the operator is ``J`` on the full node array with the held dofs mapped to
-  themselves (`jacobian_matvec`; the residual is zero there, so the held
-  part of the solution is zero and the held nodes' motion is added after);
+* the right-hand side and the operator are `rhs.parameter_rhs` and
+  `rhs.jacobian_matvec`, built there only;
 * the solve is one ``jax.lax.custom_linear_solve``, so reverse mode
   transposes it into the adjoint system ``J^T lambda = xbar`` with the same
   solver's transpose: one adjoint solve per gradient, whatever the number
@@ -20,15 +15,17 @@ dofs. `ImplicitAdjoint` is that rule at one equilibrium:
 * a caller that takes forward-mode derivatives only (the design's Jacobian)
   may say so (`forward_only`): the "lu" tangents of a batch are then solved
   on the host as arrays, without the transposable program;
-* the linear solver is pluggable (``linear_solver``): "lu", the sparse LU
-  of ``J`` on the host (`HostLU`: scipy through ``jax.pure_callback``; a
-  Newton solve's own factor is reused), or "iterative", the matrix-free
-  block-Jacobi BiCGStab of `krylov` in JAX (`Krylov`: no host callback, so
-  it runs under ``jax.jit`` / ``jax.vmap`` and on any backend).
+* the linear solver is a value too (``ImplicitAdjoint(linear_solver=...)``):
+  `SparseLU` ("lu"), the sparse LU of ``J`` on the host (bound to one
+  equilibrium as `HostLU`: scipy through ``jax.pure_callback``; a Newton
+  solve's own factor is reused), or `krylov.BiCGStab` ("iterative"), the
+  matrix-free block-Jacobi BiCGStab in JAX (no host callback, so it runs
+  under ``jax.jit`` / ``jax.vmap`` and on any backend); None picks by the
+  backend (`default_linear_solver`).
 
-`solve_equilibrium`'s custom JVP (`adjoint.differentiable_solution`) and the
-pure-JAX relaxation (`implicit_nodes`, used by `jit_equilibrium` and by the batched
-wing) both differentiate through this one object.
+`solve_equilibrium`'s custom JVP (`custom_jvp.differentiable_solution`) and the
+pure-JAX relaxation (`implicit_nodes`, used by `relax.traced_solution` and by the
+batched wing) both differentiate through this one rule.
 """
 
 from __future__ import annotations
@@ -38,84 +35,43 @@ import contextlib
 import contextvars
 import itertools
 import weakref
+from dataclasses import dataclass
 from functools import partial
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
-from jax.scipy.sparse.linalg import bicgstab
 
 from .. import forces as fk
+from ..compilation import compiling, signature
+from ..programs import prepare_compiled
 from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
-from .krylov import KRYLOV_MAX_ITERATIONS, KRYLOV_RTOL, jacobian_operator
-from ..solution import prepare_compiled
-from ..compilation.stored import stored_jit
+from .krylov import BiCGStab
+from .rhs import batched_rhs, jacobian_matvec, kernel_tangent, parameter_rhs
 
-__all__ = ["LINEAR_SOLVERS", "default_linear_solver", "ImplicitAdjoint", "HostLU", "Krylov",
-           "parameter_rhs", "jacobian_matvec", "implicit_nodes", "forward_only"]
+__all__ = ["SparseLU", "LINEAR_SOLVERS", "as_linear_solver", "default_linear_solver", "ImplicitAdjoint",
+           "HostLU", "top_level", "implicit_nodes", "forward_only", "expected_tangents",
+           "batched_rhs_task"]
 
-#: Linear solvers of the implicit derivative: the host sparse LU, or matrix-free BiCGStab in JAX.
-LINEAR_SOLVERS = ("lu", "iterative")
-
-
-def default_linear_solver() -> str:
-    """"lu" when JAX's default backend is the CPU, else "iterative".
-
-    The LU lives on the host and is reached through ``jax.pure_callback``,
-    which fails when JAX sees only an accelerator (``JAX_PLATFORMS=cuda``);
-    the iterative solve (`krylov`) is pure JAX and runs where the rest does.
-    """
-    return "lu" if jax.default_backend() == "cpu" else "iterative"
-
-
-def held_at_mounted(x, geometry: fk.Geometry, params: fk.KernelInputs):
-    """``x`` on the free nodes, the held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.mounted_nodes(geometry, params)
-    free = geometry.free[..., None]
-    return free * x + (1.0 - free) * mounted
-
-
-@partial(jax.jit, static_argnames=("physics",))
-def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
-    """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
-
-    The first is zero on held nodes (the residual is); the second, the
-    motion of the held nodes with the rib parameters, is zero on free ones.
-    """
-    physics = fk.static_physics(physics)
-
-    def response(p):
-        nodes = held_at_mounted(x, geometry, p)
-        return fk.residual(nodes, fk.prepare(geometry, p, physics), p, physics), nodes
-
-    _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))
-    return -dr, (1.0 - geometry.free[..., None]) * dnodes
-
-
-@stored_jit(static_argnames=("physics",))
-def _batched_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
-    """`parameter_rhs` of a batch of tangents (a leading axis on every leaf of ``dparams``): one
-    program, ``jax.vmap(parameter_rhs)``, that a caller holding the batch as arrays calls at top
-    level, so that it compiles ahead (`batched_rhs_task`) and is found in the persistent cache
-    without batching a traced program in every process."""
-    return jax.vmap(partial(parameter_rhs, physics=physics), in_axes=(None, None, None, 0))(
-        x, geometry, params, dparams)
+#: Runs concrete host work at top level, outside a caller's transformation (see
+#: `custom_jvp.differentiable_solution`); a JAX without ``jax.core.eval_context`` runs it under the
+#: caller's trace: the same result, with the programs compiled twice.
+top_level = getattr(jax.core, "eval_context", contextlib.nullcontext)
 
 
 def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, n_tangents: int):
-    """``(key, task)`` for `ahead.Ahead.submit`: compile `_batched_rhs` for ``n_tangents`` tangents at
+    """``(key, task)`` for `compilation.Ahead.submit`: compile `rhs.batched_rhs` for ``n_tangents`` tangents at
     an equilibrium on ``geometry``'s grid, as `HostLU.direct_tangent` then calls it (every leaf
     batched, float64 and strongly typed), and trace the
     one-tangent function that its ``custom_vmap`` traces before batching (`_callback_tangent`)."""
-    from ..compilation.ahead import compiling, signature
-
     physics = fk.static_physics(physics)
     x = jax.ShapeDtypeStruct(tuple(geometry.free.shape) + (3,), jnp.float64)
     dparams = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((n_tangents,) + tuple(np.shape(a)),
                                                                     jnp.result_type(a)), params)
     key = ("tangents", signature(x, geometry, params), physics, n_tangents)
-    compile_rhs = compiling(_batched_rhs, x, geometry, params, dparams, physics)
+    compile_rhs = compiling(batched_rhs, x, geometry, params, dparams, physics)
     # `HostLU.direct_tangent`'s custom_vmap traces its one-tangent function (`_callback_tangent`)
     # before it batches it: trace it here, so that the call finds its trace in JAX's cache.
     n_free = 3 * int(np.count_nonzero(np.asarray(geometry.free) > 0.5))
@@ -145,7 +101,7 @@ def expected_tangents() -> int | None:
 def forward_only(n_tangents: int | None = None):
     """Within: the "lu" implicit tangent need not be transposable, and under a top-level ``jax.vmap``
     (``jax.jacfwd``'s batching of ``jax.jvp``) it is computed on the concrete batch of tangents:
-    one `_batched_rhs` program and one host back-solve of all its columns with the LU, no host
+    one `rhs.batched_rhs` program and one host back-solve of all its columns with the LU, no host
     callback and no ``custom_linear_solve``.
 
     For callers that take forward-mode derivatives only (the design's ``vmap(jvp)`` Jacobian,
@@ -169,19 +125,10 @@ def forward_only(n_tangents: int | None = None):
         _FORWARD_ONLY.reset(token)
 
 
-@partial(jax.jit, static_argnames=("physics",))
-def jacobian_matvec(x, geometry: fk.Geometry, params: fk.KernelInputs, v, physics: fk.Physics):
-    """``J v`` on the free dofs and ``v`` on the held ones (the operator of the linear solve)."""
-    physics = fk.static_physics(physics)
-    ref = fk.prepare(geometry, params, physics)
-    free = ref.free
-    return jax.jvp(lambda y: fk.residual(y, ref, params, physics), (x,), (free * v,))[1] + (1.0 - free) * v
-
-
 def _float64_on_this_thread() -> None:
     """Let a host callback return float64 when XLA runs it on one of its own threads.
 
-    `_precision.float64_scope` turns float64 on for the calling thread only.
+    `precision.float64_scope` turns float64 on for the calling thread only.
     XLA may run a ``jax.pure_callback`` on a worker thread of its own, where
     JAX then canonicalises the callback's float64 result to float32 and
     rejects it ("Incorrect output dtype"). On such a thread (float64 off)
@@ -340,13 +287,13 @@ class HostLU:
         self.token = jax.device_put(np.int32(token))  # 32 bits: unchanged whether float64 is on or off
 
     @classmethod
-    def at(cls, x, geometry, params, physics, factor=None) -> "HostLU":
+    def at(cls, x, geometry, params, physics, factor=None, permc_spec: str = PERMC_SPEC) -> "HostLU":
         """The LU at ``x`` (a JAX array): ``factor`` (a `jacobian.JacobianFactor`) when it is current,
-        else a fresh one."""
+        else a fresh one (SuperLU with the column ordering ``permc_spec``)."""
         if factor is not None and factor.current:
             return cls(factor.lu, np.asarray(factor.free_dofs), x)
         ref = prepare_compiled(geometry, params, fk.static_physics(physics))
-        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=PERMC_SPEC)
+        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=permc_spec)
         return cls(lu, free_dofs(ref), x)
 
     def host_solve(self, b, trans: str):
@@ -369,7 +316,7 @@ class HostLU:
     def direct_tangent(self, x, geometry, params, dparams, physics):
         """The tangent as `tangent`, not transposable. Batched by a top-level ``jax.vmap`` (whose
         custom batching rule sees the batch as arrays), the right-hand sides come from one
-        `_batched_rhs` program and the LU back-solves them all in one host call; otherwise (one
+        `rhs.batched_rhs` program and the LU back-solves them all in one host call; otherwise (one
         tangent, or under an enclosing trace) `parameter_rhs` and the host callback solve, traced."""
 
         def traced(dparams):  # a compiled function: its trace is cached (custom_vmap traces it per call)
@@ -386,7 +333,7 @@ class HostLU:
             dparams = jax.tree_util.tree_map(
                 lambda a, b: np.asarray(a) if b else np.broadcast_to(np.asarray(a), (axis_size,) + np.shape(a)),
                 dparams, in_batched[0])
-            b, dheld = _batched_rhs(x, geometry, params, dparams, physics)
+            b, dheld = batched_rhs(x, geometry, params, dparams, physics)
             flat = np.asarray(b, np.float64).reshape(axis_size, -1)
             out = np.zeros_like(flat)
             out[:, self.free_host] = self.host_solve(flat[:, self.free_host], "N")
@@ -395,68 +342,133 @@ class HostLU:
         return solve(dparams)
 
 
-class Krylov:
-    """Matrix-free block-Jacobi BiCGStab in JAX (`krylov`); traceable under ``jax.jit`` and ``jax.vmap``."""
+@dataclass(frozen=True)
+class SparseLU:
+    """The implicit tangent's linear solver on the host: scipy's sparse LU of ``J`` (`HostLU`).
 
-    name = "iterative"
-
-    def tangent(self, x, geometry, params, dparams, physics):
-        """`ImplicitAdjoint.tangent` by BiCGStab: the right-hand side, the transposable solve, the held
-        nodes' motion."""
-        b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
-        return _krylov_solve(x, geometry, params, b, dheld, fk.static_physics(physics))
-
-
-@partial(jax.jit, static_argnames=("physics",))
-def _krylov_solve(x, geometry, params, b, dheld, physics):
-    """``J^-1 b + dheld`` by BiCGStab, transposable (the held nodes' motion added in the program: an
-    eager addition was one more compilation in a fresh process)."""
-    matvec, preconditioner, transposed_preconditioner = jacobian_operator(x, geometry, params, physics)
-
-    def solver(precondition):
-        def solve(operator, r):
-            out, _ = bicgstab(operator, r, tol=KRYLOV_RTOL, atol=0.0, maxiter=KRYLOV_MAX_ITERATIONS,
-                              M=precondition)
-            return out
-        return solve
-
-    return jax.lax.custom_linear_solve(matvec, b, solve=solver(preconditioner),
-                                       transpose_solve=solver(transposed_preconditioner)) + dheld
-
-
-class ImplicitAdjoint:
-    """The implicit derivative at one equilibrium, with a pluggable linear solver.
+    A Newton solve's own factor (`Solution.factor`) is reused when it is
+    current; otherwise ``J`` is assembled (`jacobian.assemble_jacobian`) and
+    factorised. It needs concrete values and a CPU backend (a host callback),
+    so it refuses ``jax.jit`` and ``jax.vmap``. The shortcut
+    ``linear_solver="lu"`` names the default value.
 
     Args:
-        x: ``(n_span, n_contour, 3)`` equilibrium nodes, m (concrete, or
-            traced under ``jax.jit`` for the "iterative" solver).
-        geometry: the bay's `forces.Geometry`.
-        params: the kernel parameters of the equilibrium.
-        physics: static switches.
-        linear_solver: "lu" (`HostLU`) or "iterative" (`Krylov`).
-        factor: a `jacobian.JacobianFactor` of ``J`` at ``x`` to reuse ("lu").
+        permc_spec: SuperLU's column ordering of a fresh factor (`jacobian.PERMC_SPEC`).
     """
 
-    def __init__(self, x, geometry, params, physics, linear_solver: str = "lu", factor=None):
+    permc_spec: str = PERMC_SPEC
+    name: ClassVar[str] = "lu"
+
+    def bind(self, x, geometry, params, physics, factor=None) -> HostLU:
+        """The LU at the equilibrium ``x`` (``factor``, a `jacobian.JacobianFactor`, when current)."""
+        return HostLU.at(x, geometry, params, physics, factor, self.permc_spec)
+
+    def check_traceable(self, where: str) -> None:
+        """Refuse ``jax.jit`` / ``jax.vmap`` (a host sparse LU needs concrete values)."""
+        raise TypeError(f"linear_solver='lu' needs concrete values (a host sparse LU); {where} use "
+                        "linear_solver='iterative' or None")
+
+
+#: The linear solvers by shortcut name: the host sparse LU, or matrix-free BiCGStab in JAX.
+LINEAR_SOLVERS = {"lu": SparseLU(), "iterative": BiCGStab()}
+
+
+def default_linear_solver():
+    """`SparseLU` when JAX's default backend is the CPU, else `krylov.BiCGStab`.
+
+    The LU lives on the host and is reached through ``jax.pure_callback``,
+    which fails when JAX sees only an accelerator (``JAX_PLATFORMS=cuda``);
+    the iterative solve (`krylov`) is pure JAX and runs where the rest does.
+    """
+    return LINEAR_SOLVERS["lu" if jax.default_backend() == "cpu" else "iterative"]
+
+
+def as_linear_solver(linear_solver):
+    """The linear solver value of ``linear_solver``: a value as it is, a shortcut name
+    (`LINEAR_SOLVERS`), or None for the backend's default (`default_linear_solver`).
+
+    Raises:
+        ValueError: for an unknown name.
+    """
+    if linear_solver is None:
+        return default_linear_solver()
+    if isinstance(linear_solver, str):
         if linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(f"linear_solver must be one of {LINEAR_SOLVERS}, got {linear_solver!r}")
-        self.x = x
-        self.geometry = geometry
-        self.params = params
-        self.physics = fk.static_physics(physics)
-        self.linear_solver = linear_solver
-        self.solver = (HostLU.at(x, geometry, params, self.physics, factor) if linear_solver == "lu"
-                       else Krylov())
+            raise ValueError(f"linear_solver must be one of {tuple(LINEAR_SOLVERS)} or None, got {linear_solver!r}")
+        return LINEAR_SOLVERS[linear_solver]
+    return linear_solver
+
+
+class ImplicitTangent:
+    """The implicit rule at one equilibrium ``x``: `tangent` maps a kernel-parameter tangent to ``dx*``."""
+
+    def __init__(self, solver, x, geometry, params, physics):
+        self.solver, self.x, self.geometry, self.params, self.physics = solver, x, geometry, params, physics
 
     def tangent(self, dparams: fk.KernelInputs):
         """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
         return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(0,))
-def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.KernelInputs, converged):
-    """The equilibrium ``x`` (returned as is), differentiable in ``params`` by `ImplicitAdjoint`
-    with the "iterative" solver (pure JAX: under ``jax.jit`` and ``jax.vmap``).
+@dataclass(frozen=True)
+class ImplicitAdjoint:
+    """Derivatives of an equilibrium by the implicit function theorem (module docstring).
+
+    Args:
+        linear_solver: `SparseLU` ("lu"), `krylov.BiCGStab` ("iterative"), or
+            None: the backend's default (`default_linear_solver`; under
+            ``jax.jit`` / ``jax.vmap``, BiCGStab).
+    """
+
+    linear_solver: object = None
+    name: ClassVar[str] = "implicit"
+
+    def solver(self):
+        """The linear solver value (None resolved by the backend)."""
+        return as_linear_solver(self.linear_solver)
+
+    def at(self, x, geometry, params, physics, factor=None) -> ImplicitTangent:
+        """The rule at the equilibrium ``x`` (``factor``: a `jacobian.JacobianFactor` of ``J`` at ``x``
+        that the LU reuses)."""
+        physics = fk.static_physics(physics)
+        return ImplicitTangent(self.solver().bind(x, geometry, params, physics, factor), x, geometry, params,
+                               physics)
+
+    def primal(self, scene, parameters, solve, rtol: float, max_steps: int):
+        """The concrete solve whose equilibrium is differentiated: ``solve(parameters)``."""
+        del scene, rtol, max_steps
+        return solve(parameters)
+
+    def jvp(self, scene, parameters, dparameters, concrete, solution, max_steps: int):
+        """``(nodes, tangent)`` of the equilibrium ``solution`` at ``concrete`` (the primal values of
+        ``parameters``) along ``dparameters``; NaN where it did not converge."""
+        del parameters, max_steps
+        if not solution.converged:
+            # No equilibrium, no implicit derivative: the caller sees the failure (throw) or
+            # gets the failed solution, whose tangent is undefined.
+            nan = jnp.full(solution.nodes.shape, jnp.nan)
+            return jnp.asarray(solution.nodes), nan
+        with top_level():  # concrete: the LU (a fresh one after chord Newton) as a plain call
+            params = scene.params(concrete)
+            x = jnp.asarray(solution.nodes)
+            rule = self.at(x, scene.bay.geometry(), params, scene.physics(dynamic=False), solution.factor)
+        return x, rule.tangent(kernel_tangent(dparameters, params))
+
+    def traced_solver(self, where: str):
+        """The linear solver under ``jax.jit`` / ``jax.vmap`` (None: BiCGStab); a TypeError for the LU."""
+        solver = BiCGStab() if self.linear_solver is None else as_linear_solver(self.linear_solver)
+        solver.check_traceable(where)
+        return solver
+
+    def describe(self) -> dict:
+        """The `Solution.extra` entries of a derivative taken this way."""
+        return {"adjoint": self.name, "linear_solver": self.solver().name}
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0, 1))
+def implicit_nodes(solver, physics: fk.Physics, x, geometry: fk.Geometry, params: fk.KernelInputs, converged):
+    """The equilibrium ``x`` (returned as is), differentiable in ``params`` by the implicit rule with the
+    pure-JAX linear solver ``solver`` (a `krylov.BiCGStab`: under ``jax.jit`` and ``jax.vmap``).
 
     ``x`` must be the equilibrium at ``params`` computed without derivatives
     (under ``jax.lax.stop_gradient``); its own tangent and the geometry's are
@@ -468,8 +480,7 @@ def implicit_nodes(physics: fk.Physics, x, geometry: fk.Geometry, params: fk.Ker
 
 
 @implicit_nodes.defjvp
-def _implicit_nodes_jvp(physics, primals, tangents):
+def _implicit_nodes_jvp(solver, physics, primals, tangents):
     x, geometry, params, converged = primals
-    dx = ImplicitAdjoint(x, geometry, params, physics, "iterative").tangent(tangents[2])
+    dx = solver.tangent(x, geometry, params, tangents[2], fk.static_physics(physics))
     return x, jnp.where(converged, dx, jnp.nan)
-

@@ -1,10 +1,10 @@
 """The implicit tangent without a matrix: ``J dx = -dR/dtheta . dtheta`` by preconditioned BiCGStab in JAX.
 
-The "lu" solver of `implicit` factorises the sparse Jacobian with scipy and
-reaches it through ``jax.pure_callback``: it needs concrete values and a CPU
-backend. This module holds the operator and preconditioner with which the
-"iterative" solver (`implicit.Krylov`) solves the same linear system with
-JAX alone, so it runs under ``jax.jit`` and ``jax.vmap``, on any backend:
+The "lu" solver of `implicit` (`implicit.SparseLU`) factorises the sparse
+Jacobian with scipy and reaches it through ``jax.pure_callback``: it needs
+concrete values and a CPU backend. `BiCGStab`, the "iterative" solver, solves
+the same linear system with JAX alone, so it runs under ``jax.jit`` and
+``jax.vmap``, on any backend:
 
 * the operator is matrix-free: ``J v`` is one ``jax.jvp`` of
   `forces.residual` (eq. 10-15) at the equilibrium ``x*``, on the full node
@@ -36,22 +36,28 @@ relative residual ``||J dx - b|| / ||b||`` of 1e-10, for the pressure
 tangent's right-hand side: 242 on 9x32, 336 on 17x64, 666 on 17x128
 (scalar Jacobi: 364, 744, 1106); for a random one 308, 466, 810 (scalar
 376, 804, 1150). `KRYLOV_RTOL` = 1e-10 keeps the linear-solve error far
-below the equilibrium's own (`adjoint.GRADIENT_RTOL`); the gradients agree
+below the equilibrium's own (`custom_jvp.GRADIENT_RTOL`); the gradients agree
 with the host LU's to about 1e-10 relative on 9x32.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import partial
+from typing import ClassVar
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.sparse.linalg import bicgstab
 
 from .. import forces as fk
+from .rhs import parameter_rhs
 
-__all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "jacobian_operator"]
+__all__ = ["KRYLOV_RTOL", "KRYLOV_MAX_ITERATIONS", "BiCGStab", "jacobian_operator"]
 
 #: Relative residual ``||J dx - b|| / ||b||`` the BiCGStab solve stops at:
-#: well below the equilibrium's own error (`adjoint.GRADIENT_RTOL`) in the tangent.
+#: well below the equilibrium's own error (`custom_jvp.GRADIENT_RTOL`) in the tangent.
 KRYLOV_RTOL = 1e-10
 #: Cap on BiCGStab iterations (two matrix-vector products each); about ten
 #: times what 17x128 needs.
@@ -104,3 +110,52 @@ def jacobian_operator(x, geometry, params, physics):
         return jnp.einsum("nmcr,nmc->nmr", inverse, v)
 
     return matvec, preconditioner, transposed_preconditioner
+
+
+@dataclass(frozen=True)
+class BiCGStab:
+    """The implicit tangent's linear solver without a matrix: block-Jacobi BiCGStab in JAX (module docstring).
+
+    No host callback, so it runs under ``jax.jit`` and ``jax.vmap`` and on any
+    backend; the shortcut ``linear_solver="iterative"`` names the default value.
+
+    Args:
+        rtol: relative residual ``||J dx - b|| / ||b||`` to stop at.
+        max_iterations: cap on iterations (two matrix-vector products each).
+    """
+
+    rtol: float = KRYLOV_RTOL
+    max_iterations: int = KRYLOV_MAX_ITERATIONS
+    name: ClassVar[str] = "iterative"
+
+    def bind(self, x, geometry, params, physics, factor=None) -> "BiCGStab":
+        """The solver at one equilibrium: itself (it keeps nothing per equilibrium; ``factor`` is the LU's)."""
+        del x, geometry, params, physics, factor
+        return self
+
+    def check_traceable(self, where: str) -> None:
+        """Nothing to refuse: it runs under ``jax.jit`` and ``jax.vmap`` (`implicit.SparseLU` cannot)."""
+
+    def tangent(self, x, geometry, params, dparams, physics):
+        """``dx*`` at the equilibrium ``x`` for a kernel-parameter tangent: the right-hand side
+        (`rhs.parameter_rhs`), the transposable solve, the held nodes' motion."""
+        b, dheld = parameter_rhs(x, geometry, params, dparams, physics)
+        return _krylov_solve(x, geometry, params, b, dheld, fk.static_physics(physics), self)
+
+
+@partial(jax.jit, static_argnames=("physics", "solver"))
+def _krylov_solve(x, geometry, params, b, dheld, physics, solver: BiCGStab):
+    """``J^-1 b + dheld`` by BiCGStab, transposable (the held nodes' motion added in the program: an
+    eager addition was one more compilation in a fresh process)."""
+    matvec, preconditioner, transposed_preconditioner = jacobian_operator(x, geometry, params, physics)
+
+    def solve_with(precondition):
+        def solve(operator, r):
+            out, _ = bicgstab(operator, r, tol=solver.rtol, atol=0.0, maxiter=solver.max_iterations,
+                              M=precondition)
+            return out
+        return solve
+
+    return jax.lax.custom_linear_solve(matvec, b, solve=solve_with(preconditioner),
+                                       transpose_solve=solve_with(transposed_preconditioner)) + dheld
+

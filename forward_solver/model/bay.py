@@ -19,12 +19,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from targets.airfoil import common_trailing_edge
+from targets import common_trailing_edge
 
 from ..precision import device_arrays, float64_scope
 from ..forces import Geometry, nominal_nodes, surface_area
 
-__all__ = ["Bay"]
+__all__ = ["Bay", "N_SPAN", "N_CONTOUR"]
+
+#: Default grid of a bay, nodes along the span (ribs included) and around the contour: the
+#: ``optimise-pressure`` command's, and every builder's (`Bay.from_airfoil`, `Wing.bays`, `solve_wing`).
+N_SPAN = 17
+N_CONTOUR = 64
 
 _MIN_SPAN = 3
 _MIN_CONTOUR_CLOSED = 12
@@ -125,6 +130,12 @@ class Bay:
         """Mean chord of the two ribs, m (the length that errors are reported against)."""
         return 0.5 * (self.chord_root + self.chord_tip)
 
+    @property
+    def divergence_bound(self) -> float:
+        """Largest displacement (m) of a node from its mounted position before a solve stops as
+        ``diverged`` (`Result.diverged`): the chord plus the rib spacing, far beyond any rest shape."""
+        return self.chord + self.rib_spacing
+
     # ------------------------------------------------------------------ builders
     @classmethod
     def from_airfoil(
@@ -132,8 +143,8 @@ class Bay:
         airfoil,
         chord: float = 1.0,
         rib_spacing: float = 0.25,
-        n_span: int = 17,
-        n_contour: int = 128,
+        n_span: int = N_SPAN,
+        n_contour: int = N_CONTOUR,
         fix_trailing_edge: bool = True,
         tip_airfoil=None,
         tip_chord: float | None = None,

@@ -19,12 +19,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import jax
 import numpy as np
 
-__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES", "PARAMETER_UNITS",
+__all__ = ["Parameters", "PARAMETER_NAMES", "SHAPE_NAMES", "FIELD_NAMES",
            "as_parameters", "bay_parameters", "ParameterViews"]
 
 Scalar = Any  # a Python float, a numpy or JAX scalar, or a JAX tracer
@@ -49,21 +49,6 @@ SHAPE_NAMES = ("rib_shape", "rib_shape_tip")
 FIELD_NAMES = ("cut_pattern",)
 
 _ARRAY_NAMES = SHAPE_NAMES + FIELD_NAMES
-
-#: Unit of each parameter, for messages and reports.
-PARAMETER_UNITS = {
-    "pressure": "Pa",
-    "prestrain_span": "",
-    "prestrain_chord": "",
-    "stiffness_span": "N/m",
-    "stiffness_chord": "N/m",
-    "rib_thickness_scale": "",
-    "rib_chord_scale": "",
-    "rib_shape": "chord",
-    "rib_shape_tip": "chord",
-    "cut_pattern": "",
-}
-
 
 @dataclass(frozen=True, eq=False)
 class Parameters:
@@ -153,15 +138,6 @@ class Parameters:
     def rib_shapes(self) -> tuple:
         """``(root, tip)`` rib-shape coefficients (the tip takes the root's unless set; None: unchanged)."""
         return (self.rib_shape, self.rib_shape if self.rib_shape_tip is None else self.rib_shape_tip)
-
-    @classmethod
-    def from_mapping(cls, values: Mapping) -> "Parameters":
-        """From ``{name: value}``; unknown names raise a ValueError naming them."""
-        unknown = sorted(set(values) - set(PARAMETER_NAMES + _ARRAY_NAMES))
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown}; the parameters are "
-                             f"{PARAMETER_NAMES + _ARRAY_NAMES}")
-        return cls(**values)
 
     def is_traced(self) -> bool:
         """Whether any value is a JAX tracer (the solve is being transformed)."""
@@ -309,22 +285,19 @@ def _pair(value, name: str) -> tuple:
     return value, value
 
 
-def as_parameters(parameters=None, prestrain=None, *, pressure=None, stiffness=None,
-                  rib_thickness_scale=None, rib_chord_scale=None) -> Parameters:
-    """The one place loose keyword values become `Parameters` (the public solvers' boundary).
+def as_parameters(parameters=None, prestrain=None, *, pressure=None) -> Parameters:
+    """The one place loose values become `Parameters` (the public solvers' boundary).
 
-    Either ``parameters`` is a `Parameters` and nothing else is given, or the
-    loose values are: ``parameters`` (or ``pressure``) the pressure in Pa,
-    ``prestrain`` ``(span, chord)`` or one number, ``stiffness`` ``(span,
-    chord)`` N/m, the rib scales.
+    Either ``parameters`` is a `Parameters` and nothing else is given, or
+    ``parameters`` (or ``pressure``) is the pressure in Pa and ``prestrain``
+    ``(span, chord)`` or one number; every other field takes its default
+    (stiffnesses and rib scales travel in a `Parameters`).
 
     Raises:
         ValueError: for both forms at once, or no pressure.
     """
-    loose = {"prestrain": prestrain, "pressure": pressure, "stiffness": stiffness,
-             "rib_thickness_scale": rib_thickness_scale, "rib_chord_scale": rib_chord_scale}
     if isinstance(parameters, Parameters):
-        given = [k for k, v in loose.items() if v is not None]
+        given = [k for k, v in {"prestrain": prestrain, "pressure": pressure}.items() if v is not None]
         if given:
             raise ValueError(f"give either a Parameters or loose values, not both (also got {given}); "
                              "use parameters.replace(...) to change a field")
@@ -335,11 +308,7 @@ def as_parameters(parameters=None, prestrain=None, *, pressure=None, stiffness=N
     if pressure is None:
         raise ValueError("give the pressure (Pa) or a forward_solver.Parameters")
     ps, pc = _pair(0.0 if prestrain is None else prestrain, "prestrain")
-    es, ec = (None, None) if stiffness is None else _pair(stiffness, "stiffness")
-    return Parameters(pressure=pressure, prestrain_span=ps, prestrain_chord=pc, stiffness_span=es,
-                      stiffness_chord=ec,
-                      rib_thickness_scale=1.0 if rib_thickness_scale is None else rib_thickness_scale,
-                      rib_chord_scale=1.0 if rib_chord_scale is None else rib_chord_scale)
+    return Parameters(pressure=pressure, prestrain_span=ps, prestrain_chord=pc)
 
 
 def bay_parameters(parameters: Parameters, shapes, k: int, fields=None) -> Parameters:

@@ -35,6 +35,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from targets import Airfoil
+
 __all__ = ["bernstein_basis", "class_function", "rib_offsets", "rib_section", "offset_basis"]
 
 
@@ -114,8 +116,6 @@ def rib_section(airfoil, coefficients=None, thickness_scale: float = 1.0, n_poin
         n_points: points of the returned contour (Selig order).
         name: the section's name (default: the airfoil's with " rib").
     """
-    from targets import Airfoil
-
     resampled = airfoil.resample(n_points)
     x = np.asarray(resampled.x, np.float64)
     camber = np.asarray(airfoil.camber(np.clip(x, 0.0, 1.0)), np.float64)

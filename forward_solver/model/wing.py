@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from targets.airfoil import common_trailing_edge
+from targets import common_trailing_edge
 
-from .bay import Bay
+from .bay import N_CONTOUR, N_SPAN, Bay
 from .fabric import Fabric
 from .scene import Scene
 
@@ -74,7 +74,7 @@ class Wing:
     def n_bays(self) -> int:
         return len(self.airfoils) - 1
 
-    def bays(self, n_span: int = 17, n_contour: int = 64) -> list[Bay]:
+    def bays(self, n_span: int = N_SPAN, n_contour: int = N_CONTOUR) -> list[Bay]:
         """The bays, root to tip, each between ribs k and k + 1, all on one grid shape.
 
         Made once per grid shape (bays are immutable): the command, the design and its report
@@ -90,7 +90,7 @@ class Wing:
                               for k in range(self.n_bays))
         return list(made[key])
 
-    def scenes(self, fabric: Fabric, n_span: int = 17, n_contour: int = 64, **switches) -> list[Scene]:
+    def scenes(self, fabric: Fabric, n_span: int = N_SPAN, n_contour: int = N_CONTOUR, **switches) -> list[Scene]:
         """The bays as `Scene`s of one fabric and one set of physics switches (`Scene`'s keywords)."""
         return [Scene(bay, fabric, **switches) for bay in self.bays(n_span, n_contour)]
 

@@ -5,7 +5,7 @@ between its two ribs (with their sections and chords: taper), and all share
 one inflation pressure and one fabric. On a common grid shape their
 `forces.Geometry` arrays stack along a leading axis, so the relaxation of
 every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
-`relax`, as `jit_equilibrium` runs it under ``jax.vmap``) instead of a Python loop,
+`relax`, as `relax.traced_solution` runs it under ``jax.vmap``) instead of a Python loop,
 and the result is differentiable in the shared `Parameters` by the implicit
 function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
 (``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
@@ -22,45 +22,45 @@ its earlier displacement added to this solve's mounted shape (as
 `BaysSolution.bay_solution` gives one bay as a `Solution` (tensions,
 wrinkles), for reports and for comparison with `solve_equilibrium`.
 
-One forward entry, two strategies. `solve_bays` solves
-N >= 1 bays given as `Scene`s. Its "loop" strategy calls `solve_equilibrium`
-on each bay in turn (grid sequencing, half-bay symmetry, Newton and the
-factor reuse of a warm start, the host sparse LU adjoint): the faster way on
-a CPU (``benchmarks/wing_batch.py``). Its "batch" strategy is the one
-``jax.jit(jax.vmap(...))`` relaxation above with the matrix-free Krylov
-adjoint, for accelerators. "auto" picks the loop on a CPU backend and the
-batch elsewhere. Both give the same nodes within the solver tolerance.
-`solve_wing` builds the wing's scenes and calls `solve_bays`.
+One forward entry, two strategies, as values. `solve_bays` solves N >= 1
+bays given as `Scene`s. Its `Loop` strategy ("loop") calls
+`solve_equilibrium` on each bay in turn (grid sequencing, half-bay symmetry,
+Newton and the factor reuse of a warm start, the host sparse LU adjoint):
+the faster way on a CPU (``benchmarks/wing_batch.py``). Its `Batch`
+strategy ("batch") is the one ``jax.jit(jax.vmap(...))`` relaxation above
+with the matrix-free Krylov adjoint, for accelerators. "auto" picks the loop
+on a CPU backend and the batch elsewhere (`default_strategy`). Both give the
+same nodes within the solver tolerance. `solve_wing` builds the wing's
+scenes and calls `solve_bays`.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import partial
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
-from ..precision import float64_scope
 from ..derivatives.custom_jvp import nodes_only
+from ..model.bay import N_CONTOUR, N_SPAN
 from ..model.fabric import Fabric
 from ..model.parameters import Parameters, as_parameters, bay_parameters
 from ..model.scene import Scene
 from ..model.wing import Wing
-from ..solution import BaysSolution, ConvergenceError, Result, Solution, mounted_compiled
-from ..solve import METHODS, solve_equilibrium
-from .traced import relaxed_nodes
+from ..precision import float64_scope, rounding_floor
+from ..programs import mounted_compiled
+from ..solution import BaysSolution, ConvergenceError, Result, Solution
+from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
+from .methods import Relax
+from .relax import RELAX_CHUNK, relaxed_nodes
 
-__all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "STRATEGIES"]
-
-#: How `solve_bays` solves its bays: "loop" (per-bay `solve_equilibrium`), "batch" (one
-#: ``jit(vmap)`` relaxation), or "auto" (the loop on a CPU backend, the batch elsewhere).
-STRATEGIES = ("auto", "loop", "batch")
-
-#: Steps per chunk of the batched relaxation (as `solve.RELAX_CHUNK`).
-BATCH_CHUNK = 100
+__all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "Loop", "Batch", "STRATEGIES", "as_strategy",
+           "default_strategy"]
 
 #: A bay is refused when rounding its node positions to float64 can leave a relative residual
 #: (`forces.rounding_residual_floor`) above this many times ``rtol``. Measured on 5x32 NACA 2412
@@ -83,9 +83,8 @@ def _bay_equilibrium(geometry, bound, displacement, shape_root, shape_tip, field
     mounted = fk.mounted_nodes(geometry, params)
     # Held nodes (ribs, seams) start mounted; free nodes keep the warm start's displacement.
     x_init = mounted + jax.lax.stop_gradient(displacement) * geometry.free[..., None]
-    nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, BATCH_CHUNK, max_chunks,
-                               half=False)
-    return nodes, out.result, out.residual, out.chunks * BATCH_CHUNK, jax.lax.stop_gradient(mounted)
+    nodes, out = relaxed_nodes(x_init, geometry, params, rtol, bound, physics, max_chunks, half=False)
+    return nodes, out.result, out.residual, out.chunks * RELAX_CHUNK, jax.lax.stop_gradient(mounted)
 
 
 @partial(jax.jit, static_argnames=("physics", "max_chunks"))
@@ -96,7 +95,7 @@ def batched_equilibrium(geometries, bounds, displacements, shapes_root, shapes_t
                                                                     shapes_tip, fields, params, rtol)
 
 
-def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, n_contour: int = 64,
+def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = N_SPAN, n_contour: int = N_CONTOUR,
                    rtol: float = 1e-8) -> None:
     """Refuse ribs too close for the grid: a bay whose float64 rounding floor is above `ROUNDING_MARGIN`
     times ``rtol`` at these (concrete) parameters. `solve_wing` checks every concrete solve; a design
@@ -114,8 +113,6 @@ def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = 17, 
 
 
 def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> None:
-    from ..precision import rounding_floor
-
     eps = float(np.finfo(np.float64).eps)
     for k, bay in enumerate(bays):
         geometry = bay.geometry()
@@ -131,77 +128,83 @@ def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> Non
                 f"least {needed:.2g} m apart, or merge them")
 
 
-def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = 17,
-               n_contour: int = 64, rtol: float = 1e-8, max_steps: int = 200_000,
-               tension_only: bool = True, initial: BaysSolution | None = None, rib_shapes=None,
-               cut_patterns=None, strategy: str = "auto", **loose) -> BaysSolution:
+def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n_span: int = N_SPAN,
+               n_contour: int = N_CONTOUR, rtol: float = 1e-8, tension_only: bool = True, **options) -> BaysSolution:
     """Every bay of ``wing`` at one pressure: `solve_bays` of ``wing.scenes(...)``.
 
     Args:
         wing: the ribs.
         fabric: the skin's material (one for the whole wing).
-        parameters: a `Parameters` (or the pressure in Pa with ``prestrain``
-            and the other loose values of `solve_equilibrium`), shared by all
-            bays; JAX values allowed (``jax.grad`` of a function of the nodes
-            differentiates every bay implicitly).
+        parameters: a `Parameters` (or the pressure in Pa with ``prestrain``),
+            shared by all bays; JAX values allowed (``jax.grad`` of a function
+            of the nodes differentiates every bay implicitly).
         n_span, n_contour: the grid of every bay.
         rtol: relative residual each bay is solved to.
-        max_steps: step cap (per bay, per grid level on the loop).
         tension_only: the scene switch (no compression, wrinkles).
-        initial: None or an earlier `BaysSolution` of this wing on this grid
-            (a warm start, see `solve_bays`).
-        rib_shapes: None, or ``(n_ribs, 2 K)`` rib-shape coefficients, one row
-            per rib root to tip (`forward_solver.model.rib_shape`; K for the upper
-            surface, then K for the lower): bay ``k`` is mounted between rib
-            ``k``'s shape and rib ``k + 1``'s (its ``rib_shape`` and
-            ``rib_shape_tip``). JAX values allowed (differentiated like the
-            parameters). Without it every rib takes ``parameters.rib_shape``.
-        cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
-            row per bay root to tip (`forward_solver.model.cut_field`): bay ``k``'s
-            skin is cut by row ``k`` (its ``cut_pattern``). JAX values
-            allowed. Without it every bay takes ``parameters.cut_pattern``.
-        strategy: "auto", "loop" or "batch" (`solve_bays`).
+        **options: `solve_bays`'s keywords: ``max_steps``, ``method``,
+            ``initial`` (an earlier `BaysSolution` of this wing on this grid),
+            ``rib_shapes`` (``(n_ribs, 2 K)``, one row per rib root to tip,
+            `forward_solver.model.rib_shape`: bay ``k`` is mounted between rib
+            ``k``'s shape and rib ``k + 1``'s), ``cut_patterns`` (``(n_bays, 2
+            K)``, one row per bay, `forward_solver.model.cut_field`),
+            ``strategy``, ``throw`` and method knobs.
 
     Returns:
         A `BaysSolution`. A failed bay is reported by its result code, not
         raised; its nodes are NaN (the implicit fixed point is undefined).
 
     Raises:
-        ValueError: for a bad ``rtol`` or ``max_steps``, an ``initial`` of
-            another wing or grid, ``rib_shapes`` or ``cut_patterns`` of the wrong shape, or ribs
-            too close for the grid to reach ``rtol`` (`ROUNDING_MARGIN`; the
-            message names the ribs, their gap and the least gap that works).
+        ValueError: as `solve_bays`, or for ribs too close for the grid to
+            reach ``rtol`` (`ROUNDING_MARGIN`; the message names the ribs,
+            their gap and the least gap that works).
     """
-    given = as_parameters(parameters, prestrain, **loose)
+    given = as_parameters(parameters, prestrain)
     if not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(given)):
         check_rib_gaps(wing, fabric, given, n_span=n_span, n_contour=n_contour, rtol=rtol)  # (a design
         # loop, whose solves are traced, checks its start itself)
-    return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given,
-                      rtol=rtol, max_steps=max_steps, initial=initial, rib_shapes=rib_shapes,
-                      cut_patterns=cut_patterns, strategy=strategy)
+    return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given, rtol=rtol,
+                      **options)
 
 
 def default_strategy() -> str:
-    """"loop" when JAX's default backend is the CPU, else "batch" (`solve_bays`)."""
+    """"loop" when JAX's default backend is the CPU, else "batch": the name of the strategy "auto" takes."""
     return "loop" if jax.default_backend() == "cpu" else "batch"
 
 
-def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, max_steps: int = 200_000,
-               method: str = "relax", initial: BaysSolution | None = None, rib_shapes=None,
-               cut_patterns=None, strategy: str = "auto", throw: bool = False, linear_solver: str | None = None,
-               sequencing: bool = True, **loose) -> BaysSolution:
+def as_strategy(strategy):
+    """The strategy value of ``strategy``: a value as it is, or a shortcut name (`STRATEGIES`, or "auto":
+    `default_strategy`'s).
+
+    Raises:
+        ValueError: for an unknown name.
+    """
+    if isinstance(strategy, str):
+        if strategy not in ("auto", *STRATEGIES):
+            raise ValueError(f"strategy must be one of {('auto', *STRATEGIES)}, got {strategy!r}")
+        return STRATEGIES[default_strategy() if strategy == "auto" else strategy]
+    return strategy
+
+
+#: Keywords `solve_bays` took once, and where they live now.
+_MOVED = {**MOVED, "linear_solver": "it is a knob of the loop's implicit derivative: "
+                                    "strategy=Loop(adjoint=ImplicitAdjoint(linear_solver=...))"}
+
+
+def solve_bays(scenes, parameters=None, *, rtol: float = 1e-8, max_steps: int = 200_000, method="relax",
+               initial: BaysSolution | None = None, rib_shapes=None, cut_patterns=None, strategy="auto",
+               throw: bool = False, **knobs) -> BaysSolution:
     """The equilibrium of N >= 1 bays sharing one `Parameters`; differentiable like `solve_equilibrium`.
 
     Args:
         scenes: one `Scene` per bay, root to tip: one fabric, the same physics
             switches and the same grid shape.
-        parameters: a `Parameters`, or the pressure in Pa with ``prestrain``
-            and the loose values of `solve_equilibrium` (``**loose``); JAX
-            values allowed (``jax.grad``, ``jax.vjp``, ``jax.jvp``).
+        parameters: a `Parameters`, or the pressure in Pa; JAX values allowed
+            (``jax.grad``, ``jax.vjp``, ``jax.jvp``).
         rtol: relative residual ``||R_free|| / (p A)`` each bay is solved to.
         max_steps: step cap (per bay and grid level on the loop; for the
             whole batch, which runs until its slowest bay stops).
-        method: as `solve_equilibrium`'s (the loop); the batch runs "relax".
+        method: as `solve_equilibrium`'s (the loop); the batch runs
+            `methods.Relax`.
         initial: None, or an earlier `BaysSolution` of these bays on this
             grid (not differentiated). The loop passes each bay its earlier
             `Solution` where it has one (so "relax+newton" first tries chord
@@ -213,16 +216,15 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
             row per bay (its ``cut_pattern``, `forward_solver.model.cut_field`).
             JAX values allowed.
-        strategy: "loop" (per-bay `solve_equilibrium`: grid sequencing,
-            half-bay symmetry, Newton and factor reuse, host sparse LU
-            adjoint), "batch" (one ``jax.jit(jax.vmap(...))`` relaxation,
-            matrix-free Krylov adjoint), or "auto" (`default_strategy`).
+        strategy: `Loop` ("loop": per-bay `solve_equilibrium`: grid
+            sequencing, half-bay symmetry, Newton and factor reuse, its
+            ``adjoint``), `Batch` ("batch": one ``jax.jit(jax.vmap(...))``
+            relaxation, matrix-free Krylov adjoint), or "auto"
+            (`default_strategy`).
         throw: raise `ConvergenceError` (naming the first failed bay) instead
             of returning the failure codes.
-        linear_solver: the loop's implicit-derivative solver ("lu",
-            "iterative" or None, as `solve_equilibrium`'s).
-        sequencing: the loop's grid sequencing of cold starts (as
-            `solve_equilibrium`'s; small grids compile faster without).
+        **knobs: set on the method where it has them (`solve.as_method`), e.g.
+            ``sequencing=False`` (small grids compile faster without).
 
     Returns:
         A `BaysSolution`; ``solutions`` holds the loop's per-bay `Solution`s.
@@ -232,24 +234,22 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         ValueError: for scenes that differ in fabric, switches or grid, bad
             ``rtol``, ``max_steps``, ``method``, ``strategy``, ``initial``,
             ``rib_shapes`` or ``cut_patterns``.
+        TypeError: for a knob no method has (one that moved names its place).
         ConvergenceError: if ``throw`` and a bay failed.
     """
+    refuse_moved("solve_bays", {k: v for k, v in knobs.items() if k not in METHOD_KNOBS}, _MOVED)
     scenes = list(scenes) if not isinstance(scenes, Scene) else [scenes]
     _check_scenes(scenes)
     first = scenes[0]
-    parameters = as_parameters(parameters, prestrain, **loose).resolved(first.fabric)
+    parameters = as_parameters(parameters).resolved(first.fabric)
     first.check_parameters(parameters)
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
         raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
     if not (isinstance(max_steps, int) and max_steps >= 1):
         raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if strategy not in STRATEGIES:
-        raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
-    strategy = default_strategy() if strategy == "auto" else strategy
-    if strategy == "batch" and method != "relax":
-        raise ValueError(f"the batch strategy runs method='relax' only, got {method!r}: use strategy='loop'")
+    method = as_method(method, **knobs)
+    strategy = as_strategy(strategy)
+    strategy.check_method(method)
     n_bays = len(scenes)
     if parameters.rib_shape_tip is not None and n_bays > 1:
         raise ValueError("rib_shape_tip has no meaning for a whole wing: give every rib's shape as "
@@ -269,12 +269,11 @@ def solve_bays(scenes, parameters=None, prestrain=None, *, rtol: float = 1e-8, m
         if not np.all(np.isfinite(np.asarray(initial.displacements()))):
             raise ValueError("initial holds a bay that did not converge (NaN nodes); start that "
                              "solve from the mounted shape (initial=None)")
-    solve = _loop if strategy == "loop" else _batch
     with float64_scope(parameters, rib_shapes, cut_patterns):
         shapes = None if rib_shapes is None else jnp.asarray(rib_shapes, jnp.float64)
         fields = None if cut_patterns is None else jnp.asarray(cut_patterns, jnp.float64)
-        sol = solve(scenes, parameters, shapes, fields, rtol=rtol, max_steps=max_steps, method=method,
-                    initial=initial, linear_solver=linear_solver, sequencing=sequencing)
+        sol = strategy.solve(scenes, parameters, shapes, fields, rtol=rtol, max_steps=max_steps, method=method,
+                             initial=initial)
     if throw and not isinstance(sol.result, jax.core.Tracer):
         failed = sol.failed_bays()
         if failed:
@@ -334,63 +333,77 @@ def _concrete_solution(solution: Solution) -> Solution:
     """A `Solution` returned under eager ``jax.grad`` with its primal (concrete) nodes and tensions."""
     if not isinstance(solution.nodes, jax.core.Tracer) or "primal_nodes" not in solution.extra:
         return solution
-    # Solved under `adjoint.nodes_only`: the tensions are the concrete solve's already.
+    # Solved under `custom_jvp.nodes_only`: the tensions are the concrete solve's already.
     nodes = jnp.asarray(solution.extra["primal_nodes"], jnp.float64)
     extra = {k: v for k, v in solution.extra.items() if k != "primal_nodes"}
-    return Solution(nodes=np.asarray(nodes), tension_span=np.asarray(solution.tension_span),
-                    tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled),
-                    result=solution.result, steps=solution.steps, residual=solution.residual,
-                    wall_time=solution.wall_time, method=solution.method, parameters=solution.parameters,
-                    rib_spacing=solution.rib_spacing, history=solution.history, extra=extra,
-                    detail=solution.detail, factor=solution.factor)
+    return solution.replace(nodes=np.asarray(nodes), tension_span=np.asarray(solution.tension_span),
+                            tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled),
+                            extra=extra)
 
 
-def _loop(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
-          sequencing=True) -> BaysSolution:
-    """The "loop" strategy: `solve_equilibrium` on each bay (float64 scope on)."""
-    solutions, nodes, mounted = [], [], []
-    moved = None if initial is None or initial.solutions is not None else initial.displacements()
-    for k, scene in enumerate(scenes):
-        p = bay_parameters(parameters, shapes, k, fields)
-        rest = _mounted(scene, p)
-        if initial is None:
-            start = None
-        elif initial.solutions is not None:
-            start = initial.solutions[k]
-        else:  # a batch's solution: its displacement on this solve's mounted shape
-            start = rest + jnp.asarray(moved[k], jnp.float64)
-        with nodes_only():  # the tensions returned are the primal's (`_concrete_solution`)
-            sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
-                                    throw=False, linear_solver=linear_solver, sequencing=sequencing)
-        traced = bool(sol.extra.get("traced"))
-        if traced:  # under jax.jit / vmap: result codes are arrays
-            x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
-        elif sol.converged:
-            x = sol.nodes
+@dataclass(frozen=True)
+class Loop:
+    """The "loop" strategy: `solve_equilibrium` on each bay in turn (float64 scope on).
+
+    Every method, grid sequencing, half-bay symmetry, Newton and the factor
+    reuse of a warm start: the faster way on a CPU.
+
+    Args:
+        adjoint: each bay's derivative (`solve_equilibrium`'s ``adjoint``:
+            "implicit", or an `implicit.ImplicitAdjoint` with its linear solver).
+    """
+
+    adjoint: object = "implicit"
+    name: ClassVar[str] = "loop"
+
+    def check_method(self, method) -> None:
+        """Every method runs on the loop."""
+
+    def solve(self, scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial) -> BaysSolution:
+        """The bays' `BaysSolution` (``shapes``, ``fields``: float64 per-rib shapes and per-bay cut fields, or None)."""
+        solutions, nodes, mounted = [], [], []
+        moved = None if initial is None or initial.solutions is not None else initial.displacements()
+        for k, scene in enumerate(scenes):
+            p = bay_parameters(parameters, shapes, k, fields)
+            rest = _mounted(scene, p)
+            if initial is None:
+                start = None
+            elif initial.solutions is not None:
+                start = initial.solutions[k]
+            else:  # a batch's solution: its displacement on this solve's mounted shape
+                start = rest + jnp.asarray(moved[k], jnp.float64)
+            with nodes_only():  # the tensions returned are the primal's (`_concrete_solution`)
+                sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
+                                        throw=False, adjoint=self.adjoint)
+            traced = bool(sol.extra.get("traced"))
+            if traced:  # under jax.jit / vmap: result codes are arrays
+                x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
+            elif sol.converged:
+                x = sol.nodes
+            else:
+                x = np.full(np.shape(sol.nodes), np.nan)
+            nodes.append(x)
+            mounted.append(rest)
+            solutions.append(sol if traced else _concrete_solution(sol))
+        if any(isinstance(x, jax.core.Tracer) for x in nodes):
+            stacked = _stack_nodes(nodes)
         else:
-            x = np.full(np.shape(sol.nodes), np.nan)
-        nodes.append(x)
-        mounted.append(rest)
-        solutions.append(sol if traced else _concrete_solution(sol))
-    if any(isinstance(x, jax.core.Tracer) for x in nodes):
-        stacked = _stack_nodes(nodes)
-    else:
-        stacked = np.stack([np.asarray(x, np.float64) for x in nodes])
-    if any(isinstance(s.result, jax.core.Tracer) for s in solutions):
-        result = jnp.stack([jnp.asarray(s.result) for s in solutions])
-        residual = jnp.stack([jnp.asarray(s.residual) for s in solutions])
-        steps = jnp.stack([jnp.asarray(s.steps) for s in solutions])
-        rest = jnp.stack(mounted)
-    else:
-        result = np.asarray([int(s.result) for s in solutions], np.int32)
-        residual = np.asarray([float(s.residual) for s in solutions])
-        steps = np.asarray([int(s.steps) for s in solutions])
-        rest = np.stack([np.asarray(m) for m in mounted])
-    first = scenes[0]
-    return BaysSolution(nodes=stacked, result=result, residual=residual, steps=steps,
-                        bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
-                        tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
-                        solutions=solutions, scenes=list(scenes), cut_patterns=fields)
+            stacked = np.stack([np.asarray(x, np.float64) for x in nodes])
+        if any(isinstance(s.result, jax.core.Tracer) for s in solutions):
+            result = jnp.stack([jnp.asarray(s.result) for s in solutions])
+            residual = jnp.stack([jnp.asarray(s.residual) for s in solutions])
+            steps = jnp.stack([jnp.asarray(s.steps) for s in solutions])
+            rest = jnp.stack(mounted)
+        else:
+            result = np.asarray([int(s.result) for s in solutions], np.int32)
+            residual = np.asarray([float(s.residual) for s in solutions])
+            steps = np.asarray([int(s.steps) for s in solutions])
+            rest = np.stack([np.asarray(m) for m in mounted])
+        first = scenes[0]
+        return BaysSolution(nodes=stacked, result=result, residual=residual, steps=steps,
+                            bays=[s.bay for s in scenes], parameters=parameters, fabric=first.fabric,
+                            tension_only=first.tension_only, mounted=rest, rib_shapes=shapes,
+                            solutions=solutions, scenes=list(scenes), cut_patterns=fields)
 
 
 @jax.jit
@@ -400,25 +413,43 @@ def _stack_nodes(nodes):
     return jnp.stack([jnp.asarray(x, jnp.float64) for x in nodes])
 
 
-def _batch(scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial, linear_solver,
-           sequencing=True) -> BaysSolution:
-    """The "batch" strategy: one ``jit(vmap)`` relaxation of every bay (float64 scope on)."""
-    del method, linear_solver, sequencing  # relax, and the matrix-free adjoint of `krylov`
-    first = scenes[0]
-    bays = [scene.bay for scene in scenes]
-    physics = fk.static_physics(first.physics(dynamic=False))
-    params = first.params(parameters)  # the fabric's constants: the same for every bay
-    geometries = stack_trees([bay.geometry() for bay in bays])
-    bounds = jnp.asarray([bay.chord + bay.rib_spacing for bay in bays], jnp.float64)
-    if initial is None:
-        displacements = jnp.zeros((len(bays),) + first.bay.shape + (3,), jnp.float64)
-    else:
-        displacements = jnp.asarray(initial.displacements(), jnp.float64)
-    nodes, result, residual, steps, mounted = batched_equilibrium(
-        geometries, bounds, displacements, None if shapes is None else shapes[:-1],
-        None if shapes is None else shapes[1:], fields, params, jnp.asarray(rtol, jnp.float64), physics,
-        -(-max_steps // BATCH_CHUNK))
-    return BaysSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
-                        parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
-                        mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes),
-                        cut_patterns=fields)
+@dataclass(frozen=True)
+class Batch:
+    """The "batch" strategy: one ``jax.jit(jax.vmap(...))`` relaxation of every bay (float64 scope on).
+
+    `methods.Relax` only (no grid sequencing, the full grid), derivatives by
+    the matrix-free Krylov adjoint (`krylov.BiCGStab`): for accelerators.
+    """
+
+    name: ClassVar[str] = "batch"
+
+    def check_method(self, method) -> None:
+        """Refuse a method other than the relaxation."""
+        if not isinstance(method, Relax):
+            raise ValueError(f"the batch strategy runs method='relax' only, got {method.name!r}: use strategy='loop'")
+
+    def solve(self, scenes, parameters, shapes, fields, *, rtol, max_steps, method, initial) -> BaysSolution:
+        """The bays' `BaysSolution` (as `Loop.solve`; ``method`` is a `methods.Relax`)."""
+        del method  # relax, and the matrix-free adjoint of `krylov`
+        first = scenes[0]
+        bays = [scene.bay for scene in scenes]
+        physics = fk.static_physics(first.physics(dynamic=False))
+        params = first.params(parameters)  # the fabric's constants: the same for every bay
+        geometries = stack_trees([bay.geometry() for bay in bays])
+        bounds = jnp.asarray([bay.divergence_bound for bay in bays], jnp.float64)
+        if initial is None:
+            displacements = jnp.zeros((len(bays),) + first.bay.shape + (3,), jnp.float64)
+        else:
+            displacements = jnp.asarray(initial.displacements(), jnp.float64)
+        nodes, result, residual, steps, mounted = batched_equilibrium(
+            geometries, bounds, displacements, None if shapes is None else shapes[:-1],
+            None if shapes is None else shapes[1:], fields, params, jnp.asarray(rtol, jnp.float64), physics,
+            -(-max_steps // RELAX_CHUNK))
+        return BaysSolution(nodes=nodes, result=result, residual=residual, steps=steps, bays=bays,
+                            parameters=parameters, fabric=first.fabric, tension_only=first.tension_only,
+                            mounted=mounted, rib_shapes=shapes, solutions=None, scenes=list(scenes),
+                            cut_patterns=fields)
+
+
+#: The strategies of `solve_bays` by shortcut name ("auto" takes `default_strategy`'s).
+STRATEGIES = {"loop": Loop(), "batch": Batch()}

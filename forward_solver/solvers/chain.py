@@ -1,18 +1,18 @@
-"""The ``"auto"`` method of `solve_equilibrium`: try the methods in turn before reporting a failure.
+"""`Auto`, the ``"auto"`` method of `solve_equilibrium`: try the methods in turn before reporting a failure.
 
 No method solves every scene: dynamic relaxation (kinetic damping) can cycle
 where the force is not the gradient of an energy or the skin is slack, and
 Newton's load continuation can stall where relaxation converges. The
-``"auto"`` chain (`AUTO_CHAIN`) is
+chain is
 
-1. "relax+newton": relaxation (which ends early with ``stalled`` when its
+1. `methods.RelaxNewton`: relaxation (which ends early with ``stalled`` when its
    residual stops falling, see `relax`) handing over to Newton, whose LU
    factor the adjoint reuses; warm-started from ``initial`` if given, and
    then retried from a cold start if that fails;
-2. "newton" from where the relaxation stopped, when that shape did not
+2. `methods.Newton` from where the relaxation stopped, when that shape did not
    diverge (a stalled relaxation is often near the equilibrium: Newton's
    quadratic convergence finishes it);
-3. "newton" from the mounted shape, with its load continuation.
+3. `methods.Newton` from the mounted shape, with its load continuation.
 
 The first converged `Solution` is returned, its ``extra["attempts"]`` the
 list of ``(how, result, steps, residual)`` tried. When every method fails
@@ -27,17 +27,18 @@ after 10,500 steps, Newton from there converges in 8.
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Callable
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from ..model.parameters import Parameters
+from ..model.scene import Scene
 from ..solution import Result, Solution
+from .methods import NEWTON_SWITCH_RTOL, Newton, RelaxNewton, host_only
 
-__all__ = ["AUTO_CHAIN", "EQUILIBRIUM_METHODS", "run_chain"]
+__all__ = ["Auto", "EQUILIBRIUM_METHODS"]
 
-#: The ``"auto"`` chain; "newton@stop" is Newton from where the previous attempt stopped.
-AUTO_CHAIN = ("relax+newton", "newton@stop", "newton")
 #: The methods a user may name for an equilibrium (command line, case file, ``solver_options``).
 EQUILIBRIUM_METHODS = ("auto", "relax", "newton", "relax+newton")
 
@@ -47,32 +48,50 @@ _WHAT_TO_CHANGE = (
     "method); else raise max_steps or loosen rtol")
 
 
-def run_chain(solve: Callable, initial=None) -> Solution:
-    """Run `AUTO_CHAIN`: ``solve(method, initial) -> Solution`` (concrete, no raising) per try.
+@dataclass(frozen=True)
+class Auto:
+    """The methods in turn until one converges (module docstring).
 
-    Returns the first converged `Solution`, or the least-residual failure
-    with a ``detail`` that names every try; ``extra["attempts"]`` either way.
+    Args:
+        switch_rtol, sequencing, symmetry: the first try's (`methods.RelaxNewton`).
+        newton: the Newton tries' knobs (`methods.Newton`).
     """
-    attempts, failures = [], []
-    for k, step in enumerate(AUTO_CHAIN):
-        if step == "newton@stop":
-            last = failures[-1]
-            if last.result in (Result.diverged, Result.nonfinite):
-                continue
-            tries = [("newton", np.asarray(last.nodes), f"newton from where {last.method} stopped")]
-        elif k == 0 and initial is not None:
-            tries = [(step, initial, f"{step} (warm start)"), (step, None, f"{step} (cold start)")]
+
+    switch_rtol: float = NEWTON_SWITCH_RTOL
+    sequencing: bool = True
+    symmetry: bool = True
+    newton: Newton = Newton()
+    name: ClassVar[str] = "auto"
+
+    def _tries(self, initial, failures: list):
+        """``(method, start, how)`` of each try, lazily: the second looks at the first's failure."""
+        first = RelaxNewton(self.switch_rtol, self.sequencing, self.symmetry, self.newton)
+        if initial is not None:
+            yield first, initial, f"{first.name} (warm start)"
+            yield first, None, f"{first.name} (cold start)"
         else:
-            tries = [(step, None, step)]
-        for method, start, how in tries:
-            sol = solve(method, start)
+            yield first, None, first.name
+        last = failures[-1]
+        if last.result not in (Result.diverged, Result.nonfinite):
+            yield self.newton, np.asarray(last.nodes), f"newton from where {last.method} stopped"
+        yield self.newton, None, self.newton.name
+
+    def solve(self, scene: Scene, parameters: Parameters, *, rtol: float, max_steps: int, initial) -> Solution:
+        """The first converged `Solution`, or the least-residual failure with a ``detail`` that names
+        every try; ``extra["attempts"]`` the ``(how, result, steps, residual)`` of each try either way."""
+        attempts, failures = [], []
+        for method, start, how in self._tries(initial, failures):
+            sol = method.solve(scene, parameters, rtol=rtol, max_steps=max_steps, initial=start)
             result = Result(int(np.asarray(sol.result)))
             attempts.append((how, result.name, int(sol.steps), float(sol.residual)))
             if result == Result.converged:
-                return dataclasses.replace(sol, extra={**sol.extra, "attempts": attempts})
+                return sol.replace(extra={**sol.extra, "attempts": attempts})
             failures.append(sol)
-    best = min(failures, key=lambda s: float(s.residual) if np.isfinite(s.residual) else np.inf)
-    tried = "; ".join(f"{how}: {name} after {steps} steps (residual {res:.2e})"
-                      for how, name, steps, res in attempts)
-    detail = f"every method of the 'auto' chain failed ({tried}); {_WHAT_TO_CHANGE}"
-    return dataclasses.replace(best, detail=detail, extra={**best.extra, "attempts": attempts})
+        best = min(failures, key=lambda s: float(s.residual) if np.isfinite(s.residual) else np.inf)
+        tried = "; ".join(f"{how}: {name} after {steps} steps (residual {res:.2e})"
+                          for how, name, steps, res in attempts)
+        detail = f"every method of the 'auto' chain failed ({tried}); {_WHAT_TO_CHANGE}"
+        return best.replace(detail=detail, extra={**best.extra, "attempts": attempts})
+
+    def check_traceable(self, where: str) -> None:
+        host_only(self.name, where)

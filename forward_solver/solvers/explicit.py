@@ -25,7 +25,8 @@ from .. import forces as fk
 from ..precision import precision_extra
 from ..model.parameters import Parameters, as_parameters
 from ..model.scene import PRECISIONS, Scene, float64_scope
-from ..solution import Solution, initial_nodes, make_solution
+from ..solution import Result, Solution, initial_nodes, make_solution
+from .loop import Stepper, run_chunks
 
 __all__ = ["PressureRamp", "simulate", "stable_time_step", "wave_speed", "plane_strain_modulus",
            "DEFAULT_COURANT"]
@@ -173,11 +174,9 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
             "pressure": effective_pressure(s),
         }
 
-    from .loop import run_chunks
-
     state = _State(x_init, jnp.zeros_like(x_init), jnp.zeros((), x_init.dtype))
-    out = run_chunks(state, step, relative_residual, at_rest, ref.nodes, rtol, divergence_bound,
-                     chunk, max_chunks, record=record, n_record=max_chunks)
+    out = run_chunks(state, Stepper(step, relative_residual, at_rest, record=record), ref.nodes, rtol,
+                     divergence_bound, chunk, max_chunks)
     # One more step, not taken: the next velocity projected on the last one, over the last
     # one's square, is +1 for motion slow against the step and -1 (or below -1, growing)
     # for the period-two mode of a time step over the stability limit.
@@ -202,8 +201,6 @@ RINGING_RATIO = -0.5
 def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
                      precision: str, floor: float | None) -> str:
     """What to change after a failed run of the paper's scheme (the `Solution.detail`)."""
-    from ..solution import Result
-
     if code == Result.converged:
         return ""
     limit = (f"lower the Courant coefficient (now {courant:g}; the scheme's measured limit is "
@@ -240,10 +237,6 @@ def simulate(
     max_steps: int = 200_000,
     record_every: int = 200,
     initial=None,
-    stiffness=None,
-    rib_thickness_scale=None,
-    rib_chord_scale=None,
-    divergence_bound: float | None = None,
     precision: str = "float64",
     throw: bool = True,
 ) -> Solution:
@@ -254,7 +247,8 @@ def simulate(
             aerodynamic damping from the scene).
         pressure_history: a `PressureRamp`, or a final pressure in Pa applied
             at once, or a `Parameters` (its pressure applied at once; then
-            give none of the loose values below).
+            give no ``prestrain``). Stiffnesses and rib scales travel in a
+            `Parameters` (``Parameters.replace``).
         prestrain: ``(span, chord)`` prestrain or one number for both.
         courant: Courant coefficient ``alpha_k`` of eq. (16).
         rtol: stop when ``||R_free|| / (p A) <= rtol``, the ramp is over and
@@ -263,15 +257,13 @@ def simulate(
         record_every: steps between stop tests and history records.
         initial: starting shape, a `Solution` or ``(n_span, n_contour, 3)``
             array (default: the mounted shape).
-        stiffness: ``(span, chord)`` N/m overriding the fabric's.
-        rib_thickness_scale: rib thickness multiplier.
-        rib_chord_scale: rib chord multiplier.
-        divergence_bound: displacement (m) past which the run is ``diverged``
-            (default: chord + rib spacing).
         precision: "float64" (default) or "float32": the steps run in
             float32, the stop test and the returned `Solution` in float64; an
             ``rtol`` below the scene's float32 floor raises a ValueError (see
-            `_precision`).
+            `forward_solver.precision`).
+
+    A node that moves further than `Bay.divergence_bound` from its mounted
+    position stops the run as ``diverged``.
         throw: raise `ConvergenceError` unless the run converged.
 
     Returns:
@@ -288,12 +280,10 @@ def simulate(
         ValueError: for non-physical input or a float32 ``rtol`` below its floor.
         ConvergenceError: if ``throw`` and the run did not converge.
     """
-    loose = dict(prestrain=prestrain, stiffness=stiffness, rib_thickness_scale=rib_thickness_scale,
-                 rib_chord_scale=rib_chord_scale)
     if isinstance(pressure_history, PressureRamp):
-        ramp, parameters = pressure_history, as_parameters(pressure_history.pressure, **loose)
+        ramp, parameters = pressure_history, as_parameters(pressure_history.pressure, prestrain)
     else:
-        parameters = as_parameters(pressure_history, **loose)
+        parameters = as_parameters(pressure_history, prestrain)
         ramp = PressureRamp(parameters.pressure)
     parameters = scene.check_parameters(parameters.resolved(scene.fabric))
     if not (math.isfinite(courant) and courant > 0):
@@ -305,7 +295,7 @@ def simulate(
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
     bay = scene.bay
-    bound = bay.chord + bay.rib_spacing if divergence_bound is None else divergence_bound
+    bound = bay.divergence_bound
     max_chunks = -(-max_steps // record_every)
     physics = scene.physics(dynamic=True)
     with float64_scope():
@@ -328,8 +318,8 @@ def simulate(
         extra.update(dt=float(dt), velocity_ratio=float(ratio))
         detail = _explicit_detail(int(out.result), float(ratio), courant, physics.viscous,
                                   precision, floor)
-        sol = make_solution(out, f, int(out.chunks) * record_every, wall, "explicit", parameters, bay,
-                            history=history, extra=extra, nodes=nodes, detail=detail)
+        sol = make_solution(out, f, nodes, int(out.chunks) * record_every, wall, "explicit", parameters, bay,
+                            history=history, extra=extra, detail=detail)
     if throw:
         sol.raise_if_failed()
     return sol

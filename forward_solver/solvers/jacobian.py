@@ -28,7 +28,7 @@ whole sparse Jacobian ``J = dR/dx`` (N/m) on the free degrees of freedom:
   `scipy.sparse.csc_matrix`.
 
 The factor of ``J`` (`JacobianFactor`) serves Newton (`newton`), chord Newton
-warm starts and the adjoint solves of the implicit derivative (`adjoint`).
+warm starts and the adjoint solves of the implicit derivative (`derivatives.implicit`).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import scipy.sparse as sp
 
 from .. import forces as fk
 from ..precision import float64_scope
-from ..compilation.stored import stored_jit
+from ..compilation import stored_jit
 
 __all__ = [
     "PERMC_SPEC",

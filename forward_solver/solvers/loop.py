@@ -27,8 +27,8 @@ velocity terms):
   falling (a hopeless run ends early instead of spending its step cap),
 * ``max_steps_reached`` once ``max_chunks`` chunks have run.
 
-The solver supplies ``step(state) -> state`` and ``at_rest(state) -> bool``;
-the state is any pytree with ``x`` and ``v`` leaves (a NamedTuple).
+The solver supplies its step and tests as a `Stepper`; the state is any
+pytree with ``x`` and ``v`` leaves (a NamedTuple).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ import jax.numpy as jnp
 
 from ..solution import Result
 
-__all__ = ["LoopOutput", "run_chunks", "GUARD_STEPS"]
+__all__ = ["LoopOutput", "Stepper", "run_chunks", "GUARD_STEPS"]
 
 #: Steps between two checks of the divergence guard (a chunk whose length is
 #: not a multiple of it is guarded every ``gcd(chunk, GUARD_STEPS)`` steps).
@@ -56,47 +56,51 @@ class LoopOutput(NamedTuple):
     history: object  # per-chunk records (leading axis max_chunks), rows past `chunks` are zero
 
 
-def run_chunks(
-    state,
-    step: Callable,
-    relative_residual: Callable,
-    at_rest: Callable,
-    x0: jnp.ndarray,
-    rtol,
-    divergence_bound,
-    chunk: int,
-    max_chunks: int,
-    record: Callable | None = None,
-    n_record: int = 0,
-    begin_chunk: Callable | None = None,
-    give_up: Callable | None = None,
-) -> LoopOutput:
-    """Run ``step`` in chunks until the state is at rest, fails, or hits the cap.
+class Stepper(NamedTuple):
+    """What a solver plugs into the loop (`run_chunks`): its step and its tests.
 
-    Args:
-        state: initial solver state (NamedTuple with fields ``x`` and ``v``).
+    Attributes:
         step: one explicit step, ``state -> state``.
         relative_residual: ``x -> ||R_free|| / (p A)`` (static residual).
-        at_rest: ``(state, residual) -> bool``, the solver's convergence test.
-        x0: mounted shape, for the divergence test.
-        rtol: relative residual tolerance.
-        divergence_bound: largest displacement (m) before ``diverged``.
-        chunk: steps per chunk (static).
-        max_chunks: chunk cap (static).
-        record: ``state -> pytree of scalars`` recorded after every chunk.
-        n_record: number of records kept (static, ``max_chunks`` or 0).
+        at_rest: ``(state, residual) -> bool``, the solver's convergence test
+            beside ``residual <= rtol``.
         begin_chunk: ``(state, residual) -> state`` run before each chunk with
             the relative residual after the previous one (inf before the
             first), e.g. to rescale fictitious masses, or None.
         give_up: ``(state, residual) -> bool`` after each chunk that has not
             converged: True ends the run ``stalled``; or None.
+        record: ``state -> pytree of scalars`` recorded after every chunk
+            (``max_chunks`` records), or None.
     """
+
+    step: Callable
+    relative_residual: Callable
+    at_rest: Callable
+    begin_chunk: Callable | None = None
+    give_up: Callable | None = None
+    record: Callable | None = None
+
+
+def run_chunks(state, stepper: Stepper, x0: jnp.ndarray, rtol, divergence_bound, chunk: int,
+               max_chunks: int) -> LoopOutput:
+    """Run ``stepper.step`` in chunks until the state is at rest, fails, or hits the cap.
+
+    Args:
+        state: initial solver state (NamedTuple with fields ``x`` and ``v``).
+        stepper: the solver's step and tests (`Stepper`).
+        x0: mounted shape, for the divergence test.
+        rtol: relative residual tolerance.
+        divergence_bound: largest displacement (m) before ``diverged``.
+        chunk: steps per chunk (static).
+        max_chunks: chunk cap (static).
+    """
+    step, relative_residual, at_rest, begin_chunk, give_up, record = stepper
     dtype = jax.eval_shape(relative_residual, state.x).dtype  # float64 even for a float32 state
     history0 = None
     if record is not None:
         template = jax.eval_shape(record, state)
         history0 = jax.tree_util.tree_map(
-            lambda s: jnp.zeros((n_record,) + s.shape, s.dtype), template
+            lambda s: jnp.zeros((max_chunks,) + s.shape, s.dtype), template
         )
 
     guard = math.gcd(chunk, GUARD_STEPS)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -42,10 +43,11 @@ import scipy.sparse.linalg as spla
 
 from .. import forces as fk
 from ..model.scene import float64_scope
-from .jacobian import PERMC_SPEC, JacobianFactor, FreePattern, linearise, sparsity_pattern, free_dofs
-from ..solution import Result, prepare_compiled, static_state
+from ..programs import prepare_compiled, static_state
+from ..solution import Result
+from .jacobian import PERMC_SPEC, FreePattern, JacobianFactor, free_dofs, linearise, sparsity_pattern
 
-__all__ = ["NewtonResult", "newton", "chord_newton", "warm_up"]
+__all__ = ["NewtonOptions", "NewtonResult", "newton", "chord_newton", "warm_up"]
 
 #: Armijo constant of the line search: accept a step of length ``alpha`` when
 #: ``||R(x + alpha dx)|| <= (1 - ARMIJO alpha) ||R(x)||``.
@@ -253,21 +255,20 @@ def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_s
     return _Stage(x, code, max_iterations, rel, factor, jac, factor_x, shift, message)
 
 
-def _continuation(problem, params, x_start, rtol, max_iterations, max_line_search, max_load_steps,
-                  initial_fraction, log):
+def _continuation(problem, params, x_start, rtol, options: NewtonOptions, log):
     """Load steps ``p_k = lambda_k p`` up to ``p``, each warm-started; adaptive increments."""
     p = params.pressure
-    done, increment = 0.0, initial_fraction
+    done, increment = 0.0, options.initial_load_fraction
     x = x_start
     iterations = levels = 0
     last = None
-    for _ in range(max_load_steps):
+    for _ in range(options.max_load_steps):
         target = min(1.0, done + increment)
         at_full = target >= 1.0
         stage_params = params._replace(pressure=p * target)
         stage_rtol = rtol if at_full else max(rtol, STAGE_RTOL)
-        stage = _newton_stage(problem, stage_params, x, stage_rtol, max_iterations, max_line_search, log,
-                              give_up_when_slow=True)
+        stage = _newton_stage(problem, stage_params, x, stage_rtol, options.max_iterations,
+                              options.max_line_search, log, give_up_when_slow=True)
         iterations += stage.iterations
         if stage.code == Result.converged:
             x, done, levels, last = stage.x, target, levels + 1, stage
@@ -283,7 +284,7 @@ def _continuation(problem, params, x_start, rtol, max_iterations, max_line_searc
 
 def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> None:
     """Compile (running each once) the programs of a `newton` solve on ``x``'s grid: the reference
-    state, the residual and the Jacobian values, called as `newton` calls them (`ahead`)."""
+    state, the residual and the Jacobian values, called as `newton` calls them (`compilation.Ahead`)."""
     with float64_scope():
         physics = fk.static_physics(physics)
         ref = prepare_compiled(geometry, params, physics)
@@ -292,21 +293,42 @@ def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physi
         linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))
 
 
-def newton(
-    x_init,
-    geometry: fk.Geometry,
-    params: fk.KernelInputs,
-    physics: fk.Physics,
-    rtol: float,
-    max_iterations: int = 50,
-    *,
-    continuation: bool = True,
-    max_load_steps: int = 24,
-    initial_load_fraction: float = 0.25,
-    max_line_search: int = 12,
-    factor_at_solution: bool = True,
-    divergence_bound: float | None = None,
-) -> NewtonResult:
+@dataclass(frozen=True)
+class NewtonOptions:
+    """The knobs of a `newton` solve (the `methods.Newton` method is one of these).
+
+    Args:
+        max_iterations: cap on Newton iterations per pressure level; a solve
+            runs at most ``max_iterations * (1 + max_load_steps)`` in all.
+        continuation: fall back on load continuation when plain Newton fails.
+        max_load_steps: cap on continuation levels tried (converged or not).
+        initial_load_fraction: first continuation level, a fraction of p.
+        max_line_search: cap on step halvings per shift.
+
+    Raises:
+        ValueError: for a cap or fraction out of range.
+    """
+
+    max_iterations: int = 50
+    continuation: bool = True
+    max_load_steps: int = 24
+    initial_load_fraction: float = 0.25
+    max_line_search: int = 12
+
+    def __post_init__(self):
+        for name in ("max_iterations", "max_load_steps", "max_line_search"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not 0.0 < self.initial_load_fraction <= 1.0:
+            raise ValueError(
+                f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
+                f"got {self.initial_load_fraction!r}"
+            )
+
+
+def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, rtol: float,
+           options: NewtonOptions = NewtonOptions(), *, divergence_bound: float) -> NewtonResult:
     """Static equilibrium ``R(x) = 0`` on the free nodes by Newton's method.
 
     Each iteration assembles ``J = dR/dx`` (`assemble_jacobian`), solves
@@ -320,7 +342,9 @@ def newton(
     it restarts from ``x_init`` with load continuation: pressure levels ``lambda p`` with
     ``lambda`` starting at ``initial_load_fraction``, doubling the increment
     after a converged level and halving it after a failed one (intermediate
-    levels are solved to `STAGE_RTOL`).
+    levels are solved to `STAGE_RTOL`). After convergence it assembles and
+    factorises the unshifted Jacobian at the returned ``x`` (one more
+    assembly and LU), so ``factor`` serves adjoint solves at the equilibrium.
 
     Stop test (as the rest of the package): ``forces.relative_residual`` ``=
     ||R_free||_2 / (p A) <= rtol``, the residual force over the total
@@ -336,18 +360,9 @@ def newton(
         params: traced parameters; ``params.pressure`` > 0, Pa.
         physics: static switches (velocity terms are ignored).
         rtol: relative residual tolerance, in (0, 1).
-        max_iterations: cap on Newton iterations per pressure level; a solve
-            runs at most ``max_iterations * (1 + max_load_steps)`` in all.
-        continuation: fall back on load continuation when plain Newton fails.
-        max_load_steps: cap on continuation levels tried (converged or not).
-        initial_load_fraction: first continuation level, a fraction of p.
-        max_line_search: cap on step halvings per shift.
-        factor_at_solution: after convergence, assemble and factorise the
-            unshifted Jacobian at the returned ``x`` (one more assembly and
-            LU), so ``factor`` serves adjoint solves at the equilibrium.
+        options: the iteration's knobs (`NewtonOptions`).
         divergence_bound: largest displacement from the mounted shape, m,
-            before the solve stops as ``diverged`` (default: chord + rib
-            spacing, as `solve_equilibrium`).
+            before the solve stops as ``diverged`` (`Bay.divergence_bound`).
 
     Returns:
         A `NewtonResult`; never raises for a failed solve, and never returns
@@ -355,20 +370,13 @@ def newton(
         search).
 
     Raises:
-        ValueError: for an ``rtol``, cap or fraction out of range, or an
-            ``x_init`` of the wrong shape.
+        ValueError: for an ``rtol`` out of range or an ``x_init`` of the
+            wrong shape.
     """
     if not (isinstance(rtol, float | int) and 0 < rtol < 1):
         raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
-    for name, value in (("max_iterations", max_iterations), ("max_load_steps", max_load_steps),
-                        ("max_line_search", max_line_search)):
-        if not (isinstance(value, int) and value >= 1):
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if not 0.0 < initial_load_fraction <= 1.0:
-        raise ValueError(
-            f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
-            f"got {initial_load_fraction!r}"
-        )
+    max_iterations, continuation = options.max_iterations, options.continuation
+    max_line_search = options.max_line_search
     with float64_scope():
         physics = fk.static_physics(physics)
         shape = tuple(geometry.free.shape) + (3,)
@@ -376,9 +384,6 @@ def newton(
             raise ValueError(f"x_init has shape {np.shape(x_init)} but this bay's grid needs {shape}")
         dtype = geometry.contour_root.dtype
         ref = prepare_compiled(geometry, params, physics)
-        if divergence_bound is None:
-            chord = 0.5 * float(geometry.chord_root + geometry.chord_tip)
-            divergence_bound = chord + float(geometry.rib_spacing)
         problem = _Problem(geometry, ref, physics, sparsity_pattern(ref, physics.periodic), shape, dtype,
                            np.asarray(ref.nodes, dtype=np.float64).reshape(-1), float(divergence_bound))
         log = _Log()
@@ -388,8 +393,7 @@ def newton(
         iterations, levels = stage.iterations, 0
         if stage.code != Result.converged and continuation and stage.code != Result.nonfinite:
             cont, cont_iterations, levels, reached = _continuation(
-                problem, params, x0, rtol, max_iterations, max_line_search, max_load_steps,
-                initial_load_fraction, log)
+                problem, params, x0, rtol, options, log)
             iterations += cont_iterations
             if reached >= 1.0:
                 stage = cont
@@ -403,7 +407,7 @@ def newton(
                 else:
                     stage = stage._replace(message=f"{stage.message}; {note}")
         factor, jac, factor_x, shift = stage.factor, stage.jacobian, stage.factor_x, stage.shift
-        if stage.code == Result.converged and factor_at_solution:
+        if stage.code == Result.converged:
             x_j = jnp.asarray(stage.x.reshape(shape), dtype)
             jac_new, _ = linearise(x_j, ref, params, physics, problem.pattern)
             try:

@@ -24,7 +24,7 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
   such growth, the best residual's rate of fall is extrapolated, and if it
   would need more than `GIVE_UP_CHUNKS` further chunks to reach ``rtol``
   the run ends ``stalled`` instead of spending its step cap (the caller
-  then hands over to Newton, `fallback`). Measured need: slack fabric
+  then hands over to Newton, `chain.Auto`). Measured need: slack fabric
   (NACA 2412, 1e4 Pa, prestrain -5%, 17x64) cycles at a residual of 1e-4 to
   4e-3 up to the 200,000-step cap; and where the force is not the gradient
   of an energy, kinetic damping (which stops at kinetic-energy peaks, the
@@ -38,11 +38,33 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
   symmetric about mid-span, so only rows ``0..m`` are solved, on a grid
   extended by one ghost row that mirrors row ``m - 1``; the mid row keeps
   ``y = rib_spacing / 2``. A step then costs about half as much;
-* grid sequencing (in `solve`): solve a coarse grid, interpolate its
+* grid sequencing (`sequencing`): solve a coarse grid, interpolate its
   displacement, refine;
 * precision: the iteration runs in ``float32`` or ``float64``; the stop test
   (`loop.run_chunks`) always evaluates the residual in float64 at the
   current nodes, so "converged" means the returned shape meets ``rtol``.
+
+Its jit form. When the `Parameters` reach `solve_equilibrium` as abstract
+tracers (inside ``jax.jit``, or batched by ``jax.vmap``), their values cannot
+steer host code, so the solve is this relaxation alone, with nothing decided
+in Python from values (`traced_solution`):
+
+* from the mounted shape (or the ``initial`` nodes), full or half grid as
+  the eager path chooses it (static), no grid sequencing (its fallback when
+  a coarse level fails is a host decision), at most ``max_steps`` steps;
+* the result code, steps and residual come back as arrays in the `Solution`
+  (leaves of its pytree), so a failure is reported, never raised: the caller
+  passes ``throw=False`` and checks ``solution.result`` / ``converged``
+  (after the compiled call, `Solution.raise_if_failed` raises for the batch);
+* derivatives by the implicit function theorem with a pure-JAX linear
+  solver (`implicit.implicit_nodes`, BiCGStab): the relaxation runs under
+  ``stop_gradient`` and only its fixed point carries a tangent, so
+  ``jax.grad``, ``jax.jacfwd`` and ``jax.vmap`` of either compose with
+  ``jax.jit``.
+
+Under ``jax.vmap`` the relaxation's ``while_loop`` runs until every member
+of the batch has stopped (members that stopped are frozen by JAX's batching
+rule), so a batch costs its slowest member's step count.
 """
 
 from __future__ import annotations
@@ -53,14 +75,29 @@ import jax
 import jax.numpy as jnp
 
 from .. import forces as fk
-from .loop import run_chunks
-from ..compilation.stored import stored_jit
+from ..compilation import stored_jit
+from ..derivatives.implicit import implicit_nodes
+from ..derivatives.krylov import BiCGStab
+from ..model.parameters import Parameters
+from ..model.scene import Scene
+from ..precision import float64_scope
+from ..programs import static_forces
+from ..solution import Result, Solution, initial_nodes, make_solution
+from .loop import Stepper, run_chunks
 
-__all__ = ["relax_jit", "MASS_SAFETY", "kinetic_damping_step", "mirror_rows", "half_rows"]
+try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
+    from jax.extend.core import concrete_or_error
+except ImportError:  # pragma: no cover - older JAX
+    from jax.core import concrete_or_error
+
+__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows", "half_rows",
+           "has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
 #: leaves room for the couplings the bound leaves out (cell averaging).
 MASS_SAFETY = 1.5
+#: Steps per chunk of the relaxation loop (stop test and mass update between chunks).
+RELAX_CHUNK = 100
 
 
 class _State(NamedTuple):
@@ -175,13 +212,30 @@ def _cast(tree, dtype):
     return jax.tree_util.tree_map(lambda a: jnp.asarray(a).astype(dtype), tree)
 
 
-@stored_jit(static_argnames=("physics", "chunk", "max_chunks", "half", "precision", "with_forces"))
-def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, chunk,
-              max_chunks, half=False, precision="float64", with_forces=True):
+class RelaxOptions(NamedTuple):
+    """The static choices of one `relax_jit` program (a change compiles another).
+
+    Attributes:
+        max_chunks: chunk cap.
+        half: solve half the bay (rows ``0 .. m`` and a ghost row, module docstring).
+        precision: "float64" or "float32", the iteration's type.
+        with_forces: return the float64 forces at the end.
+        chunk: steps per chunk.
+    """
+
+    max_chunks: int
+    half: bool = False
+    precision: str = "float64"
+    with_forces: bool = True
+    chunk: int = RELAX_CHUNK
+
+
+@stored_jit(static_argnames=("physics", "options"))
+def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, options: RelaxOptions):
     """Dynamic relaxation from the full-grid shape ``x_init``.
 
     ``x_init``, ``geometry`` and ``params`` are float64; the iteration runs
-    in ``precision`` ("float64" or "float32") and the stop test in float64.
+    in ``options.precision`` ("float64" or "float32") and the stop test in float64.
 
     Returns the loop output (its state on the solved rows, in ``precision``)
     and the float64 forces (None without ``with_forces``) and nodes on the
@@ -189,6 +243,7 @@ def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, phy
     relaxation that Newton finishes) leaves them out: one copy of the force
     kernel less to compile (0.15 s of 1.2 s at 17x64) and to run.
     """
+    max_chunks, half, precision, with_forces, chunk = options
     physics = fk.static_physics(physics)
     ref64 = fk.prepare(geometry, params, physics)
     make_grid = _half_grid if half else _full_grid
@@ -244,7 +299,81 @@ def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, phy
     state = _State(x_start, jnp.zeros_like(x_start), jnp.zeros((), dtype), masses(x_start, safety0),
                    safety0, jnp.asarray(jnp.inf, rtol.dtype), jnp.zeros((), jnp.int32),
                    jnp.asarray(jnp.inf, rtol.dtype), jnp.zeros((), jnp.int32))
-    out = run_chunks(state, step, relative_residual, lambda s, r: True, grid.x0, rtol,
-                     divergence_bound, chunk, max_chunks, begin_chunk=begin_chunk, give_up=give_up)
+    stepper = Stepper(step, relative_residual, lambda s, r: True, begin_chunk=begin_chunk, give_up=give_up)
+    out = run_chunks(state, stepper, grid.x0, rtol, divergence_bound, chunk, max_chunks)
     x_full = grid64.full(out.state.x.astype(ref64.nodes.dtype))
     return out, (fk.forces(x_full, ref64, params, physics) if with_forces else None), x_full
+
+
+# ---------------------------------------------------------------- the jit form
+def _is_abstract(value) -> bool:
+    if not isinstance(value, jax.core.Tracer):
+        return False
+    try:
+        concrete_or_error(None, value)
+    except jax.errors.ConcretizationTypeError:
+        return True
+    return False
+
+
+def has_abstract_values(parameters: Parameters) -> bool:
+    """Whether some value is an abstract tracer (``jax.jit``, ``jax.vmap``), not merely traced.
+
+    An eager ``jax.grad`` or ``jax.jvp`` traces its inputs but keeps their
+    values concrete; the host solve can run there. Under ``jax.jit`` or
+    ``jax.vmap`` it cannot.
+    """
+    return any(_is_abstract(v) for v in jax.tree_util.tree_leaves(parameters))
+
+
+def relaxed_nodes(x_init, geometry, params, rtol, bound, physics, max_chunks: int, *, half: bool,
+                  solver: BiCGStab = BiCGStab()):
+    """The relaxation from ``x_init`` as pure JAX, its fixed point differentiable in ``params``.
+
+    The loop runs on ``stop_gradient`` values; only its fixed point carries a
+    tangent, by the implicit function theorem with the pure-JAX ``solver``
+    (`implicit.implicit_nodes`; NaN where the loop did not converge).
+    Vmappable over ``geometry`` and ``bound`` too (`bays.Batch`).
+
+    Returns:
+        ``(nodes, out)``: the nodes and the loop's `loop.LoopOutput`.
+    """
+    fixed = jax.lax.stop_gradient(params)
+    out, _, x_star = relax_jit(jax.lax.stop_gradient(x_init), geometry, fixed, rtol, bound, MASS_SAFETY,
+                               physics, RelaxOptions(max_chunks, half=half, with_forces=False))
+    return implicit_nodes(solver, physics, x_star, geometry, params, out.result == Result.converged), out
+
+
+def traced_solution(scene: Scene, parameters: Parameters, *, rtol: float, initial, half: bool, max_chunks: int,
+                    solver: BiCGStab) -> Solution:
+    """The relaxation's `Solution` at abstract ``parameters`` (see the module docstring).
+
+    Args:
+        scene: the bay, fabric and switches.
+        parameters: resolved `Parameters` (abstract tracers allowed).
+        rtol: relative residual ``||R_free|| / (p A)`` to stop at.
+        initial: None, a `Solution` or nodes on this grid (a warm start; not
+            differentiated).
+        half: solve half the bay (static; see the module docstring).
+        max_chunks: chunk cap (``max_steps`` rounded up to chunks of `RELAX_CHUNK`).
+        solver: the implicit derivative's pure-JAX linear solver.
+
+    Returns:
+        A `Solution` whose ``result``, ``steps``, ``residual`` and
+        ``parameters`` are arrays; ``nodes`` and the tensions differentiable
+        in ``parameters``.
+    """
+    bay = scene.bay
+    physics = fk.static_physics(scene.physics(dynamic=False))
+    with float64_scope(parameters):
+        params = scene.params(parameters)
+        geometry = bay.geometry()
+        x_init = initial_nodes(initial, geometry, jax.lax.stop_gradient(params))
+        bound = jnp.asarray(bay.divergence_bound, jnp.float64)
+        nodes, out = relaxed_nodes(x_init, geometry, params, jnp.asarray(rtol, jnp.float64), bound, physics,
+                                   max_chunks, half=half, solver=solver)
+        f = static_forces(nodes, geometry, params, physics)
+    return make_solution(out, f, nodes, out.chunks * RELAX_CHUNK, None, "relax", parameters, bay,
+                         extra={"precision": "float64", "half_bay": half, "levels": [], "traced": True,
+                                "linear_solver": solver.name})
+

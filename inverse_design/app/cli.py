@@ -29,12 +29,12 @@ else ``~/.cache/inflatable-wing/jax``;
 ``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
 second run of a grid compiles nothing; beside it, in its ``programs``
 sub-folder, it keeps the solver's top-level programs exported, so that a
-second run neither traces nor lowers them (`forward_solver.compilation.stored`). A cache folder that cannot be used (a
+second run neither traces nor lowers them (`forward_solver.compilation`). A cache folder that cannot be used (a
 file, a folder it cannot write, a home folder that does not exist: the
 command never creates a user's home) or whose entries JAX cannot read gets
 one ``warning:`` line, and the run goes on without the cache. It also
 compiles with XLA's faster-compiling CPU loop emitters
-(`forward_solver.compilation.xla.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
+(`forward_solver.compilation.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
 otherwise): about 40% less compile time, the same results; and the
 report's figures and DXF patterns are written by worker processes started as
 it starts, which import matplotlib and ezdxf while the design runs
@@ -228,16 +228,16 @@ def main(argv: list[str] | None = None) -> int:
 GC_THRESHOLD = 10_000
 
 
-#: Whether `use_compilation_cache` also keeps the solver's top-level programs (`forward_solver.compilation.stored`)
+#: Whether `use_compilation_cache` also keeps the solver's top-level programs (`forward_solver.compilation`)
 #: in the cache's ``programs`` folder. The test suite turns it off for the runs in its own processes,
 #: whose library tests have compiled the plain programs already (the exported ones would compile again).
 KEEP_PROGRAMS = True
 
 
 def _program_store(folder=False):
-    """The program store in use (`forward_solver.compilation.stored`; None if none or not imported yet), or, given a
+    """The program store in use (`forward_solver.compilation`; None if none or not imported yet), or, given a
     ``folder``, that store put back (if the module was imported since)."""
-    stored = sys.modules.get("forward_solver.compilation.stored")
+    stored = sys.modules.get("forward_solver.compilation")
     if stored is None:
         return None
     return stored.program_store() if folder is False else stored.use_program_store(folder)
@@ -317,9 +317,9 @@ def use_compilation_cache(path: Path) -> bool:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    from forward_solver.compilation.stored import use_program_store
+    from forward_solver.compilation import use_program_store
 
-    if KEEP_PROGRAMS:  # the solver's top-level programs, traced and lowered once (`forward_solver.compilation.stored`)
+    if KEEP_PROGRAMS:  # the solver's top-level programs, traced and lowered once (`forward_solver.compilation`)
         use_program_store(path / "programs")
     return True
 
@@ -386,7 +386,7 @@ def _main(argv: list[str] | None, started: float) -> int:
             # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf
             # while the design runs (`workers.ReportWorkers`).
             workers = ReportWorkers.start(WORKER_MODULES)
-            from forward_solver.compilation.xla import enable_fast_compilation  # (imports JAX, unless done already)
+            from forward_solver.compilation import enable_fast_compilation  # (imports JAX, unless done already)
 
             enable_fast_compilation()  # before the run's first JAX computation
             from forward_solver import ConvergenceError

@@ -802,10 +802,9 @@ def _without_factors(value):
     """``value`` without LU factors (host objects that do not pickle) if it is a `Solution` or a
     `DesignResult`, for the figure workers; anything else as it is."""
     if isinstance(value, Solution):
-        return value if value.factor is None else dataclasses.replace(value, factor=None)
+        return value.without_factor()
     if isinstance(value, DesignResult) and getattr(value.wing_solution, "solutions", None):
-        solutions = [dataclasses.replace(s, factor=None) for s in value.wing_solution.solutions]
-        return dataclasses.replace(value, wing_solution=dataclasses.replace(value.wing_solution, solutions=solutions))
+        return dataclasses.replace(value, wing_solution=value.wing_solution.without_factors())
     return value
 
 

@@ -1,4 +1,4 @@
-"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.solvers.traced`).
+"""`solve_equilibrium` under jax.jit and jax.vmap (the pure-JAX path, `forward_solver.solvers.relax.traced_solution`).
 
 One 9 x 32 NACA 2412 bay and a few module-scoped compiled functions are
 shared by every test (compilation dominates). Tolerances:
@@ -17,10 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from forward_solver import Bay, ConvergenceError, Parameters, Scene, Solution, solve_equilibrium
-from forward_solver.derivatives.custom_jvp import default_linear_solver
+from forward_solver import (BiCGStab, ConvergenceError, ImplicitAdjoint, Parameters, Relax, Solution,
+                            SparseLU, solve_equilibrium)
+from forward_solver.derivatives.implicit import default_linear_solver
 from forward_solver.solution import Result
-from targets import naca
+from support.solver import default_scene
 
 THETA = Parameters(pressure=2e4, prestrain_span=0.004, prestrain_chord=0.006, stiffness_span=2e5,
                    stiffness_chord=2e5, rib_thickness_scale=0.95, rib_chord_scale=1.0)
@@ -32,7 +33,7 @@ FD_RELATIVE_STEP = 1e-4
 
 @pytest.fixture(scope="module")
 def scene():
-    return Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32))
+    return default_scene(9, 32)
 
 
 @pytest.fixture(scope="module")
@@ -146,9 +147,9 @@ def test_forward_mode_under_jit_and_vmap_of_gradients(scene, weights, jit_gradie
 
 def test_eager_iterative_gradient_is_the_gpu_fallback(scene, weights, lu_gradient, monkeypatch):
     """Where JAX's default backend is not the CPU, the eager derivative avoids the host callback."""
-    assert default_linear_solver() == "lu"  # this machine
+    assert default_linear_solver() == SparseLU()  # this machine
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    assert default_linear_solver() == "iterative"
+    assert default_linear_solver() == BiCGStab()
     with jax.enable_x64(True):
         (_, sol), grad = jax.value_and_grad(
             lambda p: (lambda s: (jnp.sum(weights * s.nodes), s))(
@@ -184,9 +185,9 @@ def test_options_the_traced_path_cannot_honour_are_refused(scene, x64):
         with pytest.raises(TypeError, match="method='relax'"):
             run(method=method, throw=False)
     with pytest.raises(TypeError, match="linear_solver='iterative'"):
-        run(linear_solver="lu", throw=False)
+        run(adjoint=ImplicitAdjoint(linear_solver="lu"), throw=False)
     with pytest.raises(TypeError, match="float64"):
-        run(precision="float32", throw=False)
+        run(method=Relax(precision="float32"), throw=False)
 
 
 def test_concrete_solutions_keep_their_python_fields(scene, compiled):

@@ -6,8 +6,9 @@ import jax.monitoring
 import numpy as np
 import pytest
 
-from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
+from forward_solver import Parameters, solve_equilibrium
 from targets import naca
+from support.solver import default_bay, default_scene
 
 _COMPILES = []
 
@@ -23,7 +24,7 @@ jax.monitoring.register_event_duration_secs_listener(_listen)
 @pytest.fixture(scope="module")
 def first():
     """A 9x32 bay solved once ("auto"), which compiles what its solves need."""
-    scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())
+    scene = default_scene(9, 32)
     base = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
     sol = solve_equilibrium(scene, base, method="auto")
     # the warm path (chord Newton) and a cold solve once, so that both are compiled
@@ -131,12 +132,12 @@ def test_the_command_runs_with_the_fast_flags_and_gives_the_environment_back(mon
 
 
 def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
-    """`forward_solver.compilation.ahead`: the coarsest relaxation compiles on the caller's thread while the
+    """`forward_solver.compilation.Ahead`: the coarsest relaxation compiles on the caller's thread while the
     finer level and Newton's programs compile on the worker; each is compiled once (a 9x48 bay:
     levels 5x24 and 9x48, shapes no other test of this module solves)."""
     import threading
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
 
     threads = []
 
@@ -147,7 +148,7 @@ def test_a_cold_solve_compiles_its_finer_levels_and_newton_ahead():
     jax.monitoring.register_event_duration_secs_listener(listen)
     previous = ahead.set_compile_ahead(True)
     try:
-        scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=48), Fabric())
+        scene = default_scene(9, 48)
         sol = solve_equilibrium(scene, Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02),
                                 method="relax+newton")
     finally:
@@ -171,7 +172,7 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
 
     import jax.numpy as jnp
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
     from forward_solver.derivatives.implicit import forward_only
 
     threads = []
@@ -180,7 +181,7 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
         if event == "/jax/core/compile/backend_compile_duration":
             threads.append((kwargs.get("fun_name"), threading.current_thread().name))
 
-    scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=40), Fabric())
+    scene = default_scene(9, 40)
     weights = np.random.default_rng(1).normal(size=(9, 40, 3))
 
     def loss(q):
@@ -198,7 +199,7 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
         jax.monitoring.unregister_event_duration_listener(listen)
     with jax.enable_x64(True):
         transposable = np.asarray(jax.jacfwd(loss)(jnp.asarray(q)))
-    rhs = [name for fun, name in threads if fun == "jit(_batched_rhs)"]
+    rhs = [name for fun, name in threads if fun == "jit(batched_rhs)"]
     assert rhs and all(name.startswith("compile-ahead") for name in rhs), threads
     np.testing.assert_allclose(direct, transposable, rtol=1e-9)
 
@@ -206,7 +207,7 @@ def test_a_forward_only_derivative_compiles_its_right_hand_sides_ahead():
 def test_a_bays_geometry_is_made_once_per_float64_setting_and_never_kept_from_a_trace():
     import jax.numpy as jnp
 
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=16)
+    bay = default_bay(5, 16)
     with jax.enable_x64(True):
         traced = jax.jit(lambda x: x * bay.geometry().chord_root)(jnp.ones(()))  # made inside a trace
         made = bay.geometry()
@@ -221,7 +222,7 @@ def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     import concurrent.futures
     import threading
 
-    from forward_solver.compilation import ahead
+    from forward_solver import compilation as ahead
 
     previous = ahead.set_compile_ahead(True)
     started, gate, ran = threading.Event(), threading.Event(), []

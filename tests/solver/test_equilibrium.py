@@ -9,6 +9,7 @@ from forward_solver import (
     ConvergenceError,
     Fabric,
     PressureRamp,
+    Relax,
     Result,
     Scene,
     simulate,
@@ -119,21 +120,21 @@ def test_no_viscosity_never_comes_to_rest_and_says_why(small_panel):
 
 def test_step_cap_returns_its_code(small_panel):
     sol = solve_equilibrium(Scene(small_panel, Fabric()), PRESSURE, PRESTRAIN, max_steps=100,
-                            sequencing=False, throw=False)
+                            method=Relax(sequencing=False), throw=False)
     assert sol.result == Result.max_steps_reached and not sol.converged
     assert np.all(np.isfinite(sol.nodes)) and sol.residual > 1e-8
     with pytest.raises(ConvergenceError, match="max_steps"):
         solve_equilibrium(Scene(small_panel, Fabric()), PRESSURE, PRESTRAIN, max_steps=100,
-                          sequencing=False)
+                          method=Relax(sequencing=False))
 
 
 def test_new_values_do_not_recompile(small_panel, small_reference):
     scene = Scene(small_panel, Fabric())
-    solve_equilibrium(scene, PRESSURE, PRESTRAIN, sequencing=False)
+    solve_equilibrium(scene, PRESSURE, PRESTRAIN, method=Relax(sequencing=False))
     before = relax_jit._cache_size()
-    sol = solve_equilibrium(scene, 1.3 * PRESSURE, (0.004, 0.007), sequencing=False)
+    sol = solve_equilibrium(scene, 1.3 * PRESSURE, (0.004, 0.007), method=Relax(sequencing=False))
     scene2 = Scene(small_panel, Fabric(stiffness_span=3e5, stiffness_chord=1e5, poisson=0.3))
-    solve_equilibrium(scene2, PRESSURE, PRESTRAIN, sequencing=False)
+    solve_equilibrium(scene2, PRESSURE, PRESTRAIN, method=Relax(sequencing=False))
     assert relax_jit._cache_size() == before
     assert sol.converged and np.abs(sol.nodes - small_reference.nodes).max() > 1e-4
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from forward_solver import Bay, Fabric, PressureRamp, Scene, simulate, solve_equilibrium
-from targets import naca
+from forward_solver import Fabric, PressureRamp, Relax, Scene, simulate, solve_equilibrium
+from support.solver import default_bay
 
 PRESSURE = 2e4
 PRESTRAIN = (0.005, 0.005)
@@ -12,7 +12,7 @@ PRESTRAIN = (0.005, 0.005)
 
 @pytest.fixture(scope="module")
 def wing_bay():
-    return Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=64)
+    return default_bay(9, 64)
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +24,7 @@ def test_half_bay_equals_full_bay(wing_bay, wing_reference):
     # Tolerance: both solved to rtol 1e-11, i.e. shapes within ~1e-9 chord of each other.
     assert wing_reference.extra["half_bay"]
     full = solve_equilibrium(Scene(wing_bay, Fabric()), PRESSURE, PRESTRAIN, rtol=1e-11,
-                             symmetry=False)
+                             method=Relax(symmetry=False))
     assert not full.extra["half_bay"]
     assert np.abs(full.nodes - wing_reference.nodes).max() < 1e-8
     np.testing.assert_allclose(full.tension_span, wing_reference.tension_span, rtol=1e-6)
@@ -38,7 +38,7 @@ def test_paper_scheme_reaches_the_same_wing_equilibrium():
     # Tolerance 1e-6 chord (docs/validation.md). A coarse contour keeps its CFL step affordable: cosine
     # spacing makes the leading-edge cells tiny and the viscous term shortens the step there
     # further, so light viscosity (in-plane modes) plus aerodynamic damping (the bulge) it is.
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32)
+    bay = default_bay(9, 32)
     relaxed = solve_equilibrium(Scene(bay, Fabric()), PRESSURE, PRESTRAIN, rtol=1e-11)
     scene = Scene(bay, Fabric(viscosity=5.0), aerodynamic_damping=0.05)
     sol = simulate(scene, PressureRamp(PRESSURE, 0.002), PRESTRAIN, rtol=1e-9, max_steps=600_000)

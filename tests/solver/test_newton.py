@@ -15,7 +15,7 @@ import pytest
 from forward_solver import Bay, Result, Scene, solve_equilibrium
 from forward_solver import forces as fk
 from forward_solver.solvers.jacobian import assemble_jacobian, free_dofs, jacobian_sparsity
-from forward_solver.solvers.newton import newton
+from forward_solver.solvers.newton import NewtonOptions, newton
 from forward_solver.model.parameters import as_parameters
 
 DESIGN_PRESSURE = 2e4  # Pa
@@ -108,7 +108,8 @@ def panel():
     bay = Bay.flat_panel(0.25, 1.0, 9, 33)
     scene, geometry, params, physics = problem(bay)
     with jax.enable_x64(True):
-        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10)
+        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10,
+                     divergence_bound=bay.divergence_bound)
     return bay, scene, geometry, params, physics, out
 
 
@@ -160,8 +161,9 @@ def test_continuation_converges_where_plain_newton_fails():
     _, geometry, params, physics = problem(bay, pressure=1e6)
     with jax.enable_x64(True):
         x0 = bay.nominal_nodes()
-        plain = newton(x0, geometry, params, physics, rtol=1e-10, continuation=False)
-        stepped = newton(x0, geometry, params, physics, rtol=1e-10)
+        plain = newton(x0, geometry, params, physics, 1e-10, NewtonOptions(continuation=False),
+                       divergence_bound=bay.divergence_bound)
+        stepped = newton(x0, geometry, params, physics, rtol=1e-10, divergence_bound=bay.divergence_bound)
     assert plain.result == Result.max_steps_reached
     assert plain.iterations == 50 and np.all(np.isfinite(np.asarray(plain.x)))
     assert stepped.result == Result.converged, stepped.message
@@ -174,7 +176,8 @@ def test_newton_on_a_closed_periodic_bay():
     bay = circle_bay(5, 14)  # n_contour % 3 == 2: the extra colours of the wrap
     _, geometry, params, physics = problem(bay)
     with jax.enable_x64(True):
-        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10)
+        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10,
+                     divergence_bound=bay.divergence_bound)
     assert out.result == Result.converged, out.message
     assert out.residual <= 1e-10
 
@@ -182,7 +185,8 @@ def test_newton_on_a_closed_periodic_bay():
 def test_iteration_cap_returns_max_steps_reached(panel):
     bay, _, geometry, params, physics, _ = panel
     with jax.enable_x64(True):
-        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10, max_iterations=1)
+        out = newton(bay.nominal_nodes(), geometry, params, physics, 1e-10, NewtonOptions(max_iterations=1),
+                     divergence_bound=bay.divergence_bound)
     assert out.result == Result.max_steps_reached
     assert np.isfinite(out.residual) and out.residual > 1e-10
     assert np.all(np.isfinite(np.asarray(out.x)))
@@ -193,7 +197,8 @@ def test_slack_flat_panel_stalls_with_a_code():
     bay = Bay.flat_panel(0.25, 1.0, 9, 33)
     _, geometry, params, physics = problem(bay, prestrain=0.0)
     with jax.enable_x64(True):
-        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10)
+        out = newton(bay.nominal_nodes(), geometry, params, physics, rtol=1e-10,
+                     divergence_bound=bay.divergence_bound)
     assert out.result == Result.max_steps_reached
     assert "stalled" in out.message
     assert np.all(np.isfinite(np.asarray(out.x))) and np.isfinite(out.residual)
@@ -204,23 +209,25 @@ def test_nonfinite_start_returns_nonfinite(panel):
     with jax.enable_x64(True):
         x0 = np.array(bay.nominal_nodes())
         x0[4, 16, 2] = np.nan
-        out = newton(x0, geometry, params, physics, rtol=1e-10)
+        out = newton(x0, geometry, params, physics, rtol=1e-10, divergence_bound=bay.divergence_bound)
     assert out.result == Result.nonfinite
     assert out.iterations == 0
 
 
 @pytest.mark.parametrize(
     "kwargs, match",
-    [({"rtol": 0.0}, "rtol"), ({"rtol": 1e-8, "max_iterations": 0}, "max_iterations"),
-     ({"rtol": 1e-8, "initial_load_fraction": 0.0}, "initial_load_fraction")],
+    [({"rtol": 0.0}, "rtol"), ({"max_iterations": 0}, "max_iterations"),
+     ({"initial_load_fraction": 0.0}, "initial_load_fraction")],
 )
 def test_bad_arguments_raise(panel, kwargs, match):
     bay, _, geometry, params, physics, _ = panel
-    with pytest.raises(ValueError, match=match):
-        newton(np.zeros(bay.shape + (3,)), geometry, params, physics, **kwargs)
+    rtol = kwargs.pop("rtol", 1e-8)
+    with pytest.raises(ValueError, match=match):  # (the knobs are refused when the options are made)
+        newton(np.zeros(bay.shape + (3,)), geometry, params, physics, rtol, NewtonOptions(**kwargs),
+               divergence_bound=bay.divergence_bound)
 
 
 def test_wrong_initial_shape_raises(panel):
     _, _, geometry, params, physics, _ = panel
     with pytest.raises(ValueError, match="x_init"):
-        newton(np.zeros((3, 3, 3)), geometry, params, physics, rtol=1e-8)
+        newton(np.zeros((3, 3, 3)), geometry, params, physics, rtol=1e-8, divergence_bound=1.25)

@@ -7,11 +7,12 @@ import pytest
 
 import forward_solver
 import inverse_design.optimise
-from forward_solver import Bay, ConvergenceError, Fabric, Result, Scene, solve_equilibrium
+from forward_solver import Bay, ConvergenceError, Fabric, Relax, Result, Scene, solve_equilibrium
 from inverse_design import optimise_pressure
 from inverse_design.app import case as case_reader, cli, command
 from inverse_design.settings import Limits, SolverSettings
 from targets import naca
+from support.solver import default_bay
 
 
 def test_anisotropic_0006_bay_converges_through_auto(x64):
@@ -28,13 +29,13 @@ def test_anisotropic_0006_bay_converges_through_auto(x64):
 
 def test_slack_fabric_relaxation_ends_early(x64):
     # Before: 200,000 steps to max_steps_reached (17x64; on 9x32 it converges).
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=17, n_contour=64)
-    sol = solve_equilibrium(Scene(bay, Fabric()), 1e4, (-0.05, -0.05), method="relax", throw=False,
-                            sequencing=False)
+    bay = default_bay(17, 64)
+    sol = solve_equilibrium(Scene(bay, Fabric()), 1e4, (-0.05, -0.05), method=Relax(sequencing=False),
+                            throw=False)
     assert sol.steps <= 20_000
     assert sol.result in (Result.stalled, Result.converged)
     if sol.result == Result.stalled:
-        assert "newton" in sol.message and "prestrain" in sol.message
+        assert "method='auto'" in sol.message and "Newton" in sol.message and "prestrain" in sol.message
 
 
 def test_failure_names_every_method_tried(x64):
@@ -61,7 +62,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
     args, _ = case_reader.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
                                    "newton", "--max-steps", "777", "--out", str(tmp_path / "out")])
     command.run(args)
-    assert seen["method"] == "newton" and seen["max_steps"] == 777
+    assert seen["method"].name == "newton" and seen["max_steps"] == 777  # (the method as a value)
 
     class Stop(Exception):
         pass
@@ -82,7 +83,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
 def test_bad_equilibrium_options_are_refused():
     with pytest.raises(cli.InputError, match="equilibrium-method"):
         case_reader.parse_arguments(["--equilibrium-method", "fast"])
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
+    bay = default_bay(5, 32)
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
         SolverSettings(max_steps=0)
     with pytest.raises(ValueError, match="equilibrium_method must be one of"):
@@ -98,11 +99,11 @@ def test_design_loop_uses_the_solver_options(monkeypatch):
     real = bays.solve_equilibrium
 
     def spy(*args, **kwargs):
-        seen.append((kwargs["method"], kwargs["max_steps"]))
+        seen.append((kwargs["method"].name, kwargs["max_steps"]))  # (the method's value: its shortcut's name)
         return real(*args, **kwargs)
 
     monkeypatch.setattr(bays, "solve_equilibrium", spy)
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
+    bay = default_bay(5, 32)
     optimise_pressure(Scene(bay, Fabric()), naca("2412"), limits=Limits(tension=None),
                       solver=SolverSettings(max_iterations=1, equilibrium_method="newton", max_steps=999))
     assert seen and set(seen) == {("newton", 999)}
@@ -113,7 +114,7 @@ def test_design_loop_uses_the_solver_options(monkeypatch):
 
 
 def test_missing_target_is_a_clear_type_error():
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
+    bay = default_bay(5, 32)
     with pytest.raises(TypeError, match="target must be a targets.Airfoil.*got NoneType"):
         optimise_pressure(Scene(bay, Fabric()), target=None)
 

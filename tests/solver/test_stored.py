@@ -1,4 +1,4 @@
-"""The program store (`forward_solver.compilation.stored`): the same results, and a second process neither traces
+"""The program store (`forward_solver.compilation`, `stored_jit`): the same results, and a second process neither traces
 nor lowers a stored program."""
 
 import jax
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
-from forward_solver.compilation import stored as store
+from forward_solver import compilation as store
 from targets import naca
 
 TRACES = []

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from targets import Airfoil, AirfoilWarning, load_airfoil, naca
-from targets.airfoil import self_crossings
+from targets.checks import self_crossings
 
 DATA = Path(__file__).parents[1] / "data" / "uiuc"
 #: The real files that are refused for a reason of their own (tests/data/uiuc/README.md), and why.

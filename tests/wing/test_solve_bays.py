@@ -18,6 +18,7 @@ from forward_solver.derivatives.implicit import ImplicitAdjoint
 from forward_solver import Wing
 from forward_solver.solvers.bays import solve_wing
 from targets import naca
+from support.solver import default_bay
 
 GRID = dict(n_span=5, n_contour=32)
 PARAMETERS = Parameters(pressure=2e4, prestrain_span=0.005, prestrain_chord=0.005)
@@ -64,7 +65,7 @@ def test_loop_and_batch_gradients_agree(scenes):
 
 
 def test_one_bay_is_solve_equilibrium_exactly():
-    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, **GRID)
+    bay = default_bay(**GRID)
     scene = Scene(bay, Fabric())
     alone = solve_equilibrium(scene, PARAMETERS, rtol=1e-10)
     sol = solve_bays([scene], PARAMETERS, rtol=1e-10)
@@ -109,7 +110,7 @@ def test_the_two_linear_solvers_give_one_tangent(solved):
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
         dp = jax.tree_util.tree_map(jnp.zeros_like, params)._replace(pressure=jnp.float64(1.0))
         x = jnp.asarray(sol.nodes)
-        tangents = [np.asarray(ImplicitAdjoint(x, geometry, params, scene.physics(dynamic=False), s).tangent(dp))
+        tangents = [np.asarray(ImplicitAdjoint(s).at(x, geometry, params, scene.physics(dynamic=False)).tangent(dp))
                     for s in ("lu", "iterative")]
     assert np.max(np.abs(tangents[0])) > 0
     np.testing.assert_allclose(tangents[0], tangents[1], rtol=0, atol=1e-8 * np.max(np.abs(tangents[0])))
@@ -128,3 +129,5 @@ def test_bad_input_is_refused_with_what_to_change(scenes):
         solve_bays(scenes, PARAMETERS, method="newton", strategy="batch")
     with pytest.raises(ValueError, match=r"rib_shapes must be an \(4, 2K\) array"):
         solve_bays(scenes, PARAMETERS, rib_shapes=SHAPES[:3])
+    with pytest.raises(TypeError, match=r"strategy=Loop\(adjoint=ImplicitAdjoint\(linear_solver=...\)\)"):
+        solve_bays(scenes, PARAMETERS, linear_solver="lu")
