@@ -25,7 +25,7 @@ Run:
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --refine
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --cells 10,20,40 --out F
 
-The LE recession (the mid-bay nose behind its target's, `report.le_recessions`) is the largest over the
+The LE recession (the mid-bay nose behind its target's, `app.measures.le_recessions`) is the largest over the
 bays.
 """
 

@@ -8,25 +8,8 @@ Selig/Lednicer ``.dat`` file, a relative path being relative to the case
 file's folder (`case_path`). `case.Case.from_arguments` merges what
 `read_config` returns between the defaults and the command line.
 
-A wing case file::
-
-    variables = ["pressure"]
-    pressure-bounds = [1e3, 1e5]
-    n-span = 17
-    n-contour = 64
-
-    [[rib]]
-    section = "naca2412"   # a NACA code or a Selig/Lednicer .dat path (relative to the case file's folder)
-    chord = 1.0            # m
-    station = 0.0          # m, span position
-    [[rib]]
-    section = "naca2412"
-    chord = 0.8
-    station = 0.3
-    # target = "naca2412"  # optional: this rib's target section (default: the section itself,
-    #                      # or the case's --target when one is given)
-
-An example: ``inverse_design/cases/wing_taper.toml`` (`EXAMPLE_CASE`).
+A wing case file: the README's "A whole wing"; a built-in one:
+``inverse_design/cases/wing_taper.toml`` (`EXAMPLE_CASE`).
 """
 
 from __future__ import annotations

@@ -56,7 +56,6 @@ a design that breaks its limits or did not converge are not to be cut);
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
@@ -152,8 +151,8 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
             report's files: `output_folder.staged_folder`), as
             `output_folder.check_output_folder` checked it (the command checks
             it before the long work).
-        result: a `DesignResult` (`optimise_pressure`, `optimise_wing`,
-            `evaluate_design`): it carries its bays, targets and ribs.
+        result: a `DesignResult` of airfoil bays (`optimise_pressure`, `optimise_wing`,
+            `evaluate_design`): it carries its wing, bays and targets.
         options: what the report holds beside the design and how it is drawn
             (`ReportOptions`; None: the defaults).
         workers: `workers.ReportWorkers` started before the design (the
@@ -168,14 +167,14 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
         folder's absolute path).
 
     Raises:
-        TypeError: if ``result`` is not a `DesignResult`, or ``options`` not a `ReportOptions`.
+        TypeError: if ``result`` is not a `DesignResult` of a wing, or ``options`` not a `ReportOptions`.
     """
     options = ReportOptions() if options is None else options
     if not isinstance(options, ReportOptions):
         raise TypeError(f"options must be a ReportOptions, got {type(options).__name__}")
-    if not isinstance(result, DesignResult):
-        raise TypeError(f"expected an inverse_design.DesignResult (a single equilibrium: measure it with "
-                        f"inverse_design.evaluate_design), got {type(result).__name__}")
+    if not (isinstance(result, DesignResult) and result.wing is not None):
+        raise TypeError(f"expected an inverse_design.DesignResult of airfoil bays (a single equilibrium: measure "
+                        f"it with inverse_design.evaluate_design), got {type(result).__name__}")
     start = time.perf_counter()
     out = Path(os.path.abspath(os.fspath(out)))
     bays = _Bays(result)
@@ -200,8 +199,8 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
                                 warnings=options.warnings)
             if options.tolerance is not None:
                 summary["tolerance"] = options.tolerance.summary()
-                if options.tolerance.samples:
-                    _write_samples(staging / "tolerance_samples.csv", options.tolerance)
+                if options.tolerance.samples_file:  # (the rows the run streamed)
+                    shutil.copyfile(options.tolerance.samples_file, staging / "tolerance_samples.csv")
                     files.append("tolerance_samples.csv")
             with saved_after(built, _save):
                 _write_data(staging, bays, files, skipped)
@@ -252,7 +251,7 @@ def _figures(bays: _Bays, options: ReportOptions, skipped: dict) -> list:
     shaped = rib_files(result)
     specs = [("wing_overview.png", plot_wing_overview, (_Overview(result), bays.deviation), {})]
     for k in range(n_bays if n_bays <= PER_BAY_PLOTS else 0):
-        start_rib = result.wing.sections[k] if result.wing is not None and shaped else None
+        start_rib = result.wing.sections[k] if shaped else None
         specs.append((f"bay_{k}_mid_bay_section.png", plot_section, (solutions[k], targets[k], scenes[k]),
                       dict(magnification=options.magnification, start_rib=start_rib, bay=k,
                            rib_stations=(bays.stations[k], bays.stations[k + 1]))))
@@ -270,7 +269,7 @@ def _figures(bays: _Bays, options: ReportOptions, skipped: dict) -> list:
     if n_bays == 1:  # the one-bay extras
         specs += [("deviation.png", plot_deviation, (solutions[0], targets[0], scenes[0], bays.deviation[0]), {}),
                   ("tensions.png", plot_tensions, (solutions[0], scenes[0]), {})]
-        if result.parameters.rib_shape is not None and result.wing is not None:
+        if result.parameters.rib_shape is not None:
             chord = scenes[0].bay.chord * float(result.parameters.rib_chord_scale)
             specs.append(("rib_design.png", plot_rib_design, (
                 result.parameters, result.wing.sections[0], chord, options.rib_limits), {}))
@@ -377,18 +376,6 @@ def peak_memory_mb() -> float:
     return round(largest * unit / 1e6, 1)
 
 
-def _write_samples(path: Path, tolerance) -> None:
-    """``tolerance_samples.csv``: the rows the run streamed (copied), or written from the analysis."""
-    if tolerance.samples_file:
-        shutil.copyfile(tolerance.samples_file, path)
-        return
-    with open(path, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(tolerance.samples[0]))
-        writer.writeheader()
-        for row in tolerance.samples:
-            writer.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
-
-
 def _without_factor(solution: Solution) -> Solution:
     """``solution`` without its LU factor (a host object that does not pickle), for the figure workers."""
     return solution if solution.factor is None else dataclasses.replace(solution, factor=None)
@@ -415,7 +402,7 @@ def _pattern_entry(names: list, panels: list, seam_allowance_mm: float) -> dict:
             "largest_length_error_m": max((p.length_error for p in panels), default=0.0)}
 
 class _Overview:
-    """What `plots.plot_wing_overview` reads of a result, as plain values: it pickles for the report's
+    """What `wing_figures.plot_wing_overview` reads of a result, as plain values: it pickles for the report's
     workers (a `DesignResult` carries its scenes, solutions and targets)."""
 
     def __init__(self, result: DesignResult):
@@ -431,7 +418,7 @@ class _Overview:
 
 
 class _SharedHistory:
-    """The result as `plots.plot_history` reads it, with the shared variables only (per-rib shapes and
+    """The result as `wing_figures.plot_history` reads it, with the shared variables only (per-rib shapes and
     per-bay cut fields are many coefficients; they are in summary.json's history, the rib_K.dat and
     bay_K_cut_pattern.csv files). Plain values: it pickles for the report's workers."""
 

@@ -235,7 +235,3 @@ def write_cut_pattern(path, scene, parameters) -> Path:
     path.write_text("\n".join(lines) + "\n")
     return path
 
-
-#: Names of the files a report writes (`report.write_report`). An
-#: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
-#: that no earlier report there wrote (`written_files`), before the long work.

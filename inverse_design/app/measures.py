@@ -21,12 +21,8 @@ __all__ = ["chords_and_stations", "le_recessions", "mid_bay_errors", "mid_bay_ta
 
 
 def chords_and_stations(result) -> tuple:
-    """The ribs' chords and span stations, m (a flat panel: its width from y = 0)."""
-    if result.wing is not None:
-        return tuple(result.wing.chords), tuple(result.wing.stations)
-    bays = result.wing_solution.bays
-    stations = np.concatenate([[0.0], np.cumsum([b.rib_spacing for b in bays])])
-    return tuple([b.chord_root for b in bays] + [bays[-1].chord_tip]), tuple(stations)
+    """The ribs' chords and span stations, m."""
+    return tuple(result.wing.chords), tuple(result.wing.stations)
 
 
 def mid_bay_targets(result) -> list:

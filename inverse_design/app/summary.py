@@ -104,10 +104,10 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
         "case": {
             "n_bays": result.n_bays,
             "ribs": [{"section": section, "target": t.name, "chord_m": c, "station_m": y}
-                     for section, t, c, y in zip(_rib_names(result), result.per_bay.targets,
+                     for section, t, c, y in zip([af.name for af in wing.airfoils], result.per_bay.targets,
                                                  *chords_and_stations(result))],
             "grid": [sol.bays[0].n_span, sol.bays[0].n_contour],
-            "trailing_edge": None if wing is None else {
+            "trailing_edge": {
                 "option": wing.trailing_edge, "unit": "chord",
                 "changed": [{"rib": c["index"], "section": wing.airfoils[c["index"]].name,
                              **({"file": specs[c["index"]]} if c["index"] < len(specs) else {}),
@@ -166,12 +166,6 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
     return jsonable(summary)
 
 
-def _rib_names(result) -> list:
-    if result.wing is not None:
-        return [af.name for af in result.wing.airfoils]
-    return [b.name for b in result.wing_solution.bays] + [result.wing_solution.bays[-1].name]
-
-
 def _labelled(where: dict) -> dict:
     """``{name: {"bay k" or "rib k": amount}}`` of ``{name: {k: amount}}``."""
     return {name: {f"{'rib' if name.startswith('rib_') else 'bay'} {k}": float(v) for k, v in amounts.items()}
@@ -208,7 +202,7 @@ def _rib_entry(result) -> dict | None:
 
 def rib_files(result) -> list:
     """The designed ribs' Selig files: ``rib.dat`` for one shape on ribs of one section, else ``rib_K.dat``."""
-    if result.wing is None or (result.per_bay.rib_shapes is None and result.parameters.rib_shape is None):
+    if result.per_bay.rib_shapes is None and result.parameters.rib_shape is None:
         return []
     if result.per_bay.rib_shapes is None and _same_sections(result):
         return ["rib.dat"]

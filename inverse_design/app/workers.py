@@ -32,7 +32,7 @@ SIGINT themselves, so a Ctrl-C sent to the process group ends the run with
 the caller's one line.
 
 Used by the ``optimise-pressure`` command for its report (one bay or a wing)
-(`inverse_design.app.report.write_report` takes its ``workers``); a library
+(`inverse_design.app.folder.write_report` takes its ``workers``); a library
 caller writes every file in its own process (the same files either way).
 """
 

@@ -104,7 +104,7 @@ def test_bay_sections(bay_solution, target):
 
 def test_plot(bay_solution, target):
     _neuralfoil()
-    from inverse_design.app.plots import plot_aero
+    from inverse_design.app.wing_figures import plot_aero
 
     comparison = aerodynamic_cost(bay_solution, target, 1.0, reynolds=RE, alphas=[0.0, 2.0, 4.0],
                                   model_size="small")

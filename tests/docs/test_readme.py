@@ -17,11 +17,10 @@ block gets a decision. Every block runs in a fresh temporary folder, so
 the files the examples write (relative paths: ``--out DIR``, the default
 ``optimise-pressure-out/``, ``section.dat``) never land in the repository.
 Python blocks run in a subprocess with the repository first on PYTHONPATH;
-shell blocks run
-each command (``&&`` splits them) with ``optimise-pressure`` as
-``python -m support.command`` (the code under test, `cli.main`, its report
-written serially: tests/support/command.py) and skip ``pip install`` lines. "Small grid" is the one substitution: every ``n_span=N``
-and ``n_contour=N`` of a Python block becomes 5 and 32, and every
+shell blocks run each command (``&&`` splits them) with ``optimise-pressure``
+as ``python -m support.command`` (the code under test, its report written
+serially: tests/support/command.py) and skip ``pip install`` lines. "Small
+grid" is the one substitution: every ``n_span=N`` and ``n_contour=N`` of a Python block becomes 5 and 32, and every
 ``optimise-pressure`` command gets ``--n-span 5 --n-contour 32``
 (the default grids take minutes; the blocks' outcomes do not depend on the
 grid). 5x32 is the grid of the command's other tests (tests/command/), so
