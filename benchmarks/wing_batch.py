@@ -154,7 +154,7 @@ def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.app.case_file import EXAMPLE_CASE
 
     case = Case.from_arguments(["--config", str(EXAMPLE_CASE)])
-    values = case.options
+    values = vars(case.options)
     af = naca("2412")
     wing = Wing(airfoils=(af,) * len(case.ribs), chords=tuple(r.chord for r in case.ribs),
                 stations=tuple(r.station for r in case.ribs))

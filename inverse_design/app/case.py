@@ -17,6 +17,7 @@ this module (through `cli`) and must not.
 
 from __future__ import annotations
 
+import argparse
 import re
 import sys
 import warnings
@@ -51,31 +52,16 @@ _NEVER = {
 }
 
 
-class Options(Mapping):
-    """Every option's value (defaults < case file < command line), read-only: ``options.n_span`` or
-    ``options["n_span"]``; the case file's ``[[rib]]`` tables as ``wing``, the manufacturing
-    tolerances as ``tolerances`` (``NAME=VALUE`` items)."""
+class Options(argparse.Namespace):
+    """Every option's value (defaults < case file < command line), read-only: ``options.n_span``; the case
+    file's ``[[rib]]`` tables as ``wing``, the manufacturing tolerances as ``tolerances`` (``NAME=VALUE``)."""
 
     def __init__(self, values: Mapping):
-        object.__setattr__(self, "_values", dict(values))
-
-    def __getattr__(self, name: str):
-        try:
-            return self._values[name]
-        except KeyError:
-            raise AttributeError(name) from None
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
 
     def __setattr__(self, name, value):
         raise AttributeError(f"a case's options are read-only ({name})")
-
-    def __getitem__(self, name: str):
-        return self._values[name]
-
-    def __iter__(self):
-        return iter(self._values)
-
-    def __len__(self) -> int:
-        return len(self._values)
 
 
 @dataclass(frozen=True)
@@ -157,7 +143,7 @@ class Case:
     def inputs(self) -> dict:
         """The options as ``summary.json`` records them: the values, ``wing`` (a case file's rib tables,
         else None) and ``sources``."""
-        return {"wing": None, **self.options, "sources": dict(self.sources)}
+        return {"wing": None, **vars(self.options), "sources": dict(self.sources)}
 
     def may_write(self, name: str) -> bool:
         """Whether this run's report may write a file of that name.
@@ -317,7 +303,7 @@ def _check_combinations(o: Options, sources: Mapping) -> None:
     if o.no_tension_constraints:
         for name in ("min_tension", "max_tension"):
             if name in sources:
-                raise InputError(f"{_given(name, sources)} {o[name]:g} N/m contradicts "
+                raise InputError(f"{_given(name, sources)} {getattr(o, name):g} N/m contradicts "
                                  f"{_given('no_tension_constraints', sources)}, which drops both tension limits: "
                                  "give one or the other")
     if o.objective == "robust" and o.evaluate:

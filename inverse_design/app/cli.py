@@ -5,61 +5,51 @@ It reads the options (and a TOML case file, ``--config``) into one checked
 the design by `inverse_design.optimise_wing`, or with ``--evaluate`` one
 equilibrium, and the output folder). No physics lives here.
 
-Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
-nothing written; or the optimiser stopped without converging: the folder is
-written and says so); 2 bad input (one line on stderr), a grid too large
-for the machine among it (`inverse_design.app.resources.check_grid`); 130
-interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
-Ctrl-C, so the staging folder is removed). The design and the report run on
-a thread of their own while the main thread waits, free to take a signal
-whatever the work computes (`interrupts.run_stoppable`): a stop ends the
-command within about a second (`interrupts.UNWIND_GRACE_S`), the work's
-staging folder and lock file removed, its report workers killed, without
+Exit codes (docs/command.md): 0 success; 1 the run failed (a forward solve
+did not converge: nothing written; or the design did not succeed: the folder
+is written and says so); 2 bad input, one line on stderr (docs/errors.md);
+130 interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind
+like Ctrl-C, so the staging folder is removed). The design and the report
+run on a thread of their own while the main thread waits, free to take a
+signal whatever the work computes (`interrupts.run_stoppable`): a stop ends
+the command within about a second (`interrupts.UNWIND_GRACE_S`), without
 waiting for the work's compiled call to return. A stop that Python loses
 (raised inside a garbage-collection callback) is recorded and raised again at
 the next safe point (`inverse_design.app.interrupts`), at the latest before
 the folder's files are put in place.
 
-The solvers run in their own thread-local float64 scope. Unlike the
-library, the command turns on JAX's persistent compilation cache for its own
-process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
-``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
-else ``~/.cache/inflatable-wing/jax``;
-``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing; beside it, in its ``programs``
-sub-folder, it keeps the solver's top-level programs exported, so that a
-second run neither traces nor lowers them (`forward_solver.compilation.stored`). A cache folder that cannot be used (a
-file, a folder it cannot write, a home folder that does not exist: the
+Unlike the library, the command turns on JAX's persistent compilation cache
+for its own process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``,
+else ``$JAX_COMPILATION_CACHE_DIR``, else
+``$XDG_CACHE_HOME/inflatable-wing/jax``, else ``~/.cache/inflatable-wing/jax``;
+``--no-compilation-cache`` turns it off), and keeps the solver's top-level
+programs exported in its ``programs`` sub-folder
+(`forward_solver.compilation.stored`): a second run of a grid neither
+traces, lowers nor compiles them. A cache folder that cannot be used (the
 command never creates a user's home) or whose entries JAX cannot read gets
-one ``warning:`` line, and the run goes on without the cache. It also
-compiles with XLA's faster-compiling CPU loop emitters
-(`forward_solver.compilation.xla.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
-otherwise): about 40% less compile time, the same results; and the
-report's figures and DXF patterns are written by worker processes started as
-it starts, which import matplotlib and ezdxf while the design runs
-(`inverse_design.app.workers.ReportWorkers`). BLAS runs on one thread for
-the command's run (``threadpoolctl``): its solves (the flat panels' banded
-Cholesky, the sparse factors) are too small to gain from threads, and on a
-busy 2-core machine OpenBLAS's waiting threads made the panels of the
-default case take 29 s instead of 0.1 s. It keeps glibc's mmap threshold
-fixed (`inverse_design.memory.fix_mmap_threshold`), so that a long design's
-resident memory levels off instead of growing with every iterate, and
-collects cyclic garbage less often while it runs (`GC_THRESHOLD`). It
+one ``warning:`` line, and the run goes on without it. It also compiles with
+XLA's faster-compiling CPU loop emitters
+(`forward_solver.compilation.xla.enable_fast_compilation`, unless ``XLA_FLAGS``
+chooses otherwise: about 40% less compile time, the same results); starts
+the report's worker processes, which import matplotlib and ezdxf while the
+design runs (`inverse_design.app.workers.ReportWorkers`); runs BLAS on one
+thread (``threadpoolctl``: its solves are too small to gain from threads, and
+on a busy 2-core machine OpenBLAS's waiting threads made the default case's
+panels take 29 s instead of 0.1 s); keeps glibc's mmap threshold fixed
+(`inverse_design.memory.fix_mmap_threshold`: a long design's resident memory
+levels off); and collects cyclic garbage less often (`GC_THRESHOLD`). It
 imports JAX once the options are read and the report's workers started, not
 when this module is imported: bad input and ``--help`` answer without it,
 and a report worker, started by ``spawn``, imports the command's module
 again as its main module.
 
 Every Python warning of the run (an `targets.AirfoilWarning` among them) is
-shown as one ``optimise-pressure: warning: ...`` line. A failure line (a
-design or solve that did not succeed, whose message carries the optimiser's
-and the limits' details) is kept to `CONSOLE_WIDTH` characters, a refusal of
-bad input (exit 2) to `REFUSAL_WIDTH`, a few lines of a terminal, so that its
-reason and its fix stay whole: the first clause and the last (the fix); the
-whole text is in the summary's ``results.message`` where a
-report is written, and on stdout as ``{"error": ...}`` under ``--json``. A
-JAX platform that the machine does not have (``JAX_PLATFORMS=cuda`` on a
-machine without one) is bad input: one line, exit 2.
+shown as one ``optimise-pressure: warning: ...`` line. A failure line is kept
+to `CONSOLE_WIDTH` characters, a refusal of bad input to `REFUSAL_WIDTH`, so
+that its reason and its fix stay whole: its first clause and its last; the
+whole text is in the summary's ``results.message`` where a report is written,
+and on stdout as ``{"error": ...}`` under ``--json``. A JAX platform that the
+machine does not have (``JAX_PLATFORMS=cuda`` without one) is bad input.
 """
 
 from __future__ import annotations

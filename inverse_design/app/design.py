@@ -210,7 +210,7 @@ def warning_lines(case) -> list[str]:
         lines += library(seam_allowance_mm=o.seam_allowance)
     most = LIMITS["terms_per_contour_node"] * o.n_contour
     for name in ("cut_pattern", "rib_shape"):
-        count = o[f"{name}_terms"]
+        count = getattr(o, f"{name}_terms")
         if name in case.designed and count > most:
             lines.append(f"{name.replace('_', ' ')} of {count} terms on {o.n_contour} contour nodes: more than a "
                          f"quarter of the nodes ({most:g}), so each term spans fewer than 4 nodes and the grid "

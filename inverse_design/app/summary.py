@@ -1,19 +1,13 @@
-"""The summary of a design of N >= 1 bays: the ``summary.json`` record (`summarise`).
+"""The summary of a design of N >= 1 bays: the ``summary.json`` record (`summarise`, `SCHEMA_VERSION`).
 
-One record for any number of bays: a bay given by options and the same bay
-given as a two-rib case file have the same keys. ``summary.json``
-(`SCHEMA_VERSION`) holds ``schema``, ``mode`` ("optimise", or "evaluate" for
-a single equilibrium), ``inputs``, ``warnings``, ``case`` (``n_bays``,
-``ribs``, grid, trailing edges, fabric), ``results``, ``errors`` (fractions
-of the local chord, before and after, and at mid-bay), ``constraints``
-(``violated``: the largest amount per limit; ``violated_where``: the amount
-per bay or rib; ``violated_at_start``), ``timings_s``, ``history``, ``rib``
-(a shaped rib), ``patterns`` and ``bays``, the bay axis: one entry per bay
-(ribs, span, chords, weight, targets, result code, steps, residual, errors
-before and after, tensions, wrinkled fraction, cut lengths, and with
-``aero`` its aerodynamic comparison). The folder adds ``files``,
-``skipped``, ``checksums`` and ``out`` (`folder.write_report`); the console
-prints a few lines of it (`console.describe`).
+One record for any number of bays (a bay given by options and the same bay
+as a two-rib case file have the same keys): ``schema``, ``mode``
+("optimise", or "evaluate" for a single equilibrium), ``inputs``,
+``warnings``, ``case``, ``results``, ``errors`` (fractions of the local
+chord), ``constraints``, ``timings_s``, ``history``, ``rib`` (a shaped
+rib) and ``bays``, one entry per bay (docs/command.md lists every key). The
+folder adds ``patterns``, ``files``, ``skipped``, ``checksums`` and ``out``
+(`folder.write_report`); the console prints a few lines of it (`console.describe`).
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ from inverse_design.app import cli, interrupts, output_folder, resources, run
 from inverse_design.app.case import Case
 from support.cases import SMALL
 from support.command import environment, launch
+from support.reports import earlier_report
 
 ROOT = Path(__file__).resolve().parents[2]
 FOLDER = {"summary.json", "wing.npz", "equilibrium.npz", "skin.obj", "skin.stl", "bay_0_cut_pattern.csv",
@@ -484,19 +485,10 @@ def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(ru
 
 
 # ------------------------------------------------------------------ the atomic folder
-def _report(folder: Path, files: dict, **extra) -> dict:
-    """Write ``files`` ({name: bytes}) and a summary.json of this package listing them, as a report does."""
-    for name, data in files.items():
-        (folder / name).write_bytes(data)
-    summary = {"package": {"name": "inflatable-wing"}, "files": [*files, "summary.json"], **extra}
-    (folder / "summary.json").write_text(json.dumps(summary))
-    return summary
-
-
 def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old"})
+    earlier_report(out, {"skin.obj": b"old"})
     before = _snapshot(out)
     for interruption in (RuntimeError("plot failed"), KeyboardInterrupt()):
         with pytest.raises(type(interruption)):
@@ -505,7 +497,7 @@ def test_an_interrupted_report_leaves_the_earlier_folder_untouched(tmp_path):
                 raise interruption
         assert _snapshot(out) == before and _leftovers(tmp_path) == [] and _leftovers(out) == []
     with output_folder.staged_folder(out) as staging:
-        _report(staging, {"skin.obj": b"new"}, new=True)
+        earlier_report(staging, {"skin.obj": b"new"}, new=True)
     assert json.loads((out / "summary.json").read_text())["new"] is True
     assert (out / "skin.obj").read_bytes() == b"new"
     assert _leftovers(tmp_path) == [] and _leftovers(out) == []
@@ -525,7 +517,7 @@ def test_a_report_replaces_only_the_files_of_the_earlier_report(tmp_path, kind):
         earlier = {"wing.npz": b"w1", "bay_0_mid_bay_section.png": b"b0", "bay_1_mid_bay_section.png": b"b1",
                    "bay_2_mid_bay_section.png": b"b2", "rib_0.dat": b"r0", "rib_1.dat": b"r1", "rib_2.dat": b"r2"}
         new = {"wing.npz": b"w2", "bay_0_mid_bay_section.png": b"c0", "bay_1_mid_bay_section.png": b"c1"}
-    _report(out, earlier)
+    earlier_report(out, earlier)
     foreign = {"case.toml": b"target = 'x'\n", "clarky.dat": b"\x00\xff", "rib.dat.bak": b"mine",
                "rib_9.txt": b"mine too"}
     for name, data in foreign.items():
@@ -534,7 +526,7 @@ def test_a_report_replaces_only_the_files_of_the_earlier_report(tmp_path, kind):
     (out / "plots" / "bay_0_mid_bay_section.png").write_bytes(b"in a sub-folder: not the report's")
     inode = out.stat().st_ino
     with output_folder.staged_folder(out) as staging:
-        written = _report(staging, new)
+        written = earlier_report(staging, new)
     after = _snapshot(out)
     assert after == {**foreign, **new, "summary.json": after["summary.json"]}
     assert staging.parent == out  # staged inside the existing folder, never beside it
@@ -546,7 +538,7 @@ def test_a_report_replaces_only_the_files_of_the_earlier_report(tmp_path, kind):
 def test_a_file_of_a_report_name_the_earlier_report_did_not_write_is_refused(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old"})
+    earlier_report(out, {"skin.obj": b"old"})
     (out / "history.png").write_bytes(b"the user's own")  # not listed in the earlier summary.json
     before = _snapshot(out)
     with pytest.raises(ValueError, match="history.png"):
@@ -555,7 +547,7 @@ def test_a_file_of_a_report_name_the_earlier_report_did_not_write_is_refused(tmp
         (out / "history.png").unlink()
         with output_folder.staged_folder(out) as staging:
             (out / "history.png").write_bytes(b"the user's own")
-            _report(staging, {"skin.obj": b"new", "history.png": b"plot"})
+            earlier_report(staging, {"skin.obj": b"new", "history.png": b"plot"})
     assert _snapshot(out) == before and _leftovers(out) == []
     (out / "summary.json").write_text('{"files": ["summary.json", "history.png"]}')  # not this package's
     with pytest.raises(ValueError, match="summary.json"):
@@ -565,11 +557,11 @@ def test_a_file_of_a_report_name_the_earlier_report_did_not_write_is_refused(tmp
 def test_a_run_killed_while_moving_its_files_in_is_finished_by_the_next(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"old rib"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"old rib"})
     (out / "notes.txt").write_text("mine")
     killed = out / ".report.partial-0123abcd"  # its moves had begun: skin.obj is in place already
     killed.mkdir()
-    _report(killed, {"skin.obj": b"new", "history.png": b"plot"}, run=2)
+    earlier_report(killed, {"skin.obj": b"new", "history.png": b"plot"}, run=2)
     (killed / ".moves.json").write_text(json.dumps({"files": ["history.png", "skin.obj", "summary.json"],
                                                    "remove": ["rib.dat"]}))
     os.replace(killed / "skin.obj", out / "skin.obj")
@@ -594,8 +586,8 @@ def test_a_killed_runs_staging_folder_is_removed_by_the_next_writer_and_nothing_
         assert not stale.exists() and all((tmp_path / name).exists() for name in kept)
         with output_folder.staged_folder(out) as second:  # a second writer of the same folder, meanwhile
             assert staging.is_dir()  # the first holds its lock: being written, not stale
-            _report(second, {"skin.obj": b"2"}, writer=2)
-        _report(staging, {"skin.obj": b"1"}, writer=1)
+            earlier_report(second, {"skin.obj": b"2"}, writer=2)
+        earlier_report(staging, {"skin.obj": b"1"}, writer=1)
     assert json.loads((out / "summary.json").read_text())["writer"] == 1  # (merged into the second's)
     assert (out / "skin.obj").read_bytes() == b"1"
     assert _leftovers(tmp_path) == sorted(kept)
@@ -744,7 +736,7 @@ def test_every_stop_ends_the_run_with_its_code_and_writes_nothing(start_cli, run
     out = tmp_path / "out"
     if earlier:
         out.mkdir()
-        _report(out, {"skin.obj": b"earlier"})
+        earlier_report(out, {"skin.obj": b"earlier"})
         (out / "notes.txt").write_text("mine")
     before = _snapshot(out) if earlier else None
     # A run can end sooner than the timed one when the machine's load falls; then the stop is sent
@@ -772,7 +764,7 @@ def test_every_stop_ends_the_run_with_its_code_and_writes_nothing(start_cli, run
         if earlier:
             shutil.rmtree(out)
             out.mkdir()
-            _report(out, {"skin.obj": b"earlier"})
+            earlier_report(out, {"skin.obj": b"earlier"})
             (out / "notes.txt").write_text("mine")
         elif out.exists():
             shutil.rmtree(out)

@@ -14,19 +14,9 @@ from inverse_design.app import cli, output_folder, run
 from inverse_design.app.case import Case
 from inverse_design.app.options import InputError
 from support.cases import SMALL as GRID
+from support.reports import earlier_report
 
 SMALL = [*GRID, "--no-compilation-cache"]
-
-
-def _report(folder, files: dict, checksums: bool = True) -> dict:
-    """Write ``files`` ({name: bytes}) and a summary.json listing them (with their checksums), as a report does."""
-    for name, data in files.items():
-        (folder / name).write_bytes(data)
-    summary = {"package": {"name": "inflatable-wing"}, "files": [*files, "summary.json"]}
-    if checksums:
-        summary["checksums"] = output_folder.file_checksums(folder, files)
-    (folder / "summary.json").write_text(json.dumps(summary))
-    return summary
 
 
 def _hidden(folder):
@@ -73,13 +63,13 @@ def test_a_too_long_name_inside_a_new_path_is_refused_too(tmp_path):
 def test_a_changed_file_that_the_new_report_does_not_write_is_kept(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"}, checksums=True)
     assert output_folder.changed_files(out) == []
     (out / "rib.dat").write_bytes(b"the rib as the shop corrected it")
     assert output_folder.changed_files(out) == ["rib.dat"]
     output_folder.check_output_folder(out)  # (nothing to refuse: the new report may not write rib.dat)
     with output_folder.staged_folder(out) as staging:
-        _report(staging, {"skin.obj": b"new"})  # a run without a rib shape: no rib.dat
+        earlier_report(staging, {"skin.obj": b"new"}, checksums=True)  # a run without a rib shape: no rib.dat
     assert (out / "rib.dat").read_bytes() == b"the rib as the shop corrected it"  # kept, not removed
     assert (out / "skin.obj").read_bytes() == b"new"
     assert json.loads((out / "summary.json").read_text())["files"] == ["skin.obj", "summary.json"]
@@ -91,7 +81,7 @@ def test_a_changed_file_that_the_new_report_does_not_write_is_kept(tmp_path):
 def test_a_changed_file_that_the_new_report_would_replace_is_refused(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"}, checksums=True)
     (out / "rib.dat").write_bytes(b"edited")
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     # Up front, when the caller says which files the new report may write:
@@ -102,18 +92,18 @@ def test_a_changed_file_that_the_new_report_would_replace_is_refused(tmp_path):
     # At the latest when the files would move in: nothing moves.
     with pytest.raises(ValueError, match="it changed since the earlier report wrote it"):
         with output_folder.staged_folder(out) as staging:
-            _report(staging, {"skin.obj": b"new", "rib.dat": b"new rib"})
+            earlier_report(staging, {"skin.obj": b"new", "rib.dat": b"new rib"}, checksums=True)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and _hidden(out) == []
 
 
 def test_a_summary_without_checksums_is_trusted_as_before(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"rib"}, checksums=False)
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"rib"}, checksums=False)
     (out / "rib.dat").write_bytes(b"edited")
     assert output_folder.changed_files(out) == []
     with output_folder.staged_folder(out) as staging:
-        _report(staging, {"skin.obj": b"new"})
+        earlier_report(staging, {"skin.obj": b"new"}, checksums=True)
     assert not (out / "rib.dat").exists()
 
 
@@ -138,7 +128,7 @@ def test_the_command_records_checksums_and_refuses_to_replace_an_edited_file(tmp
 def test_the_command_warns_of_a_changed_file_it_keeps(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"rib", "rib_design.png": b"png"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"rib", "rib_design.png": b"png"}, checksums=True)
     (out / "rib.dat").write_bytes(b"edited")
     case = Case.from_arguments(["--out", str(out), "--variables", "pressure"])
     # A run without a rib shape writes no rib.dat: it may go ahead, and says it keeps the file.
