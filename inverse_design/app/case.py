@@ -111,12 +111,8 @@ class Case:
             SystemExit: for ``--help``.
         """
         options, sources = _merged_options(sys.argv[1:] if argv is None else list(argv))
-        _check_combinations(options, sources)
         variables = tuple(v.strip() for v in options.variables.split(",") if v.strip())
-        if options.method == "root" and options.wing is None and variables != ("pressure",):
-            raise InputError(f"{_given('method', sources)} root solves for the pressure alone (brentq on one "
-                             "scalar condition at mid-bay, --root-condition), got --variables "
-                             f"{','.join(variables)}: give --variables pressure, or another --method")
+        _check_combinations(options, sources, variables)
         _check_values(options)
         ribs = _ribs(options, sources)
         case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
@@ -286,7 +282,7 @@ def _given(name: str, sources: Mapping) -> str:
     return f"--{flag}" if sources.get(name) != "config" else f"{flag} (case file)"
 
 
-def _check_combinations(o: Options, sources: Mapping) -> None:
+def _check_combinations(o: Options, sources: Mapping, variables: tuple) -> None:
     """Refuse options that contradict each other (exit 2, one line each; docs/errors.md).
 
     * ``--no-tension-constraints`` with ``--min-tension`` or ``--max-tension``
@@ -297,6 +293,8 @@ def _check_combinations(o: Options, sources: Mapping) -> None:
       would solve the unshaped rib and the uniform cut).
     * ``--objective robust`` with ``--evaluate`` (nothing is designed) or
       with a ``--method`` other than auto or gauss_newton.
+    * ``--method root`` on a bay given by options with variables other than
+      the pressure alone: root finding (brentq) solves for the pressure alone.
     * A wing's case file with an option it gives per rib (`NOT_FOR_A_WING`),
       or ``--method root`` on several bays.
     """
@@ -318,11 +316,15 @@ def _check_combinations(o: Options, sources: Mapping) -> None:
         raise InputError(f"{_given('refine', sources)} polishes a design on a finer grid, and "
                          f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: give one or "
                          "the other")
-    fields = [n.strip() for n in o.variables.split(",") if n.strip() in _DESIGNED_FIELDS]
+    fields = [name for name in variables if name in _DESIGNED_FIELDS]
     if o.evaluate and "variables" in sources and fields:
         raise InputError(f"{_given('evaluate', sources)} solves at the given values, and {', '.join(fields)} "
                          f"of {_given('variables', sources)} has no value to give (it would solve the unshaped "
                          "rib and the uniform cut): drop --evaluate to design it, or drop it from --variables")
+    if o.method == "root" and o.wing is None and variables != ("pressure",):
+        raise InputError(f"{_given('method', sources)} root solves for the pressure alone (brentq on one scalar "
+                         f"condition at mid-bay, --root-condition), got --variables {','.join(variables)}: give "
+                         "--variables pressure, or another --method")
     if o.wing is not None:
         for option, why in NOT_FOR_A_WING.items():
             if option in sources:
