@@ -1,57 +1,29 @@
 """The output folder of a design of N >= 1 bays: every file of the report, by one path (`write_report`).
 
 A bay given by options and the same bay given as a two-rib case file write
-the same files, for any number of bays::
-
-    summary.json                 the summary (`summary.summarise`), with the files written and those skipped
-    wing.npz                     every bay stacked: nodes (n_bays, n_span, n_contour, 3) m
-                                 (each bay in its own frame, root rib at y = 0), tensions,
-                                 wrinkled cells, deviation from the row targets, ribs, history
-    skin.obj, skin.stl           the skin in one mesh (bays joined at their ribs, y from the root
-                                 rib), metres
-    wing_overview.png            every bay in one figure: the deviation over the whole skin,
-                                 each bay's errors and tensions (`wing_figures.plot_wing_overview`)
-    cut_pattern_overview.png     a cut field per bay: every bay's local prestrain along the contour,
-                                 span and contour fibres (`wing_figures.plot_cut_fields`)
-    bay_K_mid_bay_section.png    bay K's mid-bay section against its root rib and its target (for
-                                 at most `PER_BAY_PLOTS` bays)
-    bay_K_aero.png               with an aerodynamic comparison: bay K's lift, drag and moment
-                                 against its target's (`wing_figures.plot_aero`; at most `PER_BAY_PLOTS` bays)
-    bay_K_cut_pattern.csv        bay K's cut lengths (`formats.write_cut_pattern`)
-    history.png                  the optimiser's iterates (not for a single equilibrium)
-    tolerance.png                with a tolerance analysis (and tolerance_samples.csv with samples)
-    pattern_bay_K_upper.dxf/.svg, pattern_bay_K_lower.dxf/.svg
-                                 bay K's flat panels, cut-ready (1:1, mm; `cut_files`); a
-                                 successful design only
-    rib_K.dxf                    rib K's template at its chord (a successful design only)
-    rib.dat                      the designed rib as a Selig file (one shape for every rib)
-    rib_K.dat                    rib K's designed section (a shape per rib)
-
-and for a single bay, on top of these::
-
-    equilibrium.npz              the bay in full: nodes, tensions, wrinkled cells, held nodes,
-                                 deviation, target, sections, cut lengths, parameters, history
-                                 (`formats.bay_arrays`)
-    deviation.png                the deviation from the targets over the whole bay (`bay_figures.plot_deviation`)
-    tensions.png                 fibre tensions with the wrinkled cells marked (`bay_figures.plot_tensions`)
-    rib_design.png               a shaped rib's template offset and thickness kept (`bay_figures.plot_rib_design`)
+the same files (docs/command.md lists them): ``summary.json``
+(`summary.summarise`), ``wing.npz`` (every bay stacked, `formats.wing_arrays`),
+``skin.obj`` and ``skin.stl`` (one mesh), ``wing_overview.png``,
+``cut_pattern_overview.png`` (a cut field per bay), ``history.png``,
+``tolerance.png`` and ``tolerance_samples.csv`` (`wing_figures`), each bay's
+``bay_K_mid_bay_section.png`` (at most `PER_BAY_PLOTS` bays),
+``bay_K_aero.png`` and ``bay_K_cut_pattern.csv``, a designed rib's
+``rib.dat`` or ``rib_K.dat``, and the cut-ready ``pattern_bay_K_*.dxf/.svg``
+and ``rib_K.dxf`` (`cut_files`; a successful design only, not with
+``patterns=False``: ``skipped`` says why). A single bay adds
+``equilibrium.npz`` (`formats.bay_arrays`), ``deviation.png``,
+``tensions.png`` and ``rib_design.png`` (`bay_figures`). The deviation in
+the files and figures is `measures.wing_deviation`'s.
 
 The folder is written by `output_folder.staged_folder`: only the tool's own
-files are replaced, nothing else in the folder is touched. The pattern files
-are plain names in the folder (not a ``patterns/`` subfolder): the staging
-and ownership rules (`output_folder.written_files`) own plain files only.
-
-Each figure is built in the calling process (where JAX may be called); the
-command hands the built figures (pickled `matplotlib.figure.Figure` objects,
-in `_SAVE_ORDER`) and then the DXF patterns to its `workers.ReportWorkers`
-(worker processes started when it starts, which import matplotlib and ezdxf,
-not JAX, while the design runs) to save; what they do not write, and every
-file of a library caller's report, is written in the calling process.
-
-A design that failed (``success`` false) gets no pattern files (the panels of
-a design that breaks its limits or did not converge are not to be cut);
-``skipped`` says so and the command exits 1. ``patterns=False``
-(``--no-patterns``) leaves them out of any report.
+files are replaced, nothing else in the folder is touched; the files are
+plain names in the folder (the staging and ownership rules own plain files
+only). Each figure is built in the calling process (where JAX may be called);
+the command hands the built figures (pickled `matplotlib.figure.Figure`
+objects, in `_SAVE_ORDER`) and then the DXF patterns to its
+`workers.ReportWorkers` (processes started with the command, which import
+matplotlib and ezdxf, not JAX, while the design runs) to save; what they do
+not write, and every file of a library caller's report, is written here.
 """
 
 from __future__ import annotations
