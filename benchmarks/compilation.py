@@ -173,18 +173,20 @@ def default_case_runs(tmp: Path, top: int, repeats: int = 3) -> list[dict]:
     # as the console script: the command's work, then the process ends without the interpreter's
     # teardown or the exit functions (`cli.command`), so the listener's report is written first
     code = "from inverse_design.app import cli\ncode = cli.main()\n_dump()\ncli._exit_now(code)\n"
+    # (every file written in the command's process: no report workers)
+    serial = code.replace("code = cli.main()", "cli.ReportWorkers = type('NoWorkers', (), {'start': staticmethod("
+                                               "lambda *a, **k: None)})\ncode = cli.main()")
     rows = []
     default_emitters = dict(env, XLA_FLAGS="--xla_cpu_use_fusion_emitters=true")
-    serial = dict(env, INFLATABLE_WING_SERIAL_FIGURES="1")
     # The cached variants alternate, `repeats` times each, for ratios taken in one run: with the
     # report's workers (as the command runs), and with every file written in the command's process.
-    cached = [("default, cached", [], env), ("default, cached, figures saved serially", [], serial)] * repeats
-    for label, extra, run_env in [("default, no cache", ["--no-compilation-cache"], env),
-                                  ("default, empty cache", [], env), *cached,
-                                  ("default, no cache, XLA's default emitters", ["--no-compilation-cache"],
-                                   default_emitters)]:
+    cached = [("default, cached", [], env, code), ("default, cached, figures saved serially", [], env, serial)] * repeats
+    for label, extra, run_env, run_code in [("default, no cache", ["--no-compilation-cache"], env, code),
+                                            ("default, empty cache", [], env, code), *cached,
+                                            ("default, no cache, XLA's default emitters", ["--no-compilation-cache"],
+                                             default_emitters, code)]:
         out = tmp / f"out-{len(rows)}"
-        wall, report, _ = _child(code, tmp / f"report-{len(rows)}.json", ["--quiet", "--out", str(out), *extra],
+        wall, report, _ = _child(run_code, tmp / f"report-{len(rows)}.json", ["--quiet", "--out", str(out), *extra],
                                  run_env)
         row = _summary(label, wall, report, top)
         summary = json.loads((out / "summary.json").read_text())

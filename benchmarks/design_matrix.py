@@ -15,10 +15,11 @@ The matrix of `optimise_pressure` / `optimise_wing` runs that decides what
   thickness scale; pressure, prestrains and rib shape;
 * methods: slsqp and gauss_newton, and least_squares where both fail.
 
-Every run is built from the command's own namespace
-(`inverse_design.app.case.parse_arguments` on ``--variables ... --method
-...``, plus ``--config`` or ``--target`` for the case; `case.design_inputs`
-for the start, bounds and limits), so it takes the command's defaults for
+Every run is the command's own design of its case
+(`inverse_design.app.case.Case.from_arguments` on ``--variables ... --method
+...``, plus ``--config`` or ``--target`` for the case;
+`inverse_design.app.design.optimise`: `inverse_design.optimise_wing` on the
+case's start, bounds and limits), so it takes the command's defaults for
 everything else (fabric 2e5 N/m both ways, Poisson 0.25, prestrain start 2%,
 pressure start 1e4 Pa in 1e3-1e5, objective "average", min_tension 0,
 max_iterations 50).
@@ -89,34 +90,12 @@ def case_arguments(case: str, set_name: str, method: str, grid=None) -> list[str
 
 
 def design(argv: list[str]):
-    """The design the command runs for ``argv`` (as `inverse_design.app.command.run`, no report)."""
-    from forward_solver import Bay, Fabric, Scene, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_pressure, optimise_wing
-    from inverse_design.app.case import design_inputs, load_section, parse_arguments
+    """The design the command runs for ``argv`` (`inverse_design.app.run.run_case`'s, without the report)."""
+    from inverse_design.app import design as command_design
+    from inverse_design.app.case import Case
 
-    args, _ = parse_arguments(argv)
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
-    initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    options = dict(initial=initial, bounds=bounds, objective=args.objective, method=args.method,
-                   limits=Limits(tension=constraints, ribs=rib_limits),
-                   solver=SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
-                                         equilibrium_method=args.equilibrium_method, max_steps=args.max_steps))
-    ribs = getattr(args, "wing", None)
-    if ribs is not None:
-        sections = [load_section(r["section"], "section") for r in ribs]
-        targets = [load_section(r["target"], "target") if "target" in r else sections[k]
-                   for k, r in enumerate(ribs)]
-        wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
-                    stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-        return optimise_wing(wing, fabric, targets, variables,
-                             layout=Layout(n_span=args.n_span, n_contour=args.n_contour,
-                                           cut_pattern=args.cut_pattern_layout),
-                             **options)
-    target = load_section(args.target, "--target")
-    rib = target if args.rib is None else load_section(args.rib, "--rib")
-    bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
-                           n_contour=args.n_contour)
-    return optimise_pressure(Scene(bay, fabric), target, variables, rib=rib, **options)
+    case = Case.from_arguments(argv)
+    return command_design.optimise(case, command_design.tolerances(case))
 
 
 def run_one(case: str, set_name: str, method: str, grid=None) -> dict:

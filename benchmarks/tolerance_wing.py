@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import os
 import sys
 import tempfile
@@ -40,21 +41,12 @@ def resident_mb() -> float:
 
 
 def design(cells: int):
-    from forward_solver import Fabric, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_wing
-    from inverse_design.app.case import design_inputs, load_section, parse_arguments
+    """The command's design of the first ``cells`` bays of the 40-cell case (`inverse_design.app.design.optimise`)."""
+    from inverse_design.app import design as command_design
+    from inverse_design.app.case import Case
 
-    args, _ = parse_arguments(["--config", str(CASE)])
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
-    initial, names, rib_limits, bounds, constraints = design_inputs(args)
-    ribs = args.wing[:cells + 1]
-    sections = [load_section(r["section"], "section") for r in ribs]
-    wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
-                stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-    return optimise_wing(wing, fabric, sections, names, initial=initial, bounds=bounds, objective=args.objective,
-                         method=args.method, limits=Limits(tension=constraints, ribs=rib_limits),
-                         solver=SolverSettings(max_iterations=args.max_iterations),
-                         layout=Layout(n_span=args.n_span, n_contour=args.n_contour))
+    case = Case.from_arguments(["--config", str(CASE)])
+    return command_design.optimise(dataclasses.replace(case, ribs=case.ribs[:cells + 1]))
 
 
 def main() -> None:

@@ -149,16 +149,16 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 
 
 def design_case(fabric, variables=("pressure",)) -> dict:
-    from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
     from inverse_design import Layout, Limits, optimise_wing
-    from inverse_design.app.case import EXAMPLE_CASE
+    from inverse_design.app.case import Case
+    from inverse_design.app.case_file import EXAMPLE_CASE
 
-    values = case_reader.read_config(EXAMPLE_CASE)
-    ribs = values["wing"]
+    case = Case.from_arguments(["--config", str(EXAMPLE_CASE)])
+    values = vars(case.options)
     af = naca("2412")
-    wing = Wing(airfoils=(af,) * len(ribs), chords=tuple(r["chord"] for r in ribs),
-                stations=tuple(r["station"] for r in ribs))
+    wing = Wing(airfoils=(af,) * len(case.ribs), chords=tuple(r.chord for r in case.ribs),
+                stations=tuple(r.station for r in case.ribs))
     t = time.perf_counter()
     res = optimise_wing(wing, fabric, None, variables,
                         initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],

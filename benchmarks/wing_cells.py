@@ -4,8 +4,8 @@ Three 40-cell cases (``inverse_design/cases/``): the built-in elliptic wing
 (``wing_40_cells.toml``, NACA 4415), a rectangular one of one section
 (``wing_40_cells_constant.toml``) and one blended from NACA 4418 at the root
 to NACA 2412 at the tip with a linear taper (``wing_40_cells_blended.toml``).
-Four designs each (`DESIGNS`), by the command's own namespace
-(`inverse_design.app.case.parse_arguments`, `case.design_inputs`): the
+Four designs each (`DESIGNS`), the command's own designs of the cases
+(`inverse_design.app.case.Case`, `inverse_design.app.design.optimise`): the
 pressure and the uniform prestrains; the pressure and one shared cut field;
 the pressure and a cut field per bay; the pressure, a cut field per bay and a
 shape per rib (about 800 variables on 40 cells). Gauss-Newton with the block
@@ -25,7 +25,7 @@ Run:
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --refine
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --cells 10,20,40 --out F
 
-The LE recession (the mid-bay nose behind its target's, `report.le_recessions`) is the largest over the
+The LE recession (the mid-bay nose behind its target's, `app.measures.le_recessions`) is the largest over the
 bays.
 """
 
@@ -69,10 +69,9 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
 
     import numpy as np
 
-    from forward_solver import Fabric, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_wing
-    from inverse_design.app.case import design_inputs, load_section, parse_arguments
-    from inverse_design.app.report import le_recessions
+    from inverse_design.app import design as command_design
+    from inverse_design.app.case import Case
+    from inverse_design.app.measures import le_recessions
     from inverse_design.memory import fix_mmap_threshold
     from inverse_design.optimise import refine_design
 
@@ -85,25 +84,15 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
         argv += ["--n-span", str(grid[0]), "--n-contour", str(grid[1])]
     if max_iterations is not None:
         argv += ["--max-iterations", str(max_iterations)]
-    args, _ = parse_arguments(argv)
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
-    initial, names, rib_limits, bounds, constraints = design_inputs(args)
-    ribs = args.wing if cells is None else args.wing[:cells + 1]
-    sections = [load_section(r["section"], "section") for r in ribs]
-    targets = [load_section(r["target"], "target") if "target" in r else sections[k] for k, r in enumerate(ribs)]
-    wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
-                stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-    limits = Limits(tension=constraints, ribs=rib_limits)
-    solver = SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
-                            equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
-    layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
+    wing_case = Case.from_arguments(argv)
+    if cells is not None:
+        wing_case = dataclasses.replace(wing_case, ribs=wing_case.ribs[:cells + 1])
     start = time.perf_counter()
-    result = optimise_wing(wing, fabric, targets, names, initial=initial, bounds=bounds, objective=args.objective,
-                           method="gauss_newton", limits=limits, solver=solver, layout=layout)
+    result = command_design.optimise(wing_case)
     seconds = time.perf_counter() - start
     worst = int(np.argmax(result.per_bay.rms_error))
     size = sum(np.size(v) for v in result.history[-1]["values"].values()) if result.history else None
-    record = {"case": case, "bays": wing.n_bays, "design": design, "variables": size,
+    record = {"case": case, "bays": wing_case.n_bays, "design": design, "variables": size,
               "success": bool(result.success), "message": result.message, "wing solves": int(result.solves),
               "rms": float(f"{result.rms_error:.4g}"), "max": float(f"{result.max_error:.4g}"),
               "worst bay": worst, "worst bay rms": float(f"{result.per_bay.rms_error[worst]:.4g}"),
@@ -114,8 +103,9 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     mid_chords = [0.5 * (b.chord_root + b.chord_tip) for b in result.wing_solution.bays]
     record["LE recession, largest (mm)"] = round(float(np.max(1e3 * le_recessions(result) * mid_chords)), 2)
     if refine:
-        fine = refine_design(result, layout=dataclasses.replace(layout, n_span=33, n_contour=64), bounds=bounds,
-                             limits=limits, solver=solver)
+        fine = refine_design(result, layout=dataclasses.replace(wing_case.layout, n_span=33, n_contour=64),
+                             bounds=wing_case.bounds, limits=wing_case.limits,
+                             solver=command_design.solver_settings(wing_case))
         change = fine.grid_change["change"]
         record["33x64 rms"] = float(f"{fine.rms_error:.4g}")
         record["33x64 move"] = "; ".join(f"{k} {v:.3g}" for k, v in change.items())

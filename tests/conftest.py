@@ -15,6 +15,12 @@ cold as on CI, and no test writes to the user's own cache
 The run compiles as the command does, with XLA's faster-compiling CPU loop
 emitters (`forward_solver.compilation.enable_fast_compilation`, set before any test
 starts JAX's backend; its subprocesses inherit it).
+
+The command's runs in the test processes (`cli.main`) write their reports
+serially (the same files; the tests of the workers themselves,
+tests/command/test_workers.py, start their own) and use the plain jitted
+programs that the library tests compile (`command_in_the_test_processes`);
+its runs in subprocesses go through `support.command`, which does the same.
 """
 
 import os
@@ -26,8 +32,21 @@ import pytest
 
 from forward_solver.compilation import enable_fast_compilation
 from inverse_design.app import cli
+from support.command import NoWorkers, plain_programs
 
 CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def command_in_the_test_processes():
+    """The command's runs in this process: the report written serially (its workers are fresh interpreters
+    that import the report's libraries, a few seconds of CPU each, twice per run), and the solver's plain
+    jitted programs, which the library tests compile (the exported ones, `forward_solver.compilation.stored`,
+    would compile again; the runs in subprocesses keep them in the run's cache: docs/compilation.md)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(cli, "ReportWorkers", NoWorkers)
+        patch.setattr(cli, "use_compilation_cache", plain_programs(cli.use_compilation_cache))
+        yield
 
 
 @pytest.fixture
@@ -45,14 +64,6 @@ def pytest_configure(config):
     # Subprocesses read the environment; this process's JAX was imported already, so configure it.
     os.environ.update(INFLATABLE_WING_CACHE=cache, JAX_COMPILATION_CACHE_DIR=cache,
                       JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
-    # The command's report workers are fresh interpreters that import the report's libraries (a few
-    # seconds of CPU each, twice per run): the suite's many in-process and subprocess runs write their
-    # reports serially (the same files), and the tests of the workers themselves
-    # (tests/command/test_workers.py, tests/command/test_cli.py) turn them back on.
-    os.environ["INFLATABLE_WING_SERIAL_FIGURES"] = "1"
-    # The command's runs in the test processes use the plain jitted programs that the library tests
-    # compile (its runs in subprocesses keep the exported ones in the run's cache: docs/compilation.md).
-    cli.KEEP_PROGRAMS = False
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

@@ -1,66 +1,55 @@
 """``optimise-pressure``: the command line, a thin layer over the public API.
 
-It parses the options (and a TOML case file, ``--config``), builds the
-`forward_solver.Scene`, calls `inverse_design.optimise_pressure` (or, with
-``--evaluate``, `forward_solver.solve_equilibrium` once) and hands the result
-to `inverse_design.app.report.write_report`, which writes the output folder. No
-physics lives here.
+It reads the options (and a TOML case file, ``--config``) into one checked
+`inverse_design.app.case.Case` and runs it (`inverse_design.app.run.run_case`:
+the design by `inverse_design.optimise_wing`, or with ``--evaluate`` one
+equilibrium, and the output folder). No physics lives here.
 
-Exit codes: 0 success; 1 the run failed (a forward solve did not converge:
-nothing written; or the optimiser stopped without converging: the folder is
-written and says so); 2 bad input (one line on stderr), a grid too large
-for the machine among it (`inverse_design.app.resources.check_grid`); 130
-interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind like
-Ctrl-C, so the staging folder is removed). The design and the report run on
-a thread of their own while the main thread waits, free to take a signal
-whatever the work computes (`interrupts.run_stoppable`): a stop ends the
-command within about a second (`interrupts.UNWIND_GRACE_S`), the work's
-staging folder and lock file removed, its report workers killed, without
+Exit codes (docs/command.md): 0 success; 1 the run failed (a forward solve
+did not converge: nothing written; or the design did not succeed: the folder
+is written and says so); 2 bad input, one line on stderr (docs/errors.md);
+130 interrupted (Ctrl-C); 143 terminated (SIGTERM: `main` makes it unwind
+like Ctrl-C, so the staging folder is removed). The design and the report
+run on a thread of their own while the main thread waits, free to take a
+signal whatever the work computes (`interrupts.run_stoppable`): a stop ends
+the command within about a second (`interrupts.UNWIND_GRACE_S`), without
 waiting for the work's compiled call to return. A stop that Python loses
 (raised inside a garbage-collection callback) is recorded and raised again at
 the next safe point (`inverse_design.app.interrupts`), at the latest before
 the folder's files are put in place.
 
-The solvers run in their own thread-local float64 scope. Unlike the
-library, the command turns on JAX's persistent compilation cache for its own
-process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``, else JAX's own
-``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/inflatable-wing/jax``,
-else ``~/.cache/inflatable-wing/jax``;
-``--no-compilation-cache`` turns it off; deleting the folder clears it), so a
-second run of a grid compiles nothing; beside it, in its ``programs``
-sub-folder, it keeps the solver's top-level programs exported, so that a
-second run neither traces nor lowers them (`forward_solver.compilation`). A cache folder that cannot be used (a
-file, a folder it cannot write, a home folder that does not exist: the
+Unlike the library, the command turns on JAX's persistent compilation cache
+for its own process (`compilation_cache_dir`: ``$INFLATABLE_WING_CACHE``,
+else ``$JAX_COMPILATION_CACHE_DIR``, else
+``$XDG_CACHE_HOME/inflatable-wing/jax``, else ``~/.cache/inflatable-wing/jax``;
+``--no-compilation-cache`` turns it off), and keeps the solver's top-level
+programs exported in its ``programs`` sub-folder
+(`forward_solver.compilation`): a second run of a grid neither
+traces, lowers nor compiles them. A cache folder that cannot be used (the
 command never creates a user's home) or whose entries JAX cannot read gets
-one ``warning:`` line, and the run goes on without the cache. It also
-compiles with XLA's faster-compiling CPU loop emitters
-(`forward_solver.compilation.enable_fast_compilation`, unless ``XLA_FLAGS`` chooses
-otherwise): about 40% less compile time, the same results; and the
-report's figures and DXF patterns are written by worker processes started as
-it starts, which import matplotlib and ezdxf while the design runs
-(`inverse_design.app.workers.ReportWorkers`). BLAS runs on one thread for
-the command's run (``threadpoolctl``): its solves (the flat panels' banded
-Cholesky, the sparse factors) are too small to gain from threads, and on a
-busy 2-core machine OpenBLAS's waiting threads made the panels of the
-default case take 29 s instead of 0.1 s. It keeps glibc's mmap threshold
-fixed (`inverse_design.memory.fix_mmap_threshold`), so that a long design's
-resident memory levels off instead of growing with every iterate, and
-collects cyclic garbage less often while it runs (`GC_THRESHOLD`). It
+one ``warning:`` line, and the run goes on without it. It also compiles with
+XLA's faster-compiling CPU loop emitters
+(`forward_solver.compilation.enable_fast_compilation`, unless ``XLA_FLAGS``
+chooses otherwise: about 40% less compile time, the same results); starts
+the report's worker processes, which import matplotlib and ezdxf while the
+design runs (`inverse_design.app.workers.ReportWorkers`); runs BLAS on one
+thread (``threadpoolctl``: its solves are too small to gain from threads, and
+on a busy 2-core machine OpenBLAS's waiting threads made the default case's
+panels take 29 s instead of 0.1 s); keeps glibc's mmap threshold fixed
+(`inverse_design.memory.fix_mmap_threshold`: a long design's resident memory
+levels off); and collects cyclic garbage less often (`GC_THRESHOLD`). It
 imports JAX once the options are read and the report's workers started, not
 when this module is imported: bad input and ``--help`` answer without it,
 and a report worker, started by ``spawn``, imports the command's module
 again as its main module.
 
 Every Python warning of the run (an `targets.AirfoilWarning` among them) is
-shown as one ``optimise-pressure: warning: ...`` line. A failure line (a
-design or solve that did not succeed, whose message carries the optimiser's
-and the limits' details) is kept to `CONSOLE_WIDTH` characters, a refusal of
-bad input (exit 2) to `REFUSAL_WIDTH`, a few lines of a terminal, so that its
-reason and its fix stay whole: the first clause and the last (the fix); the
-whole text is in the summary's ``results.message`` where a
-report is written, and on stdout as ``{"error": ...}`` under ``--json``. A
-JAX platform that the machine does not have (``JAX_PLATFORMS=cuda`` on a
-machine without one) is bad input: one line, exit 2.
+shown as one ``optimise-pressure: warning: ...`` line. A failure line is kept
+to `CONSOLE_WIDTH` characters, a refusal of bad input to `REFUSAL_WIDTH`, so
+that its reason and its fix stay whole: its first clause and its last; the
+whole text is in the summary's ``results.message`` where a report is written,
+and on stdout as ``{"error": ...}`` under ``--json``. A JAX platform that the
+machine does not have (``JAX_PLATFORMS=cuda`` without one) is bad input.
 """
 
 from __future__ import annotations
@@ -78,12 +67,12 @@ from threadpoolctl import threadpool_limits
 from inverse_design.memory import fix_mmap_threshold
 
 from . import interrupts
-from .case import parse_arguments
+from .case import Case
 from .console import describe
-from .workers import ReportWorkers
 from .interrupts import Terminated
 from .options import PROG, InputError
-from .command import WORKER_MODULES, run
+from .run import WORKER_MODULES, run_case
+from .workers import ReportWorkers
 
 __all__ = ["CONSOLE_WIDTH", "REFUSAL_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
@@ -228,12 +217,6 @@ def main(argv: list[str] | None = None) -> int:
 GC_THRESHOLD = 10_000
 
 
-#: Whether `use_compilation_cache` also keeps the solver's top-level programs (`forward_solver.compilation`)
-#: in the cache's ``programs`` folder. The test suite turns it off for the runs in its own processes,
-#: whose library tests have compiled the plain programs already (the exported ones would compile again).
-KEEP_PROGRAMS = True
-
-
 def _program_store(folder=False):
     """The program store in use (`forward_solver.compilation`; None if none or not imported yet), or, given a
     ``folder``, that store put back (if the module was imported since)."""
@@ -319,8 +302,7 @@ def use_compilation_cache(path: Path) -> bool:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     from forward_solver.compilation import use_program_store
 
-    if KEEP_PROGRAMS:  # the solver's top-level programs, traced and lowered once (`forward_solver.compilation`)
-        use_program_store(path / "programs")
+    use_program_store(path / "programs")  # the solver's top-level programs, traced and lowered once
     return True
 
 
@@ -364,20 +346,21 @@ def _interrupted(exc: KeyboardInterrupt, out: str) -> int:
     return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
-def _error(args, kind: str, text: str, after: str = "") -> None:
-    """An error line (`shorten`), and under ``--json`` the whole text on stdout."""
+def _error(options, kind: str, text: str, after: str = "") -> None:
+    """An error line (`shorten`), and under ``--json`` (``options.json``) the whole text on stdout."""
     _say(f"{PROG}: {kind}: {shorten(text, REFUSAL_WIDTH if kind == 'error' else CONSOLE_WIDTH)}{after}")
-    if args is not None and args.json:
+    if options is not None and options.json:
         _say(json.dumps({"error": " ".join(str(text).split())}), stdout=True)
 
 
 def _main(argv: list[str] | None, started: float) -> int:
     try:
-        args, sources = parse_arguments(argv)
+        case = Case.from_arguments(argv)
     except InputError as exc:
         _error(None, "error", str(exc))
         return 2
-    progress = sys.stderr is not None and sys.stderr.isatty() and not (args.quiet or args.json)
+    options = case.options
+    progress = sys.stderr is not None and sys.stderr.isatty() and not (options.quiet or options.json)
     workers = None
     try:
         # A stop is held until the pool and JAX are whole (one inside a starting pool left its
@@ -392,28 +375,27 @@ def _main(argv: list[str] | None, started: float) -> int:
             from forward_solver import ConvergenceError
         interrupts.check()
         check_platform()
-        if not args.no_compilation_cache:
+        if not options.no_compilation_cache:
             use_compilation_cache(compilation_cache_dir())
     except BaseException as exc:  # (the workers are stopped whatever ends it)
         if workers is not None:
             workers.close()
         if isinstance(exc, KeyboardInterrupt):
-            return _interrupted(exc, args.out)
+            return _interrupted(exc, options.out)
         if isinstance(exc, InputError):
-            _error(args, "error", str(exc))
+            _error(options, "error", str(exc))
             return 2
         raise
     try:
         # BLAS on one thread (module docstring): limited once NumPy's and SciPy's are loaded. On a thread
         # of its own: this one stays free to take a stop (`interrupts.run_stoppable`).
         with threadpool_limits(limits=1, user_api="blas"):
-            summary = interrupts.run_stoppable(run, args, sources, progress=progress, started=started,
-                                               workers=workers)
+            summary = interrupts.run_stoppable(run_case, case, progress=progress, started=started, workers=workers)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (`Terminated`)
         # (The workers end below, `ReportWorkers.close`, also those of an abandoned work: its pool is
         # terminated, which kills a busy worker. Killing them before hung the pool's termination: an idle
         # worker holds the task queue's lock while it waits, and a killed one never gives it back.)
-        return _interrupted(exc, args.out)
+        return _interrupted(exc, options.out)
     except (ConvergenceError, ValueError, OSError) as exc:
         try:
             # An error raised while a stop unwound the run is the stop's doing: a Ctrl-C inside
@@ -421,15 +403,15 @@ def _main(argv: list[str] | None, started: float) -> int:
             # ValueError in place of the KeyboardInterrupt.
             interrupts.check()
         except KeyboardInterrupt as stop:
-            return _interrupted(stop, args.out)
+            return _interrupted(stop, options.out)
         if isinstance(exc, ConvergenceError):  # a forward solve failed: the reason, exit 1
-            _error(args, "failed", str(exc), f"; nothing was written to {args.out}")
+            _error(options, "failed", str(exc), f"; nothing was written to {options.out}")
             return 1
         if isinstance(exc, ValueError):  # bad input: one line, no traceback
-            _error(args, "error", str(exc))
+            _error(options, "error", str(exc))
             return 2
         # input files are read (and checked) before: this is the output
-        _error(args, "failed", f"could not write {args.out}: {exc}")
+        _error(options, "failed", f"could not write {options.out}: {exc}")
         return 1
     finally:
         if workers is not None:  # (unused, or left running by an error: stopped)
@@ -441,14 +423,14 @@ def _main(argv: list[str] | None, started: float) -> int:
         _say(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
              f"in {summary['out']}")
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
-    if args.json:
+    if options.json:
         _say(json.dumps(summary, indent=2), stdout=True)
-    elif not args.quiet:
+    elif not options.quiet:
         _say("\n".join(describe(summary)), stdout=True)
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")
-        patterns = "" if args.no_patterns else "; no panel or rib template (DXF, SVG) was written"
+        patterns = "" if options.no_patterns else "; no panel or rib template (DXF, SVG) was written"
         message = str(summary["results"]["message"])
         whole = "" if shorten(message) == " ".join(message.split()) else "; the whole message is in summary.json"
         _say(f"{PROG}: failed: {why}: {shorten(message)} (the results are in {summary['out']}{patterns}{whole})")

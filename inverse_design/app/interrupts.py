@@ -51,7 +51,7 @@ import sys
 import threading
 from contextlib import contextmanager
 
-__all__ = ["UNWIND_GRACE_S", "Terminated", "abandoned", "check", "deferred", "install", "received", "restore",
+__all__ = ["UNWIND_GRACE_S", "Terminated", "abandoned", "check", "deferred", "install", "restore",
            "run_stoppable", "undo_if_abandoned"]
 
 #: Seconds a stopped work has to unwind by itself (to its next safe point) before `run_stoppable`
@@ -131,11 +131,6 @@ def restore(state) -> None:
     sys.unraisablehook = hook
     _received = None
     _installed = False
-
-
-def received() -> int | None:
-    """The signal number recorded since `install` (None if none)."""
-    return _received
 
 
 def check() -> None:

@@ -1,7 +1,7 @@
 """Secondary-axis scales of the report's figures, in a module that imports nothing but the standard
 library: a figure pickles its axes' functions by name, and the report's workers
 (`inverse_design.app.workers`) unpickle it without importing JAX or the solver (a scale defined in
-`inverse_design.app.plots` made a worker import both, 0.7 s, before it could save the figure)."""
+`inverse_design.app.bay_figures` made a worker import both, 0.7 s, before it could save the figure)."""
 
 from __future__ import annotations
 

@@ -32,9 +32,8 @@ SIGINT themselves, so a Ctrl-C sent to the process group ends the run with
 the caller's one line.
 
 Used by the ``optimise-pressure`` command for its report (one bay or a wing)
-(`inverse_design.app.report.write_report` takes its ``workers``); a library
-caller writes every file in its own process. ``INFLATABLE_WING_SERIAL_FIGURES=1``
-keeps the command from starting workers (the same files either way).
+(`inverse_design.app.folder.write_report` takes its ``workers``); a library
+caller writes every file in its own process (the same files either way).
 """
 
 from __future__ import annotations
@@ -47,11 +46,9 @@ import signal
 import time
 from contextlib import contextmanager
 
-__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "SERIAL_VARIABLE", "WORKER_TIMEOUT_S", "ReportWorkers",
+__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "WORKER_TIMEOUT_S", "ReportWorkers",
            "run_task", "save_figure", "saved_after"]
 
-#: Environment variable that, set to anything but "" or "0", keeps `ReportWorkers.start` from starting any.
-SERIAL_VARIABLE = "INFLATABLE_WING_SERIAL_FIGURES"
 #: Seconds `ReportWorkers.finish` waits for the workers' tasks; then the caller writes what is left. A
 #: figure takes about 0.3 s: only a hang reaches this.
 WORKER_TIMEOUT_S = 60.0
@@ -124,8 +121,7 @@ def _run_pickled(k: int, payload: bytes) -> bool:
 class ReportWorkers:
     """Worker processes that import the report's libraries, then write files from tasks (module docstring).
 
-    `start` returns None where no worker would help (one core, or
-    ``INFLATABLE_WING_SERIAL_FIGURES`` set). `submit` hands a batch of tasks
+    `start` returns None where no worker would help (one core). `submit` hands a batch of tasks
     over (or returns False: the caller writes them), `finish` waits for them
     and returns the indices of those done, `close` stops the workers (also
     unused ones; twice is harmless).
@@ -142,8 +138,6 @@ class ReportWorkers:
     def start(cls, modules=(), count: int | None = None) -> "ReportWorkers | None":
         """Start ``count`` workers (default one per core beyond this process's, at most `MAX_WORKERS`)
         that import ``modules`` while they wait; None where none would help (class docstring)."""
-        if os.environ.get(SERIAL_VARIABLE, "").strip() not in ("", "0"):
-            return None
         if count is None:
             if _cores() < 2:
                 return None
@@ -213,13 +207,6 @@ class ReportWorkers:
             self._claimed, self._results, self._tasks = None, [], []
             if not answered:
                 gc.collect()
-
-    def __enter__(self) -> "ReportWorkers":
-        return self
-
-    def __exit__(self, *exc) -> bool:
-        self.close()
-        return False
 
 
 def run_task(task) -> None:

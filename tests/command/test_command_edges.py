@@ -5,25 +5,13 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from inverse_design.app import cli
+from support.cases import SMALL
+from support.command import environment, launch
 from targets import naca
-
-ROOT = Path(__file__).resolve().parents[2]
-SMALL = ("--n-span", "5", "--n-contour", "32")
-
-
-def _env(**changes):
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    for key, value in changes.items():
-        if value is None:
-            env.pop(key, None)
-        else:
-            env[key] = value
-    return env
 
 
 def _stderr_lines(captured) -> list[str]:
@@ -32,8 +20,8 @@ def _stderr_lines(captured) -> list[str]:
 
 def test_a_platform_the_machine_lacks_is_one_line_and_exit_2(tmp_path):
     """``JAX_PLATFORMS=cuda`` where there is no GPU: the platform asked for, those present, the fix."""
-    ran = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--out", str(tmp_path / "out")],
-                         cwd=tmp_path, env=_env(JAX_PLATFORMS="cuda"), capture_output=True, text=True, timeout=600)
+    ran = subprocess.run(launch(*SMALL, "--out", tmp_path / "out"), cwd=tmp_path, env=environment(JAX_PLATFORMS="cuda"),
+                         capture_output=True, text=True, timeout=600)
     import jax
 
     if any(d.platform == "gpu" for d in jax.devices()) or "cuda" in [p.lower() for p in cli._platforms_present()]:
@@ -50,11 +38,11 @@ def test_a_run_without_stdout_or_home_finishes_and_creates_no_home(tmp_path):
     one line says the run goes without the cache, and the home folder is not created."""
     home = tmp_path / "no-such-home"
     # (--evaluate: one equilibrium and its report; without a cache an optimisation compiles its gradients cold)
-    command = [sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--evaluate", "--out", str(tmp_path / "out")]
+    command = launch(*SMALL, "--evaluate", "--out", tmp_path / "out")
     ran = subprocess.run(["sh", "-c", 'exec "$@" >&-', "sh", *command],
-                         cwd=tmp_path, env=_env(HOME=str(home), XDG_CACHE_HOME=None, XDG_CONFIG_HOME=None,
-                                                INFLATABLE_WING_CACHE=None, JAX_COMPILATION_CACHE_DIR=None,
-                                                MPLCONFIGDIR=None),
+                         cwd=tmp_path, env=environment(HOME=str(home), XDG_CACHE_HOME=None, XDG_CONFIG_HOME=None,
+                                                       INFLATABLE_WING_CACHE=None, JAX_COMPILATION_CACHE_DIR=None,
+                                                       MPLCONFIGDIR=None),
                          stderr=subprocess.PIPE, text=True, timeout=900)
     assert ran.returncode == 0, ran.stderr
     # (besides the small grid's own warning, and matplotlib's notice as it builds its font cache in the

@@ -1,27 +1,16 @@
 """Options that contradict each other are refused (exit 2, one line naming both); options given that the
 run ignores are named in a warning line; ``--help`` names the cache variables.
 
-Every refusal here comes before any solve (`case.check_option_combinations` runs as the options are
-read), so the command runs in this process (`cli.main`).
+Every refusal here comes before any solve (`case.Case.from_arguments` checks the combinations as the
+options are read), so the command runs in this process (`cli.main`).
 """
 
 import pytest
 
-from inverse_design.app import case as case_reader, cli
-
-SMALL = ["--n-span", "5", "--n-contour", "32", "--no-compilation-cache", "--quiet"]
-WING = """variables = ["pressure"]
-n-span = 5
-n-contour = 32
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.0
-[[rib]]
-section = "naca2412"
-chord = 0.9
-station = 0.25
-"""
+from inverse_design.app import cli, design
+from inverse_design.app.case import Case
+from inverse_design.app.options import InputError
+from support.cases import IN_PROCESS, SMALL, TAPERED_BAY
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -45,7 +34,7 @@ station = 0.25
         "root two variables", "root default variables"])
 def test_contradicting_options_exit_2_with_one_line(tmp_path, capsys, argv, message):
     out = tmp_path / "out"
-    code = cli.main([*argv, *SMALL, "--out", str(out)])
+    code = cli.main([*argv, *SMALL, *IN_PROCESS, "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith("optimise-pressure: error: ") and message in err
@@ -54,8 +43,8 @@ def test_contradicting_options_exit_2_with_one_line(tmp_path, capsys, argv, mess
 
 def test_a_case_file_contradiction_names_the_case_file(tmp_path):
     (tmp_path / "case.toml").write_text("no-tension-constraints = true\nmin-tension = 50\n")
-    with pytest.raises(case_reader.InputError) as info:
-        case_reader.parse_arguments(["--config", str(tmp_path / "case.toml")])
+    with pytest.raises(InputError) as info:
+        Case.from_arguments(["--config", str(tmp_path / "case.toml")])
     assert str(info.value).startswith("min-tension (case file) 50 N/m contradicts no-tension-constraints (case file)")
 
 
@@ -63,32 +52,31 @@ def test_a_case_file_contradiction_names_the_case_file(tmp_path):
                                   ["--method", "root", "--variables", "pressure"],
                                   ["--evaluate", "--variables", "pressure"], ["--min-tension", "100"]])
 def test_options_that_agree_still_parse(argv):
-    case_reader.parse_arguments(argv)
+    Case.from_arguments(argv)
 
 
 def test_variables_ignored_by_evaluate_are_named_in_a_warning():
-    args, sources = case_reader.parse_arguments(["--evaluate", "--variables", "pressure,prestrain_span"])
-    assert case_reader.ignored_options(args, sources) == [
+    assert Case.from_arguments(["--evaluate", "--variables", "pressure,prestrain_span"]).ignored_options() == [
         "--variables pressure,prestrain_span is ignored with --evaluate, which solves the equilibrium at the "
         "given values (--pressure, --prestrain-span, ...) and optimises nothing"]
     for argv in (["--evaluate"], ["--variables", "pressure"]):
-        assert case_reader.ignored_options(*case_reader.parse_arguments(argv)) == []
+        assert Case.from_arguments(argv).ignored_options() == []
 
 
 def test_a_wing_with_method_root_keeps_its_own_message(tmp_path):
-    (tmp_path / "wing.toml").write_text('method = "root"\n' + WING)
-    case_reader.parse_arguments(["--config", str(tmp_path / "wing.toml")])  # (refused by the wing's check)
+    (tmp_path / "wing.toml").write_text('method = "root"\n' + TAPERED_BAY)
+    Case.from_arguments(["--config", str(tmp_path / "wing.toml")])  # (a wing: its own check, which two ribs pass)
 
 
 def test_equilibrium_methods_that_the_batch_cannot_run_are_refused_there_only():
-    args, _ = case_reader.parse_arguments(["--equilibrium-method", "newton"])
-    with pytest.raises(case_reader.InputError, match="--equilibrium-method newton: on this machine's accelerator "
-                                                     "the design relaxes its bays together in one batch"):
-        case_reader.check_equilibrium_method(args, "batch")
-    case_reader.check_equilibrium_method(args, "loop")  # the CPU runs every method
+    case = Case.from_arguments(["--equilibrium-method", "newton"])
+    with pytest.raises(InputError, match="--equilibrium-method newton: on this machine's accelerator "
+                                         "the design relaxes its bays together in one batch"):
+        design.check_equilibrium_method(case, "batch")
+    design.check_equilibrium_method(case, "loop")  # the CPU runs every method
     for argv in (["--equilibrium-method", "relax"], ["--equilibrium-method", "auto"],
                  ["--equilibrium-method", "newton", "--evaluate"]):
-        case_reader.check_equilibrium_method(case_reader.parse_arguments(argv)[0], "batch")
+        design.check_equilibrium_method(Case.from_arguments(argv), "batch")
 
 
 def test_newton_on_a_wing_is_honoured_on_the_cpu(tmp_path, capsys, monkeypatch):
@@ -104,15 +92,15 @@ def test_newton_on_a_wing_is_honoured_on_the_cpu(tmp_path, capsys, monkeypatch):
         raise KeyboardInterrupt  # stop before any solve
 
     monkeypatch.setattr(problem, "solve_bays", record)
-    (tmp_path / "wing.toml").write_text(WING)
+    (tmp_path / "wing.toml").write_text(TAPERED_BAY)
     code = cli.main(["--config", str(tmp_path / "wing.toml"), "--equilibrium-method", "newton", "--out",
-                     str(tmp_path / "out"), "--no-compilation-cache", "--quiet"])
+                     str(tmp_path / "out"), *IN_PROCESS])
     assert code == cli.EXIT_INTERRUPTED and asked == ["newton"], capsys.readouterr().err
 
 
 def test_help_names_the_cache_variables_and_the_refusals_page(capsys):
     with pytest.raises(SystemExit):
-        case_reader.parse_arguments(["--help"])
+        Case.from_arguments(["--help"])
     text = capsys.readouterr().out
     for name in ("INFLATABLE_WING_CACHE", "JAX_COMPILATION_CACHE_DIR", "XDG_CACHE_HOME", "docs/errors.md"):
         assert name in text

@@ -1,5 +1,5 @@
 """The output folder's edge cases: an empty name, a name too long, a file edited since the earlier
-report, and two runs into one folder at once (`inverse_design.app.export`).
+report, and two runs into one folder at once (`inverse_design.app.output_folder`).
 
 Most checks call the folder functions directly; the command's part runs in this process
 (`cli.main`) and stops before any design, except one small ``--evaluate``.
@@ -10,20 +10,13 @@ import os
 
 import pytest
 
-from inverse_design.app import case as case_reader, cli, command, export
+from inverse_design.app import cli, output_folder, run
+from inverse_design.app.case import Case
+from inverse_design.app.options import InputError
+from support.cases import SMALL as GRID
+from support.reports import earlier_report
 
-SMALL = ["--n-span", "5", "--n-contour", "32", "--no-compilation-cache"]
-
-
-def _report(folder, files: dict, checksums: bool = True) -> dict:
-    """Write ``files`` ({name: bytes}) and a summary.json listing them (with their checksums), as a report does."""
-    for name, data in files.items():
-        (folder / name).write_bytes(data)
-    summary = {"package": {"name": "inflatable-wing"}, "files": [*files, "summary.json"]}
-    if checksums:
-        summary["checksums"] = export.file_checksums(folder, files)
-    (folder / "summary.json").write_text(json.dumps(summary))
-    return summary
+SMALL = [*GRID, "--no-compilation-cache"]
 
 
 def _hidden(folder):
@@ -33,13 +26,13 @@ def _hidden(folder):
 # ------------------------------------------------------------------ an empty name
 def test_an_empty_output_folder_name_is_refused(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(case_reader.InputError, match="empty name"):
-        case_reader.parse_arguments(["--out", ""])
+    with pytest.raises(InputError, match="empty name"):
+        Case.from_arguments(["--out", ""])
     (tmp_path / "case.toml").write_text('out = ""\n')
-    with pytest.raises(case_reader.InputError, match="empty name"):  # a case file's too
-        case_reader.parse_arguments(["--config", "case.toml"])
+    with pytest.raises(InputError, match="empty name"):  # a case file's too
+        Case.from_arguments(["--config", "case.toml"])
     with pytest.raises(ValueError, match="empty name"):  # the library's check
-        export.check_output_folder("")
+        output_folder.check_output_folder("")
     code = cli.main(["--out", "", *SMALL])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
@@ -52,65 +45,65 @@ def test_an_empty_output_folder_name_is_refused(tmp_path, monkeypatch, capsys):
 def test_an_output_folder_name_too_long_for_the_file_system_is_refused(tmp_path, capsys, length):
     out = tmp_path / ("x" * length)
     with pytest.raises(ValueError, match=f"too long for this file system: {length} bytes"):
-        export.check_output_folder(out)
+        output_folder.check_output_folder(out)
     code = cli.main(["--out", str(out), *SMALL])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "choose a shorter name" in err
     assert err.startswith("optimise-pressure: error: the output folder name 'xxx")
     assert list(tmp_path.iterdir()) == []
-    export.check_output_folder(tmp_path / ("x" * 200))  # a long name that fits
+    output_folder.check_output_folder(tmp_path / ("x" * 200))  # a long name that fits
 
 
 def test_a_too_long_name_inside_a_new_path_is_refused_too(tmp_path):
     with pytest.raises(ValueError, match="300 bytes, more than the 255"):
-        export.check_output_folder(tmp_path / ("y" * 300) / "out")
+        output_folder.check_output_folder(tmp_path / ("y" * 300) / "out")
 
 
 # ------------------------------------------------------------------ a file edited since
 def test_a_changed_file_that_the_new_report_does_not_write_is_kept(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"})
-    assert export.changed_files(out) == []
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"}, checksums=True)
+    assert output_folder.changed_files(out) == []
     (out / "rib.dat").write_bytes(b"the rib as the shop corrected it")
-    assert export.changed_files(out) == ["rib.dat"]
-    export.check_output_folder(out)  # (nothing to refuse: the new report may not write rib.dat)
-    with export.staged_folder(out) as staging:
-        _report(staging, {"skin.obj": b"new"})  # a run without a rib shape: no rib.dat
+    assert output_folder.changed_files(out) == ["rib.dat"]
+    output_folder.check_output_folder(out)  # (nothing to refuse: the new report may not write rib.dat)
+    with output_folder.staged_folder(out) as staging:
+        earlier_report(staging, {"skin.obj": b"new"}, checksums=True)  # a run without a rib shape: no rib.dat
     assert (out / "rib.dat").read_bytes() == b"the rib as the shop corrected it"  # kept, not removed
     assert (out / "skin.obj").read_bytes() == b"new"
     assert json.loads((out / "summary.json").read_text())["files"] == ["skin.obj", "summary.json"]
     # No longer the report's: the next report that writes a rib.dat is refused up front.
     with pytest.raises(ValueError, match="rib.dat: no earlier report wrote it"):
-        export.check_output_folder(out)
+        output_folder.check_output_folder(out)
 
 
 def test_a_changed_file_that_the_new_report_would_replace_is_refused(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"the designed rib"}, checksums=True)
     (out / "rib.dat").write_bytes(b"edited")
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     # Up front, when the caller says which files the new report may write:
     with pytest.raises(ValueError, match=r"rib\.dat: it changed since the earlier report wrote it") as info:
-        export.check_output_folder(out, replaces=lambda name: True)
+        output_folder.check_output_folder(out, replaces=lambda name: True)
     assert str(out / "rib.dat") in str(info.value) and "move it away" in str(info.value)
-    export.check_output_folder(out, replaces=lambda name: name != "rib.dat")
+    output_folder.check_output_folder(out, replaces=lambda name: name != "rib.dat")
     # At the latest when the files would move in: nothing moves.
     with pytest.raises(ValueError, match="it changed since the earlier report wrote it"):
-        with export.staged_folder(out) as staging:
-            _report(staging, {"skin.obj": b"new", "rib.dat": b"new rib"})
+        with output_folder.staged_folder(out) as staging:
+            earlier_report(staging, {"skin.obj": b"new", "rib.dat": b"new rib"}, checksums=True)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and _hidden(out) == []
 
 
 def test_a_summary_without_checksums_is_trusted_as_before(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"rib"}, checksums=False)
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"rib"}, checksums=False)
     (out / "rib.dat").write_bytes(b"edited")
-    assert export.changed_files(out) == []
-    with export.staged_folder(out) as staging:
-        _report(staging, {"skin.obj": b"new"})
+    assert output_folder.changed_files(out) == []
+    with output_folder.staged_folder(out) as staging:
+        earlier_report(staging, {"skin.obj": b"new"}, checksums=True)
     assert not (out / "rib.dat").exists()
 
 
@@ -121,8 +114,8 @@ def test_the_command_records_checksums_and_refuses_to_replace_an_edited_file(tmp
     summary = json.loads((out / "summary.json").read_text())
     listed = [name for name in summary["files"] if name != "summary.json"]
     assert sorted(summary["checksums"]) == sorted(listed)
-    assert summary["checksums"] == export.file_checksums(out, listed)
-    assert export.changed_files(out) == []
+    assert summary["checksums"] == output_folder.file_checksums(out, listed)
+    assert output_folder.changed_files(out) == []
     (out / "skin.obj").write_text("# edited in a mesh tool\n")
     capsys.readouterr()
     code = cli.main(["--evaluate", *SMALL, "--quiet", "--out", str(out)])
@@ -135,25 +128,22 @@ def test_the_command_records_checksums_and_refuses_to_replace_an_edited_file(tmp
 def test_the_command_warns_of_a_changed_file_it_keeps(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    _report(out, {"skin.obj": b"old", "rib.dat": b"rib", "rib_design.png": b"png"})
+    earlier_report(out, {"skin.obj": b"old", "rib.dat": b"rib", "rib_design.png": b"png"}, checksums=True)
     (out / "rib.dat").write_bytes(b"edited")
-    args, sources = case_reader.parse_arguments(["--out", str(out), "--variables", "pressure"])
+    case = Case.from_arguments(["--out", str(out), "--variables", "pressure"])
     # A run without a rib shape writes no rib.dat: it may go ahead, and says it keeps the file.
-    assert not case_reader.report_may_write(args)("rib.dat")
-    export.check_output_folder(out, replaces=case_reader.report_may_write(args))
-    from forward_solver import Fabric, Parameters
-
-    lines = command.plausibility(args, Fabric(), Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02),
-                                 [(0.25, 1.0)], {"pressure": (1e3, 1e5)}, sources)
+    assert not case.may_write("rib.dat")
+    output_folder.check_output_folder(out, replaces=case.may_write)
+    lines = run.warn(case)
     err = capsys.readouterr().err.splitlines()
     ours = [line for line in lines if line.startswith("rib.dat")]
     assert ours == [f"rib.dat in {out} changed since the earlier report wrote it: kept as it is (this run writes "
                     "no rib.dat), and no longer counted as a report file"]
     assert f"optimise-pressure: warning: {ours[0]}" in err
     # A rib-shape run would replace it: refused before the design.
-    args, _ = case_reader.parse_arguments(["--out", str(out), "--variables", "pressure,rib_shape"])
+    case = Case.from_arguments(["--out", str(out), "--variables", "pressure,rib_shape"])
     with pytest.raises(ValueError, match="rib.dat: it changed"):
-        export.check_output_folder(out, replaces=case_reader.report_may_write(args))
+        output_folder.check_output_folder(out, replaces=case.may_write)
 
 
 @pytest.mark.parametrize("argv, writes, never", [
@@ -165,19 +155,18 @@ def test_the_command_warns_of_a_changed_file_it_keeps(tmp_path, capsys):
      ["aero.png"]),
 ], ids=["default", "evaluate", "rib shape"])
 def test_what_a_run_may_write(argv, writes, never):
-    args, _ = case_reader.parse_arguments(argv)
-    may = case_reader.report_may_write(args)
+    may = Case.from_arguments(argv).may_write
     assert all(may(name) for name in writes) and not any(may(name) for name in never)
 
 
 # ------------------------------------------------------------------ two runs at once
 def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path, capsys):
     out = tmp_path / "out"
-    with export.output_lock(out):  # a run into a new folder: the lock file beside it
+    with output_folder.output_lock(out):  # a run into a new folder: the lock file beside it
         assert (tmp_path / ".out.lock").read_text() == str(os.getpid())
         with pytest.raises(ValueError, match=f"another run is writing the output folder {out} "
                                              rf"\(process {os.getpid()} holds the lock"):
-            with export.output_lock(out):
+            with output_folder.output_lock(out):
                 pass
         code = cli.main(["--evaluate", *SMALL, "--out", str(out)])
         err = capsys.readouterr().err
@@ -185,18 +174,18 @@ def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path, capsys):
         assert not out.exists()
     assert _hidden(tmp_path) == []  # the lock file goes with the lock
     out.mkdir()
-    with export.output_lock(out):  # an existing folder: the lock file inside it
+    with output_folder.output_lock(out):  # an existing folder: the lock file inside it
         assert (out / ".report.lock").exists()
         with pytest.raises(ValueError, match="another run is writing"):
-            with export.output_lock(str(out) + "/"):  # the same folder, spelled otherwise
+            with output_folder.output_lock(str(out) + "/"):  # the same folder, spelled otherwise
                 pass
     assert _hidden(out) == [] and _hidden(tmp_path) == []
-    with export.output_lock(tmp_path / "a" / "b"):  # missing parents: in the nearest existing one
+    with output_folder.output_lock(tmp_path / "a" / "b"):  # missing parents: in the nearest existing one
         assert _hidden(tmp_path) == [".a.b.lock"] and not (tmp_path / "a").exists()
 
 
 def test_runs_into_different_folders_do_not_wait_for_each_other(tmp_path):
-    with export.output_lock(tmp_path / "one"), export.output_lock(tmp_path / "two"):
+    with output_folder.output_lock(tmp_path / "one"), output_folder.output_lock(tmp_path / "two"):
         assert _hidden(tmp_path) == [".one.lock", ".two.lock"]
 
 
@@ -206,7 +195,7 @@ def test_a_run_in_another_process_holds_the_folder_until_it_ends(tmp_path, capsy
 
     out = tmp_path / "out"
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys\nfrom inverse_design.app.export import output_lock\n"
+        [sys.executable, "-c", "import sys\nfrom inverse_design.app.output_folder import output_lock\n"
          f"with output_lock({str(out)!r}):\n    print('locked', flush=True)\n    sys.stdin.read()\n"],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env={**os.environ, "JAX_PLATFORMS": "cpu"})
     try:
@@ -217,5 +206,5 @@ def test_a_run_in_another_process_holds_the_folder_until_it_ends(tmp_path, capsy
     finally:
         holder.communicate("", timeout=120)
     assert holder.returncode == 0 and _hidden(tmp_path) == []
-    with export.output_lock(out):  # free again
+    with output_folder.output_lock(out):  # free again
         pass

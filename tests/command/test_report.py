@@ -14,20 +14,7 @@ import pytest
 
 from inverse_design.app import cli
 from inverse_design.app.console import describe, number_text
-
-SMALL = ("--n-span", "5", "--n-contour", "32")
-TWO_RIBS = """
-n-span = 5
-n-contour = 32
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.0
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.25
-"""
+from support.cases import IN_PROCESS, SMALL, TWO_RIBS
 
 
 def _keys(value, path=""):
@@ -52,7 +39,7 @@ def two_reports(tmp_path_factory):
     summaries = {}
     for name, args in runs.items():
         out = base / name.replace(" ", "_")
-        assert cli.main([*args, "--out", str(out), "--no-compilation-cache", "--quiet"]) == 0
+        assert cli.main([*args, "--out", str(out), *IN_PROCESS]) == 0
         summaries[name] = json.loads((out / "summary.json").read_text())
         summaries[name]["folder"] = str(out)
     return summaries
@@ -123,8 +110,7 @@ def test_a_value_zero_to_rounding_prints_as_zero():
 
 
 def test_a_failed_design_says_that_no_panel_was_written_not_that_no_cut_pattern_was(tmp_path, capsys):
-    code = cli.main([*SMALL, "--max-iterations", "1", "--out", str(tmp_path / "out"), "--no-compilation-cache",
-                     "--quiet"])
+    code = cli.main([*SMALL, "--max-iterations", "1", "--out", str(tmp_path / "out"), *IN_PROCESS])
     err = capsys.readouterr().err
     assert code == 1 and "no panel or rib template (DXF, SVG) was written" in err
     assert "no cut pattern" not in err
@@ -143,7 +129,7 @@ def _points_in_display(ax):
 
 
 def test_the_history_legends_cover_no_curve_and_every_result_has_its_unit():
-    from inverse_design.app.plots import plot_history
+    from inverse_design.app.wing_figures import plot_history
 
     history = [{"objective": 1e-4 / (k + 1), "values": {"pressure": 3e4 / (k + 1), "rib_thickness_scale": 1.0}}
                for k in range(8)]
@@ -164,7 +150,7 @@ def test_the_history_legends_cover_no_curve_and_every_result_has_its_unit():
 
 
 def test_the_wing_overview_holds_every_tension_inside_its_axes():
-    from inverse_design.app.plots import plot_wing_overview
+    from inverse_design.app.wing_figures import plot_wing_overview
 
     n = 4
     result = SimpleNamespace(
@@ -185,7 +171,7 @@ def test_the_wing_overview_holds_every_tension_inside_its_axes():
 
 def test_a_bay_s_section_plot_names_its_own_ribs_and_stations():
     from forward_solver import Bay, Fabric, Scene, solve_equilibrium
-    from inverse_design.app.plots import plot_section
+    from inverse_design.app.bay_figures import plot_section
     from targets import naca
 
     scene = Scene(Bay.from_airfoil(naca("2412"), chord=0.8, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
@@ -214,12 +200,13 @@ def test_a_bay_s_figures_unpickle_without_jax_or_the_solver(tmp_path):
     from pathlib import Path
 
     from forward_solver import Bay, Fabric, Scene, solve_equilibrium
-    from inverse_design.app.plots import plot_deviation, plot_section, plot_tensions
+    from inverse_design.app.bay_figures import plot_deviation, plot_section, plot_tensions
     from targets import naca
 
     scene = Scene(Bay.from_airfoil(naca("2412"), chord=0.8, rib_spacing=0.25, n_span=5, n_contour=32), Fabric())
     solution = solve_equilibrium(scene, pressure=2e4, prestrain=(0.02, 0.02))
-    figures = [plot_section(solution, naca("2412"), scene), plot_deviation(solution, naca("2412"), scene),
+    deviation = np.asarray(naca("2412").distance(np.asarray(solution.nodes)[..., [0, 2]] / 0.8))
+    figures = [plot_section(solution, naca("2412"), scene), plot_deviation(solution, naca("2412"), scene, deviation),
                plot_tensions(solution, scene)]
     (tmp_path / "figures.pkl").write_bytes(pickle.dumps(figures))
     code = ("import pickle, sys\nimport matplotlib.figure\n"
@@ -254,8 +241,7 @@ def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
     # such a bay (a wing of several bays is refused, tests/command/test_wing_cli.py).
     (tmp_path / "bay.toml").write_text(TWO_RIBS)
     code = cli.main(["--config", str(tmp_path / "bay.toml"), "--method", "root", "--variables", "pressure",
-                     "--out", str(tmp_path / "out"),
-                     "--no-compilation-cache", "--quiet"])
+                     "--out", str(tmp_path / "out"), *IN_PROCESS])
     assert code == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["results"]["method"] == "root" and summary["results"]["success"]

@@ -1,15 +1,18 @@
-"""A stop (SIGTERM, Ctrl-C) ends the command within 2 s whatever its work is computing.
+"""A stop (SIGTERM, Ctrl-C) ends the command whatever its work is computing, without waiting for it.
 
 Python runs a signal's handler only on the main thread, between two of its
 bytecodes: a main thread inside one long compiled call (XLA, LAPACK, SLSQP)
 took a SIGTERM only when the call returned (more than a minute on a 40-bay
 wing). The command's work now runs on a thread of its own
-(`interrupts.run_stoppable`, docs/command.md).
+(`interrupts.run_stoppable`, docs/command.md). How soon a stop lands is
+measured by ``benchmarks/signal_latency.py``; these tests check that the
+command ends, with its code and nothing written, long before the work it
+abandons would (their timeouts only keep a failure from hanging).
 
-The command's test hook ``INFLATABLE_WING_TEST_NATIVE_CALL_S``
-(`command.NATIVE_CALL_VARIABLE`) makes it sit about that many seconds in
-one compiled XLA call just before its design, after its first progress line
-(shown on a terminal: the command's stderr here is a pseudo-terminal).
+The test launcher's ``--native-call S`` (`support.command`) makes the
+command sit about S seconds in compiled XLA calls just before its design,
+after its first progress line (shown on a terminal: the command's stderr
+here is a pseudo-terminal).
 """
 
 import os
@@ -17,17 +20,21 @@ import pty
 import select
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from inverse_design.app import command, export, interrupts
+from inverse_design.app import interrupts, output_folder
+from support.cases import SMALL
+from support.command import environment, launch
 
-ROOT = Path(__file__).resolve().parents[2]
-SMALL = ("--n-span", "5", "--n-contour", "32")
+#: Seconds the launched command sits in compiled calls before its design: far longer than the tests wait
+#: for it to end (`STOP_TIMEOUT_S`), so that a command that waited for its work would fail them.
+NATIVE_CALL_S = 600.0
+#: Seconds a stopped command has to end before the test fails (not a measure of its speed).
+STOP_TIMEOUT_S = 60.0
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -63,31 +70,26 @@ def _drain(fd: int) -> str:
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs a pseudo-terminal (POSIX)")
 @pytest.mark.parametrize("signum, code, word", [(signal.SIGTERM, 143, "terminated"),
                                                 (signal.SIGINT, 130, "interrupted")])
-def test_a_stop_inside_a_long_compiled_call_ends_the_command_within_2_s(tmp_path, signum, code, word):
-    # Before the work ran on its own thread, the main thread sat in the 20 s XLA call and the process
-    # ended only after it (measured: 21 s from the signal to the end).
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               **{command.NATIVE_CALL_VARIABLE: "20"})
+def test_a_stop_inside_a_long_compiled_call_ends_the_command(tmp_path, signum, code, word):
+    # Before the work ran on its own thread, the main thread sat in the compiled call and the process
+    # ended only after it (measured: 21 s from the signal to the end of a 20 s call).
     main, terminal = pty.openpty()
     out = tmp_path / "out"
-    process = subprocess.Popen([sys.executable, "-m", "inverse_design.app.cli", *SMALL, "--no-compilation-cache",
-                                "--out", str(out)], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
-                               stdout=subprocess.PIPE, stderr=terminal, text=True)
+    process = subprocess.Popen(launch("--native-call", NATIVE_CALL_S, *SMALL, "--no-compilation-cache", "--out", out),
+                               cwd=tmp_path, env=environment(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                               stderr=terminal, text=True)
     os.close(terminal)
     try:
         shown = _read_until(main, "the first wing solve compiles", process)
-        time.sleep(0.5)  # (well inside the hook's compiled call, which follows the line)
-        sent = time.monotonic()
+        time.sleep(0.5)  # (well inside the compiled calls, which follow the line)
         process.send_signal(signum)
-        process.wait(timeout=60)
-        seconds = time.monotonic() - sent
+        process.wait(timeout=STOP_TIMEOUT_S)  # (the calls last NATIVE_CALL_S: the command did not wait for them)
         shown += _drain(main)
     finally:
         if process.poll() is None:
             process.kill()
             process.wait()
         os.close(main)
-    assert seconds < 2.0, f"{seconds:.1f} s from the signal to the end"
     assert process.returncode == code, shown
     assert process.stdout.read() == ""
     assert shown.rstrip().splitlines()[-1].strip() == f"optimise-pressure: {word}; nothing was written to {out}"
@@ -102,21 +104,16 @@ def test_a_stop_in_a_cold_runs_compilation_ends_the_command(tmp_path, signum, co
     # workers before the pool's termination left that lock taken: the command never ended.
     from tests.command.test_cli import _sigterm_handler_installed
 
-    from inverse_design.app.workers import SERIAL_VARIABLE
-
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               INFLATABLE_WING_CACHE=str(tmp_path / "cache"))  # (an empty cache: the run compiles)
-    env.pop(SERIAL_VARIABLE, None)  # (the suite's reports are serial: this run has its worker)
-    process = subprocess.Popen([sys.executable, "-m", "inverse_design.app.cli", *SMALL,
-                                "--out", "out"], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = environment(INFLATABLE_WING_CACHE=str(tmp_path / "cache"))  # (an empty cache: the run compiles)
+    process = subprocess.Popen(launch("--report-workers", *SMALL, "--out", "out"), cwd=tmp_path, env=env,
+                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 120
         while not _sigterm_handler_installed(process.pid) and process.poll() is None and time.monotonic() < deadline:
             time.sleep(0.005)
         time.sleep(2.0)
         process.send_signal(signum)
-        _, stderr = process.communicate(timeout=60)
+        _, stderr = process.communicate(timeout=STOP_TIMEOUT_S)
     finally:
         if process.poll() is None:
             process.kill()
@@ -128,18 +125,18 @@ def test_a_stop_in_a_cold_runs_compilation_ends_the_command(tmp_path, signum, co
 
 
 def test_a_work_that_does_not_unwind_is_abandoned_and_its_folder_removed(tmp_path):
-    # The work sits in a call that takes no signal and reaches no safe point (a worker thread's sleep)
+    # The work sits in a call that takes no signal and reaches no safe point (a worker thread's wait)
     # inside its staging folder, under the output folder's lock: the stop is raised in the main thread
-    # within the grace period, the staging folder and the lock file are removed at once, and the work,
-    # when it wakes, writes nothing (its next safe point raises).
+    # after the grace period, before the work wakes; the staging folder and the lock file are removed at
+    # once, and the work, when it wakes, writes nothing (its next safe point raises).
     out = tmp_path / "out"
-    entered, woke = threading.Event(), []
+    entered, wake, woke = threading.Event(), threading.Event(), []
 
     def work():
-        with export.output_lock(out), export.staged_folder(out) as staging:
+        with output_folder.output_lock(out), output_folder.staged_folder(out) as staging:
             (staging / "half.txt").write_text("half")
             entered.set()
-            time.sleep(2.5)
+            wake.wait(STOP_TIMEOUT_S)
             woke.append(True)
             interrupts.check()
             (staging / "summary.json").write_text("{}")
@@ -147,15 +144,13 @@ def test_a_work_that_does_not_unwind_is_abandoned_and_its_folder_removed(tmp_pat
     threading.Timer(0.3, lambda: entered.wait(10) and os.kill(os.getpid(), signal.SIGTERM)).start()
     state = interrupts.install()
     try:
-        start = time.monotonic()
         with pytest.raises(interrupts.Terminated):
             interrupts.run_stoppable(work)
-        seconds = time.monotonic() - start
-        assert interrupts.abandoned()
+        assert woke == [] and interrupts.abandoned()  # (the stop did not wait for the work)
         assert _leftovers(tmp_path) == [] and not out.exists()  # (removed before the stop was raised)
     finally:
+        wake.set()
         interrupts.restore(state)
-    assert seconds < 0.3 + interrupts.UNWIND_GRACE_S + 0.5, seconds
     for thread in threading.enumerate():  # the abandoned work wakes and ends without writing
         if thread.name == "optimise-pressure":
             thread.join(10)

@@ -8,35 +8,14 @@ import json
 import pytest
 
 from inverse_design.app import cli
-from inverse_design.app.case import parse_arguments
+from inverse_design.app.case import Case
 from inverse_design.app.options import InputError
+from support.cases import IN_PROCESS, SMALL, case_text
 
-CASE = """
-variables = ["pressure"]
-pressure = 5e3
-n-span = 5
-n-contour = 32
-evaluate = true
-
-[tolerances]
-pressure = "2%"
-stiffness_span = "uniform:10%"
-cut_chord = 0.5
-rib_station = 1.0
-
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.0
-[[rib]]
-section = "naca2412"
-chord = 0.9
-station = 0.25
-[[rib]]
-section = "naca2412"
-chord = 0.8
-station = 0.5
-"""
+RIBS = (("naca2412", 1.0, 0.0), ("naca2412", 0.9, 0.25), ("naca2412", 0.8, 0.5))
+TOLERANCES = {"pressure": "2%", "stiffness_span": "uniform:10%", "cut_chord": 0.5, "rib_station": 1.0}
+CASE = case_text(*RIBS, tables={"tolerances": TOLERANCES}, variables=["pressure"], pressure=5e3, n_span=5,
+                 n_contour=32, evaluate=True)
 
 
 def test_a_wing_with_tolerances_and_samples_writes_its_analysis(tmp_path, capsys):
@@ -86,7 +65,7 @@ def test_a_wing_with_tolerances_and_samples_writes_its_analysis(tmp_path, capsys
 ])
 def test_bad_input_is_refused_before_any_solve(args, message, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    code = cli.main([*args, "--n-span", "5", "--n-contour", "32", "--no-compilation-cache", "--quiet"])
+    code = cli.main([*args, *SMALL, *IN_PROCESS])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and message in err, err
     assert list(tmp_path.iterdir()) == []
@@ -95,12 +74,12 @@ def test_bad_input_is_refused_before_any_solve(args, message, tmp_path, capsys, 
 def test_the_case_file_table_and_the_command_line_merge(tmp_path):
     case = tmp_path / "case.toml"
     case.write_text('tolerance = 1e-5\n[tolerances]\ndefaults = true\npressure = "1%"\n')
-    args, _ = parse_arguments(["--config", str(case), "--tolerance", "pressure=3%", "--tolerance", "1e-6"])
-    assert args.tolerance == 1e-6  # a number: still the optimiser's tolerance
-    assert args.tolerances == ["defaults", "pressure=1%", "pressure=3%"]  # the command line's last
+    options = Case.from_arguments(["--config", str(case), "--tolerance", "pressure=3%", "--tolerance", "1e-6"]).options
+    assert options.tolerance == 1e-6  # a number: still the optimiser's tolerance
+    assert options.tolerances == ["defaults", "pressure=1%", "pressure=3%"]  # the command line's last
     case.write_text('tolerance = "pressure=2%"\n')
     with pytest.raises(InputError, match=r"\[tolerances\] table"):
-        parse_arguments(["--config", str(case)])
+        Case.from_arguments(["--config", str(case)])
 
 
 @pytest.mark.parametrize("argv, writes, never", [
@@ -110,31 +89,22 @@ def test_the_case_file_table_and_the_command_line_merge(tmp_path):
     (["--objective", "robust"], ["tolerance.png"], ["tolerance_samples.csv"]),
 ], ids=["none", "first order", "samples", "robust: the defaults"])
 def test_what_a_run_with_tolerances_may_write(argv, writes, never):
-    from inverse_design.app import case as case_reader
-
-    args, _ = case_reader.parse_arguments(argv)
-    may = case_reader.report_may_write(args)
+    may = Case.from_arguments(argv).may_write
     assert all(may(name) for name in writes) and not any(may(name) for name in never)
 
 
 def test_the_analysis_options_without_tolerances_are_said_to_be_ignored():
-    from inverse_design.app import case as case_reader
-
-    args, sources = case_reader.parse_arguments(["--samples", "10", "--shape-spec", "3"])
-    lines = case_reader.ignored_options(args, sources)
+    lines = Case.from_arguments(["--samples", "10", "--shape-spec", "3"]).ignored_options()
     assert [line.split(" is ignored")[0] for line in lines] == ["--shape-spec", "--samples"]
 
 
 def test_a_scheduler_without_tolerances_or_samples_is_said_to_be_ignored():
-    from inverse_design.app import case as case_reader
-
     for argv, ignored in ((["--scheduler", "tcp://h:8786"], "without tolerances"),
                           (["--tolerance", "defaults", "--scheduler", "tcp://h:8786"], "without --samples")):
-        args, sources = case_reader.parse_arguments(argv)
-        lines = case_reader.ignored_options(args, sources)
+        lines = Case.from_arguments(argv).ignored_options()
         assert len(lines) == 1 and lines[0].startswith(f"--scheduler is ignored {ignored}"), lines
-    args, sources = case_reader.parse_arguments(["--tolerance", "defaults", "--samples", "4", "--scheduler", "tcp://h:1"])
-    assert case_reader.ignored_options(args, sources) == []
+    assert Case.from_arguments(["--tolerance", "defaults", "--samples", "4", "--scheduler", "tcp://h:1"]
+                               ).ignored_options() == []
 
 
 def test_a_design_that_does_not_solve_again_keeps_its_report_and_skips_the_analysis(tmp_path, capsys, monkeypatch):
@@ -157,8 +127,7 @@ def test_a_design_that_does_not_solve_again_keeps_its_report_and_skips_the_analy
     assert any(w.startswith("the tolerance analysis is skipped") for w in summary["warnings"])
 
 
-ROBUST_CASE = CASE.replace("evaluate = true\n", "objective = \"robust\"\n").replace(
-    "[tolerances]\npressure = \"2%\"\nstiffness_span = \"uniform:10%\"\ncut_chord = 0.5\nrib_station = 1.0\n", "")
+ROBUST_CASE = case_text(*RIBS, variables=["pressure"], pressure=5e3, n_span=5, n_contour=32, objective="robust")
 
 
 def test_a_robust_design_of_a_wing_reports_its_percentiles(tmp_path, capsys):
@@ -167,7 +136,7 @@ def test_a_robust_design_of_a_wing_reports_its_percentiles(tmp_path, capsys):
     case = tmp_path / "wing.toml"
     case.write_text(ROBUST_CASE)
     out = tmp_path / "out"
-    code = cli.main(["--config", str(case), "--out", str(out), "--no-compilation-cache", "--no-patterns", "--quiet"])
+    code = cli.main(["--config", str(case), "--out", str(out), "--no-patterns", *IN_PROCESS])
     assert code == 0, capsys.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["errors"]["objective"] == "robust"

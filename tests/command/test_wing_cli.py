@@ -12,43 +12,21 @@ import re
 import numpy as np
 import pytest
 
-from inverse_design.app import case as case_reader, cli
-from inverse_design.app.case import EXAMPLE_CASE
+from inverse_design.app import cli, design
+from inverse_design.app.case import Case
+from inverse_design.app.case_file import EXAMPLE_CASE
+from support.cases import IN_PROCESS, case_text, rib_tables
 
-RIBS = """
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.0
-[[rib]]
-section = "naca2412"
-chord = 0.8
-station = 0.25
-[[rib]]
-section = "naca2412"
-chord = 0.7
-station = 0.5
-[[rib]]
-section = "naca4415"
-chord = 0.6
-station = 0.75
-"""
-CASE = f"""
-variables = ["pressure"]
-pressure = 3e4
-pressure-bounds = [1e3, 1e5]
-n-span = 9
-n-contour = 32
-max-iterations = 30
-{RIBS}
-"""
+WING = (("naca2412", 1.0, 0.0), ("naca2412", 0.8, 0.25), ("naca2412", 0.7, 0.5), ("naca4415", 0.6, 0.75))
+RIBS = rib_tables(*WING)
+CASE = case_text(*WING, variables=["pressure"], pressure=3e4, pressure_bounds=[1e3, 1e5], n_span=9, n_contour=32,
+                 max_iterations=30)
 
 
 def _run(tmp_path, text, *extra):
     case = tmp_path / "wing.toml"
     case.write_text(text)
-    return cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache",
-                     "--quiet", *extra]), case
+    return cli.main(["--config", str(case), "--out", str(tmp_path / "out"), *IN_PROCESS, *extra]), case
 
 
 def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, capsys):
@@ -105,12 +83,10 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
 def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, capsys, monkeypatch):
     # Bay 1 spans 100 m. The lines come before the optimisation, which is stopped there (as
     # Ctrl-C would) so that no 100 m bay is solved.
-    from inverse_design import optimise as design_module
-
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(design_module, "optimise_wing", stop)
+    monkeypatch.setattr(design, "optimise_wing", stop)
     case = tmp_path / "wing.toml"
     case.write_text(CASE.replace("station = 0.5", "station = 100.25").replace("station = 0.75", "station = 100.5"))
     code = cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache"])
@@ -124,16 +100,16 @@ def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, c
 
 
 def test_the_built_in_example_is_a_valid_wing_case():
-    values = case_reader.read_config(EXAMPLE_CASE)
-    assert len(values["wing"]) == 4 and values["n_span"] == 17
+    case = Case.from_arguments(["--config", str(EXAMPLE_CASE)])
+    assert case.n_bays == 3 and case.from_ribs and case.options.n_span == 17
 
 
 def test_the_40_cell_case_is_a_tapered_wing_of_40_bays():
-    values = case_reader.read_config(EXAMPLE_CASE.parent / "wing_40_cells.toml")
-    chords = [r["chord"] for r in values["wing"]]
-    assert len(chords) == 41 and (values["n_span"], values["n_contour"]) == (17, 64)
-    assert values["method"] == "gauss_newton"
-    assert values["variables"] == "pressure,prestrain_span,prestrain_chord"
+    case = Case.from_arguments(["--config", str(EXAMPLE_CASE.parent / "wing_40_cells.toml")])
+    chords = [rib.chord for rib in case.ribs]
+    assert len(chords) == 41 and (case.options.n_span, case.options.n_contour) == (17, 64)
+    assert case.options.method == "gauss_newton"
+    assert case.variables == ("pressure", "prestrain_span", "prestrain_chord")
     assert chords[0] == 2.4 and chords[-1] == pytest.approx(1.0, abs=1e-3) and all(np.diff(chords) < 0)
 
 
@@ -182,3 +158,19 @@ def test_a_wing_is_evaluated_and_compared_aerodynamically_bay_by_bay(tmp_path, c
     assert {"wing.npz", "wing_overview.png", "bay_2_mid_bay_section.png", "bay_2_cut_pattern.csv"} <= set(
         summary["files"])
     assert summary["errors"]["after"]["rms"] > 0 and summary["constraints"]["note"].startswith("a single equilibrium")
+
+
+@pytest.mark.parametrize("key", ["section", "target"])
+def test_a_bad_dat_file_of_a_rib_is_refused_with_the_one_line_of_the_option(tmp_path, capsys, key):
+    """A ``.dat`` file that is not an airfoil, named by a ``[[rib]]`` table, is refused as ``--target`` refuses
+    it: one line, exit 2, before any work (it was a traceback from the airfoil reader, exit 1)."""
+    bad = tmp_path / "bad.dat"
+    bad.write_text("not an airfoil\n1 2 3\n")
+    code = cli.main(["--target", str(bad), "--out", str(tmp_path / "by-option"), *IN_PROCESS])
+    by_option = capsys.readouterr().err
+    assert code == 2 and by_option.count("\n") == 1 and by_option.startswith("optimise-pressure: error: "), by_option
+    code, _ = _run(tmp_path, RIBS.replace('section = "naca2412"\nchord = 0.8',
+                                          f'{key} = "bad.dat"\n' + ('section = "naca2412"\n' if key == "target" else "")
+                                          + "chord = 0.8"))
+    assert code == 2 and capsys.readouterr().err == by_option
+    assert not (tmp_path / "out").exists()

@@ -11,14 +11,9 @@ from pathlib import Path
 import pytest
 
 from inverse_design.app import workers as report_workers
+from support.command import environment
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(autouse=True)
-def _workers_on(monkeypatch):
-    """The suite writes reports serially (tests/conftest.py); these tests are of the workers."""
-    monkeypatch.delenv(report_workers.SERIAL_VARIABLE, raising=False)
 
 
 def write_text(path, text, delay=0.0):
@@ -83,19 +78,16 @@ def test_a_failed_task_is_left_to_the_caller_and_an_unpicklable_one_is_refused(t
 
 def test_closing_stops_workers_busy_or_idle(tmp_path):
     workers = report_workers.ReportWorkers.start(count=2)
-    workers.submit(_tasks(tmp_path, 2, delay=30.0))
-    time.sleep(1.0)
-    started = time.perf_counter()
+    started = tmp_path.parent / f"{tmp_path.name}.started"
+    workers.submit([(tmp_path / "slow.txt", write_slowly, (started, 300.0), {}), *_tasks(tmp_path, 1, delay=300.0)])
+    _wait_for(started)  # (a worker is busy with its task, the other idle or busy)
     workers.close()
     workers.close()  # (twice is harmless)
-    assert time.perf_counter() - started < 10.0
     assert not multiprocessing.active_children()
+    assert list(tmp_path.iterdir()) == []  # the busy workers were stopped, not waited for
 
 
-def test_no_workers_when_switched_off_or_on_one_core(monkeypatch):
-    monkeypatch.setenv(report_workers.SERIAL_VARIABLE, "1")
-    assert report_workers.ReportWorkers.start() is None
-    monkeypatch.delenv(report_workers.SERIAL_VARIABLE)
+def test_no_workers_on_one_core(monkeypatch):
     monkeypatch.setattr(report_workers, "_cores", lambda: 1)
     assert report_workers.ReportWorkers.start() is None
 
@@ -123,7 +115,7 @@ def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path, 
     goes with its last reference) or a worker's task outlasted the wait (it is killed, the pool
     collected)."""
     ran = subprocess.run([sys.executable, "-c", _EXIT_AT_ONCE, str(tmp_path), str(delay)], cwd=ROOT,
-                         env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True, text=True, timeout=120)
+                         env=environment(), capture_output=True, text=True, timeout=120)
     time.sleep(0.5)
     assert ran.returncode == 0 and ran.stdout.strip() == done, ran.stderr
     assert "leaked" not in ran.stderr and ran.stderr.strip() == "", ran.stderr
@@ -133,7 +125,7 @@ def test_a_process_that_exits_at_once_after_the_workers_leaks_nothing(tmp_path, 
 @pytest.mark.parametrize("name", ["ctypes", "/proc", "_run_exitfuncs", "gc.freeze", "os.fork"])
 def test_the_command_carries_no_machinery_of_its_own(name):
     """The command's start, its workers and its end are the standard library's (docs/architecture.md)."""
-    for module in ("cli", "command", "workers", "report", "interrupts"):
+    for module in ("cli", "run", "workers", "folder", "interrupts"):
         path = ROOT / "inverse_design" / "app" / f"{module}.py"
         assert name not in path.read_text(), path
 
@@ -156,10 +148,10 @@ def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priori
 
 
 def test_a_worker_imports_neither_jax_nor_the_solver():
-    """What a worker imports (`command.WORKER_MODULES`, the workers module for its tasks, and the
+    """What a worker imports (`run.WORKER_MODULES`, the workers module for its tasks, and the
     command's module, which a spawned worker imports again as its main module) leaves JAX, SciPy and
     the solver out: the report builds the figures and hands them over built."""
-    from inverse_design.app.command import WORKER_MODULES
+    from inverse_design.app.run import WORKER_MODULES
 
     modules = WORKER_MODULES + ("inverse_design.app.workers", "inverse_design.app.cli")
     code = (f"import importlib, sys\nfor name in {modules!r}:\n"

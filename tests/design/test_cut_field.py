@@ -22,10 +22,11 @@ from forward_solver import Bay, Fabric, Parameters, Scene, solve_bays, solve_equ
 from forward_solver.model.cut_field import contour_parameter, field_values, spline_basis
 from forward_solver import Wing
 from inverse_design import optimise_pressure, optimise_wing
-from inverse_design.app.export import write_cut_pattern
+from inverse_design.app.formats import write_cut_pattern
 from inverse_design.rib_design import cut_lengths
 from inverse_design.variables import DesignVariables
 from inverse_design.settings import Layout, SolverSettings
+from support.cases import IN_PROCESS, SMALL, case_text
 from targets import naca
 
 BASE = Parameters(pressure=2e4, prestrain_span=0.01, prestrain_chord=0.005)
@@ -262,8 +263,7 @@ def test_the_command_refuses_a_field_outside_its_bounds(tmp_path, capsys, args, 
     from inverse_design.app import cli
 
     out = tmp_path / "out"
-    code = cli.main(["--variables", "pressure,cut_pattern", *args, "--n-span", "5", "--n-contour", "32",
-                     "--no-compilation-cache", "--quiet", "--out", str(out)])
+    code = cli.main(["--variables", "pressure,cut_pattern", *args, *SMALL, *IN_PROCESS, "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].endswith(message), err
     assert not out.exists()
@@ -280,27 +280,9 @@ def test_the_command_designs_a_field_per_bay(tmp_path, capsys):
     from inverse_design.app import cli
 
     case = tmp_path / "wing.toml"
-    case.write_text("""
-variables = ["pressure", "cut_pattern"]
-cut-pattern-terms = 4
-cut-pattern-layout = "per_bay"
-prestrain-chord = 0.0
-n-span = 5
-n-contour = 32
-max-iterations = 1
-[[rib]]
-section = "naca2412"
-chord = 1.0
-station = 0.0
-[[rib]]
-section = "naca2412"
-chord = 0.9
-station = 0.25
-[[rib]]
-section = "naca2412"
-chord = 0.6
-station = 0.5
-""")
+    case.write_text(case_text(("naca2412", 1.0, 0.0), ("naca2412", 0.9, 0.25), ("naca2412", 0.6, 0.5),
+                              variables=["pressure", "cut_pattern"], cut_pattern_terms=4, cut_pattern_layout="per_bay",
+                              prestrain_chord=0.0, n_span=5, n_contour=32, max_iterations=1))
     out = tmp_path / "out"
     code = cli.main(["--config", str(case), "--out", str(out), "--no-compilation-cache", "--no-patterns"])
     captured = capsys.readouterr()

@@ -8,8 +8,8 @@ wing (``inverse_design/cases/wing_taper.toml``), a NACA 0012 bay and a bay of
 a real ``.dat`` section (E387). ``method="auto"`` must converge wherever some
 method does; here it runs on the cells of that matrix on a 5x32 grid (one on
 9x32: `GRIDS`), each
-run built from the ``optimise-pressure`` command's own options
-(`inverse_design.app.case.parse_arguments`, `case.design_inputs`), with its
+run the ``optimise-pressure`` command's own design of its case
+(`inverse_design.app.case.Case`, `inverse_design.app.design.optimise`), with its
 defaults for everything else. By default a covering subset of the cells runs
 (`COVERING`); ``INFLATABLE_WING_FULL_DESIGN_MATRIX=1`` runs every cell.
 
@@ -30,11 +30,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from forward_solver import Bay, Fabric, Scene, Wing
-from inverse_design import Constraints, optimise_pressure, optimise_wing
-from inverse_design.app.case import design_inputs, load_section, parse_arguments
+from inverse_design import Constraints
+from inverse_design.app import design
+from inverse_design.app.case import Case
 from inverse_design.optimise import AUTO, AUTO_FOR_WORST
-from inverse_design.settings import Layout, Limits, SolverSettings
+from inverse_design.settings import Limits, SolverSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 GRID = ("--n-span", "5", "--n-contour", "32")
@@ -74,42 +74,23 @@ CELLS = [pytest.param(case, name, id=f"{case}-{name}")
 
 
 def command_design(argv, **changes):
-    """The design `inverse_design.app.command.run` runs for ``argv`` (no report), with ``changes`` to its
-    options; returns ``(result, options)``."""
-    args, _ = parse_arguments(list(argv))
-    fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
-    initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    options = dict(initial=initial, bounds=bounds, objective=args.objective, method=args.method,
-                   limits=Limits(tension=constraints, ribs=rib_limits),
-                   solver=SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
-                                         equilibrium_method=args.equilibrium_method, max_steps=args.max_steps))
-    options.update(changes)
-    ribs = getattr(args, "wing", None)
-    if ribs is not None:
-        sections = [load_section(r["section"], "section") for r in ribs]
-        wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
-                    stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-        return optimise_wing(wing, fabric, sections, variables,
-                             layout=Layout(n_span=args.n_span, n_contour=args.n_contour,
-                                           cut_pattern=args.cut_pattern_layout),
-                             **options), options
-    target = load_section(args.target, "--target")
-    bay = Bay.from_airfoil(target, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
-                           n_contour=args.n_contour)
-    return optimise_pressure(Scene(bay, fabric), target, variables, **options), options
+    """The design `inverse_design.app.run.run_case` runs for ``argv`` (no report), with ``changes`` to the
+    keyword arguments of its `inverse_design.optimise_wing`; returns ``(result, case)``."""
+    case = Case.from_arguments(list(argv))
+    return design.optimise(case, **changes), case
 
 
 @pytest.mark.parametrize("case, variables", CELLS)
 def test_the_default_method_converges(case, variables):
-    res, options = command_design([*CASES[case], *VARIABLE_SETS[variables], *GRIDS.get((case, variables), GRID)])
-    assert options["method"] == "auto" and res.method == AUTO
+    res, command_case = command_design([*CASES[case], *VARIABLE_SETS[variables], *GRIDS.get((case, variables), GRID)])
+    assert command_case.options.method == "auto" and res.method == AUTO
     assert res.success, res.message
     assert not res.violated_constraints
     assert np.isfinite([res.rms_error, res.max_error]).all()
     if not res.violated_at_start:  # a start that met every limit is an iterate: never worse
         assert res.rms_error <= res.initial_rms_error * (1 + 1e-9)
     for name in set(res.variables) - {"rib_shape", "cut_pattern"}:  # (a shape's and a field's are not per value)
-        lower, upper = options["bounds"][name]
+        lower, upper = command_case.bounds[name]
         slack = 1e-12 * (upper - lower)
         assert lower - slack <= getattr(res.parameters, name) <= upper + slack, name
 
@@ -130,7 +111,7 @@ INFEASIBLE_CEILING = 1000.0  # N/m
 @pytest.mark.parametrize("method", ["auto", "slsqp"])
 def test_an_infeasible_ceiling_fails_and_names_the_limit(method):
     limits = Limits(tension=Constraints(min_tension=None, max_tension=INFEASIBLE_CEILING))
-    res, options = command_design(["--variables", "pressure", "--method", method, *GRID], limits=limits)
+    res, command_case = command_design(["--variables", "pressure", "--method", method, *GRID], limits=limits)
     assert not res.success
     assert set(res.violated_constraints) == {"max_tension"}
     excess = res.constraint_values["max_tension"] - INFEASIBLE_CEILING
@@ -138,6 +119,6 @@ def test_an_infeasible_ceiling_fails_and_names_the_limit(method):
     assert excess > 1000.0  # N/m: far beyond the ceiling, not a tolerance effect
     assert "max_tension violated" in res.message and f"{INFEASIBLE_CEILING:.4g} N/m" in res.message
     assert np.isfinite([res.pressure, res.rms_error, res.max_error]).all() and math.isfinite(excess)
-    lower, upper = options["bounds"]["pressure"]
+    lower, upper = command_case.bounds["pressure"]
     assert lower <= res.pressure <= upper
     assert res.solves <= 12

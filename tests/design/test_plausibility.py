@@ -98,18 +98,21 @@ def test_the_limits_themselves_give_no_line():
 
 
 def test_the_command_shows_and_records_the_new_lines(tmp_path, capsys):
-    from inverse_design.app import case as case_reader, command
+    from inverse_design.app import run
+    from inverse_design.app.case import Case
 
-    args, sources = case_reader.parse_arguments(
+    case = Case.from_arguments(
         ["--n-span", "9", "--n-contour", "32", "--seam-allowance", "80", "--variables", "pressure,cut_pattern",
          "--cut-pattern-terms", "12", "--aero", "--reynolds", "5e9", "--out", str(tmp_path / "out")])
-    lines = command.plausibility(args, Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, sources)
+    lines = run.warn(case)
     err = capsys.readouterr().err.splitlines()
     assert err == [f"optimise-pressure: warning: {line}" for line in lines]  # what the summary records
     assert [line.split(" ")[:2] for line in lines] == [["the", "design"], ["seam", "allowance"], ["cut", "pattern"],
                                                       ["Reynolds", "number"]]
+    # The command's own lines name its options.
+    assert lines[0].endswith("give --n-span 17 or more, or --refine")
+    assert lines[2].endswith("give --cut-pattern-terms 8 or fewer, or more --n-contour")
     # --refine reaches 17 span nodes from 9: the grid is then not in question; --no-patterns draws no seam.
-    args, sources = case_reader.parse_arguments(["--n-span", "9", "--refine", "--seam-allowance", "80",
-                                                 "--no-patterns", "--quiet"])
-    assert command.plausibility(args, Fabric(), DEFAULT, BAY, DEFAULT_BOUNDS, sources) == []
+    case = Case.from_arguments(["--n-span", "9", "--refine", "--seam-allowance", "80", "--no-patterns", "--quiet"])
+    assert run.warn(case) == []
     assert capsys.readouterr().err == ""

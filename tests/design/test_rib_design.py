@@ -21,7 +21,7 @@ from forward_solver import Bay, Fabric, Parameters, Scene, rib_section
 from forward_solver.model.rib_shape import class_function
 from inverse_design import optimise_pressure
 from inverse_design.rib_design import RibGeometry, RibLimits, curvature, cut_lengths
-from inverse_design.app.report import ReportOptions, write_report
+from inverse_design.app.folder import ReportOptions, write_report
 from inverse_design.variables import DesignVariables
 from inverse_design.settings import Limits, SolverSettings
 from targets import load_airfoil, naca
@@ -132,8 +132,7 @@ def test_rib_limits_need_slsqp(scene):
 
 
 def test_the_report_writes_the_rib_and_the_cut_pattern(scene, shaped_design, tmp_path):
-    summary = write_report(tmp_path / "out", shaped_design, TARGET, scene=scene,
-                           options=ReportOptions(bounds=BOUNDS))
+    summary = write_report(tmp_path / "out", shaped_design, options=ReportOptions(bounds=BOUNDS))
     out = tmp_path / "out"
     assert {"rib.dat", "rib_design.png", "bay_0_cut_pattern.csv"} <= set(summary["files"])
     written = load_airfoil(out / "rib.dat")

@@ -7,7 +7,7 @@ Each block is preceded by a marker that says how it is checked::
     <!-- readme-test: small grid -->   run as written on a small grid (below)
     <!-- readme-test: small grid, from the repository root -->   ... with the repository's
                                        built-in case files (inverse_design/cases) at hand
-    <!-- readme-test: case file -->    a case file: read by the command's reader (`case.read_config`)
+    <!-- readme-test: case file -->    a case file: read and checked as the command reads it (`case.Case`)
     <!-- readme-test: case file, small grid -->   ... and run with --config on the small grid
     <!-- readme-test: error of the case file above ... -->   the command's message, reproduced (below)
     <!-- readme-test: skip (why) -->   not run, and why
@@ -17,11 +17,10 @@ block gets a decision. Every block runs in a fresh temporary folder, so
 the files the examples write (relative paths: ``--out DIR``, the default
 ``optimise-pressure-out/``, ``section.dat``) never land in the repository.
 Python blocks run in a subprocess with the repository first on PYTHONPATH;
-shell blocks run
-each command (``&&`` splits them) with ``optimise-pressure`` as
-``python -m inverse_design.app.cli`` (the code under test) and skip ``pip
-install`` lines. "Small grid" is the one substitution: every ``n_span=N``
-and ``n_contour=N`` of a Python block becomes 5 and 32, and every
+shell blocks run each command (``&&`` splits them) with ``optimise-pressure``
+as ``python -m support.command`` (the code under test, its report written
+serially: tests/support/command.py) and skip ``pip install`` lines. "Small
+grid" is the one substitution: every ``n_span=N`` and ``n_contour=N`` of a Python block becomes 5 and 32, and every
 ``optimise-pressure`` command gets ``--n-span 5 --n-contour 32``
 (the default grids take minutes; the blocks' outcomes do not depend on the
 grid). 5x32 is the grid of the command's other tests (tests/command/), so
@@ -30,7 +29,6 @@ run's one JAX compilation cache (tests/conftest.py), which its subprocesses
 inherit from the environment.
 """
 
-import os
 import re
 import shlex
 import subprocess
@@ -39,7 +37,8 @@ from pathlib import Path
 
 import pytest
 
-from inverse_design.app import case as case_reader
+from inverse_design.app.case import Case
+from support.command import environment, launch
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
@@ -78,8 +77,7 @@ def env():
     # Compilation is most of the blocks' time: the subprocesses inherit the run's compilation cache
     # (JAX_COMPILATION_CACHE_DIR and INFLATABLE_WING_CACHE, set by tests/conftest.py), shared with
     # every other test process and subprocess of the run.
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-                MPLBACKEND="Agg")
+    return environment(MPLBACKEND="Agg")
 
 
 def _small_python(code: str) -> str:
@@ -101,7 +99,7 @@ def _command(args: list, small: bool):
     if args[:4] == ["python", "-m", "pip", "install"] or args[:2] == ["pip", "install"]:
         return None
     if args[0] == "optimise-pressure":
-        return [sys.executable, "-m", "inverse_design.app.cli", *args[1:], *(SMALL_ARGS if small else [])]
+        return launch(*args[1:], *(SMALL_ARGS if small else []))
     if args[0] == "python":
         return [sys.executable, *args[1:]]
     return args
@@ -132,7 +130,7 @@ def test_the_block_runs_as_written(index, env, tmp_path):
     small = "small grid" in marker
     if marker == ERROR_MARKER:
         (tmp_path / "wing.toml").write_text(_previous_case_file(index) + THIRD_RIB)
-        done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "wing.toml"], tmp_path, env)
+        done = _run(launch("--config", "wing.toml"), tmp_path, env)
         assert done.returncode == 2 and done.stdout == "", done.stderr
         assert done.stderr.strip() == text.strip()
     elif language == "python":
@@ -142,11 +140,9 @@ def test_the_block_runs_as_written(index, env, tmp_path):
     elif language == "toml":
         case = tmp_path / "case.toml"
         case.write_text(text)
-        values = case_reader.read_config(case)  # every key and value checked as the command checks them
-        assert values
+        assert Case.from_arguments(["--config", str(case)]).options  # every key, value and section checked
         if small:
-            done = _run([sys.executable, "-m", "inverse_design.app.cli", "--config", "case.toml", *SMALL_ARGS,
-                         "--out", "out"], tmp_path, env)
+            done = _run(launch("--config", "case.toml", *SMALL_ARGS, "--out", "out"), tmp_path, env)
             assert done.returncode == 0, f"{line}:\n{done.stderr[-3000:]}"
             assert (tmp_path / "out" / "summary.json").exists()
     elif language == "bash":
@@ -160,7 +156,7 @@ def test_the_block_runs_as_written(index, env, tmp_path):
         for command in commands:
             done = _run(command, tmp_path, env)
             assert done.returncode == 0, f"{line}: {shlex.join(command)}:\n{done.stderr[-3000:]}"
-            if command[1:3] == ["-m", "inverse_design.app.cli"]:  # the documented outcome: the folder
+            if command[1:3] == launch()[1:3]:  # the command: the documented outcome, the folder
                 out = command[command.index("--out") + 1] if "--out" in command else "optimise-pressure-out"
                 assert (tmp_path / out / "summary.json").is_file() and f"wrote {tmp_path / out}" in done.stdout
     else:

@@ -27,8 +27,9 @@ from matplotlib.path import Path as Polygon  # noqa: E402
 from forward_solver import Bay, Fabric, Parameters, Result, Scene, solve_equilibrium  # noqa: E402
 from forward_solver import forces as fk  # noqa: E402
 from inverse_design.app import cli  # noqa: E402
-from inverse_design.app.report import ReportOptions, write_report  # noqa: E402
+from inverse_design.app.folder import ReportOptions, write_report  # noqa: E402
 from inverse_design.app.cut_files import rib_mark_nodes  # noqa: E402
+from support.reports import measured  # noqa: E402
 from inverse_design.flat_panels import RIB_CHORDAL_ERROR, develop, mounted_skin, offset_outline, rib_template  # noqa: E402
 from inverse_design.rib_design import cut_lengths  # noqa: E402
 from targets import naca  # noqa: E402
@@ -53,7 +54,7 @@ def design(scene):
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory, scene, design):
     out = tmp_path_factory.mktemp("patterns") / "out"
-    summary = write_report(out, design, TARGET, scene=scene, options=ReportOptions(seam_allowance_mm=ALLOWANCE))
+    summary = write_report(out, measured(design, TARGET, scene), options=ReportOptions(seam_allowance_mm=ALLOWANCE))
     return out, summary
 
 
@@ -227,13 +228,13 @@ def test_a_failed_design_gets_no_pattern(folder, scene, design, tmp_path):
     from dataclasses import replace
 
     failed = replace(design, result=Result.max_steps_reached)  # (the flag the report reads)
-    summary = write_report(tmp_path / "out", failed, TARGET, scene=scene)
+    summary = write_report(tmp_path / "out", measured(failed, TARGET, scene))
     assert summary["results"]["success"] is False
     assert not [n for n in summary["files"] if n.startswith("pattern_") or n.endswith(".dxf")]
     assert "failed design" in summary["skipped"]["patterns"] and "patterns" not in summary
     assert not list((tmp_path / "out").glob("*.dxf"))
     assert "bay_0_cut_pattern.csv" in summary["files"]  # the table of lengths stays
-    summary = write_report(tmp_path / "off", design, TARGET, scene=scene, options=ReportOptions(patterns=False))
+    summary = write_report(tmp_path / "off", measured(design, TARGET, scene), options=ReportOptions(patterns=False))
     assert not list((tmp_path / "off").glob("*.dxf")) and "patterns" in summary["skipped"]
 
 
@@ -245,7 +246,7 @@ def test_a_negative_seam_allowance_is_refused_with_one_line(tmp_path, capsys, sc
     assert "--seam-allowance must be 0 mm or more" in err[0] and "got -5" in err[0]
     assert not (tmp_path / "o").exists()
     with pytest.raises(ValueError, match="seam allowance must be 0 mm or more"):
-        write_report(tmp_path / "o", design, TARGET, scene=scene, options=ReportOptions(seam_allowance_mm=-1.0))
+        write_report(tmp_path / "o", measured(design, TARGET, scene), options=ReportOptions(seam_allowance_mm=-1.0))
     assert not (tmp_path / "o").exists()
 
 

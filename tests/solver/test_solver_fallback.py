@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 import forward_solver
-import inverse_design.optimise
 from forward_solver import Bay, ConvergenceError, Fabric, Relax, Result, Scene, solve_equilibrium
 from inverse_design import optimise_pressure
-from inverse_design.app import case as case_reader, cli, command
+from inverse_design.app import cli, design
+from inverse_design.app.case import Case
+from inverse_design.app.run import run_case
 from inverse_design.settings import Limits, SolverSettings
 from targets import naca
 from support.solver import default_bay
@@ -59,9 +60,8 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(forward_solver.solvers.bays, "solve_equilibrium", spy)  # (each bay's solve, evaluate_design's)
-    args, _ = case_reader.parse_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method",
-                                   "newton", "--max-steps", "777", "--out", str(tmp_path / "out")])
-    command.run(args)
+    run_case(Case.from_arguments(["--evaluate", "--n-span", "5", "--n-contour", "32", "--equilibrium-method", "newton",
+                                  "--max-steps", "777", "--out", str(tmp_path / "out")]))
     assert seen["method"].name == "newton" and seen["max_steps"] == 777  # (the method as a value)
 
     class Stop(Exception):
@@ -71,19 +71,18 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         seen["solver_options"] = kwargs["solver"].solver_options
         raise Stop
 
-    monkeypatch.setattr(inverse_design.optimise, "optimise_pressure", fake)
+    monkeypatch.setattr(design, "optimise_wing", fake)
     case = tmp_path / "case.toml"
     case.write_text('equilibrium-method = "relax"\nmax-steps = 4321\nn-span = 5\nn-contour = 32\n')
-    args, _ = case_reader.parse_arguments(["--config", str(case), "--out", str(tmp_path / "out2")])
     with pytest.raises(Stop):
-        command.run(args)
+        run_case(Case.from_arguments(["--config", str(case), "--out", str(tmp_path / "out2")]))
     assert seen["solver_options"] == {"method": "relax", "max_steps": 4321}
 
 
 def test_bad_equilibrium_options_are_refused():
     with pytest.raises(cli.InputError, match="equilibrium-method"):
-        case_reader.parse_arguments(["--equilibrium-method", "fast"])
-    bay = default_bay(5, 32)
+        Case.from_arguments(["--equilibrium-method", "fast"])
+    bay = Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=32)
     with pytest.raises(ValueError, match="max_steps must be a positive integer"):
         SolverSettings(max_steps=0)
     with pytest.raises(ValueError, match="equilibrium_method must be one of"):

@@ -262,7 +262,7 @@ def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
     assert BOUNDS["pressure"][0] <= fine.pressure <= BOUNDS["pressure"][1]
     # The command's wing summary and console keep the record (they dropped it before).
     from inverse_design.app.console import refined_line
-    from inverse_design.app.report import summarise
+    from inverse_design.app.summary import summarise
 
     results = summarise(fine)["results"]
     assert results["grid_change"]["grids"] == [[9, 32], [17, 32]]

@@ -1,25 +1,20 @@
-"""Files of a design: the equilibrium as ``.npz``, the skin as OBJ and STL, and the atomic output folder.
+"""The output folder as a transaction: checked, locked, staged, journalled, put in place.
 
-`write_npz`, `write_obj` and `write_stl` write one file each. A report is
-written atomically (`staged_folder`): into a hidden temporary folder, whose
-files are put in place only when all are written. The output folder may
-hold other files: only the report's own files are written, replacing only
-the files of an earlier report there (those its ``summary.json`` lists:
-`written_files`); the earlier report's files that the new one does not
-write are removed; nothing else in the folder is touched, and the folder is
-never removed (`check_output_folder` refuses a folder holding a file of a
-report's name that no report wrote). Temporary folders that a killed writer
-left behind are removed (or their moves finished) by the next
-`staged_folder` of the same destination (`remove_stale_partials`).
-
-A report records the size and SHA-256 of every file it wrote in its
-``summary.json`` (``checksums``: `file_checksums`). A file that changed since
+The folder may hold other files: a report writes only its own, replacing
+only the files of an earlier report there (those its ``summary.json`` lists:
+`written_files`) and removing that report's files it does not write;
+nothing else is touched, and the folder itself is never removed. It is
+checked once, before the long work (`check_output_folder`), then written
+atomically (`staged_folder`): into a hidden temporary folder whose files
+move in, from a journal of their moves, only when all are written, the
+ownership rules applied again as they do. Temporary folders that a killed
+writer left behind are removed, or their moves finished, by the next writer
+(`remove_stale_partials`). A report records the size and SHA-256 of every
+file it wrote (``checksums``: `file_checksums`); a file that changed since
 (a ``rib.dat`` edited by hand) is no longer the report's (`changed_files`):
-it is never removed, and a new report that would replace it is refused
-(``check_output_folder(..., replaces=...)`` up front, `staged_folder` at the
-latest); a summary without checksums (an older report's) is trusted as it is.
-A run holds `output_lock` on its output folder from start to end, so a second
-run into the same folder is refused at once instead of racing the first.
+it is never removed, and a report that would replace it is refused. A run
+holds `output_lock` on its folder from start to end, so a second run into it
+is refused at once instead of racing the first.
 """
 
 from __future__ import annotations
@@ -35,237 +30,18 @@ import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
-import numpy as np
-
-from forward_solver import Solution
-
 from . import interrupts
-from ..optimise import DesignResult
 
 try:
     import fcntl
 except ImportError:  # pragma: no cover - Windows: no flock, stale folders are left alone
     fcntl = None
 
-__all__ = [
-    "REPORT_FILES",
-    "changed_files",
-    "check_output_folder",
-    "file_checksums",
-    "output_lock",
-    "deviation",
-    "remove_stale_partials",
-    "staged_folder",
-    "write_cut_pattern",
-    "write_npz",
-    "write_obj",
-    "write_selig",
-    "write_stl",
-    "written_files",
-]
+__all__ = ["REPORT_FILES", "changed_files", "check_output_folder", "file_checksums", "output_lock",
+           "remove_stale_partials", "staged_folder", "written_files"]
 
 
-def deviation(solution: Solution, target, chord: float) -> np.ndarray:
-    """Signed normal distance of every node from the target, ``(n_span, n_contour)``, fraction of chord.
-
-    Positive outside the target. ``chord`` (m) scales the nodes to the target's
-    chord-normalised frame (the bay's mean chord, as the objectives use). It is
-    stored in ``equilibrium.npz`` and drawn by `inverse_design.app.plots.plot_deviation`.
-    """
-    points = np.asarray(solution.nodes)[..., [0, 2]] / chord
-    return np.asarray(target.distance(points), dtype=np.float64)
-
-
-# ------------------------------------------------------------------ surface files
-def _quads(n_span: int, n_contour: int, periodic: bool) -> np.ndarray:
-    """``(n_quads, 4)`` zero-based node indices of the grid's cells, counter-clockwise seen from outside."""
-    index = np.arange(n_span * n_contour).reshape(n_span, n_contour)
-    j = np.arange(n_contour if periodic else n_contour - 1)
-    j1 = (j + 1) % n_contour
-    # (i, j) -> (i+1, j) -> (i+1, j+1) -> (i, j+1): the normal e1 x e2 points out of the section.
-    quads = np.stack([index[:-1][:, j], index[1:][:, j], index[1:][:, j1], index[:-1][:, j1]], axis=-1)
-    return quads.reshape(-1, 4)
-
-
-def write_obj(path, nodes, periodic: bool, name: str = "skin") -> Path:
-    """Write the skin as a Wavefront OBJ: one vertex per node, one quad per cell.
-
-    Args:
-        path: file to write.
-        nodes: ``(n_span, n_contour, 3)`` m.
-        periodic: close the contour (a wing section) with a last column of quads.
-        name: object name in the file.
-
-    Returns:
-        The path. Vertex ``1 + i * n_contour + j`` is node ``(i, j)``; faces
-        wind counter-clockwise seen from outside the wing.
-    """
-    nodes = np.asarray(nodes, dtype=np.float64)
-    n_span, n_contour, _ = nodes.shape
-    quads = _quads(n_span, n_contour, periodic) + 1
-    lines = [
-        "# inflatable-wing equilibrium skin; units: metres (x chordwise, y spanwise, z up)",
-        f"# grid {n_span} x {n_contour} nodes (span x contour); vertex 1 + i*{n_contour} + j is node (i, j)",
-        f"o {name}",
-    ]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in nodes.reshape(-1, 3)]
-    lines += [f"f {a} {b} {c} {d}" for a, b, c, d in quads]
-    path = Path(path)
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def write_stl(path, nodes, periodic: bool) -> Path:
-    """Write the skin as a binary STL (two triangles per cell, outward normals), metres."""
-    nodes = np.asarray(nodes, dtype=np.float64)
-    n_span, n_contour, _ = nodes.shape
-    quads = _quads(n_span, n_contour, periodic)
-    flat = nodes.reshape(-1, 3)
-    triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    corners = flat[triangles]  # (n, 3, 3)
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
-    record = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
-    data = np.zeros(len(triangles), dtype=record)
-    data["normal"], data["corners"] = normals, corners
-    header = b"inflatable-wing equilibrium skin, units: metres".ljust(80, b" ")
-    path = Path(path)
-    with open(path, "wb") as f:
-        f.write(header)
-        f.write(np.uint32(len(triangles)).tobytes())
-        f.write(data.tobytes())
-    return path
-
-
-def write_npz(path, solution: Solution, target, scene, result: DesignResult | None = None) -> Path:
-    """Write the equilibrium and its parameters as a compressed ``.npz`` (no pickles).
-
-    Arrays: ``nodes`` (n_span, n_contour, 3) m; ``tension_span``,
-    ``tension_chord`` (n_span - 1, n_cells) N/m; ``wrinkled`` (same, bool);
-    ``fixed`` (n_span, n_contour) bool; ``deviation`` (n_span, n_contour)
-    signed normal distance from the target, fraction of chord;
-    ``target_xz`` (n, 2) the chord-normalised target; ``mid_bay_section``
-    and ``rib_section`` (n_contour, 2) x-z in m; scalars ``pressure`` (Pa),
-    ``prestrain`` (span, chord), ``rib_thickness_scale``, ``rib_chord_scale``,
-    ``stiffness`` (span, chord) N/m, ``chord`` and ``rib_spacing`` (m);
-    ``rib_shape`` (2 K coefficients, empty for an unshaped rib); the cut
-    lengths of `rib_design.cut_lengths` (``contour_edge_cut`` (n_span,
-    n_edges), ``span_edge_cut`` (n_span - 1, n_contour), m); ``variables``
-    (names) and, after an optimisation, ``history_objective`` and
-    ``history_values`` (iterate x component; a rib shape takes 2 K columns).
-    """
-    from ..rib_design import cut_lengths
-
-    bay = scene.bay
-    values = solution.parameters
-    arrays = dict(
-        nodes=np.asarray(solution.nodes), tension_span=np.asarray(solution.tension_span),
-        tension_chord=np.asarray(solution.tension_chord), wrinkled=np.asarray(solution.wrinkled, bool),
-        fixed=np.asarray(bay.fixed, bool), deviation=deviation(solution, target, bay.chord),
-        target_xz=np.stack([np.asarray(target.x), np.asarray(target.z)], axis=-1),
-        mid_bay_section=solution.section(0.5), rib_section=solution.section(0.0),
-        pressure=np.float64(values.pressure),
-        prestrain=np.array(values.prestrain, dtype=np.float64),
-        rib_thickness_scale=np.float64(values.rib_thickness_scale),
-        rib_chord_scale=np.float64(values.rib_chord_scale),
-        stiffness=np.array(values.stiffness, dtype=np.float64),
-        chord=np.float64(bay.chord), rib_spacing=np.float64(bay.rib_spacing),
-        target_name=np.array(str(target.name)),
-        rib_shape=np.zeros(0) if values.rib_shape is None else np.asarray(values.rib_shape, np.float64),
-    )
-    cuts = cut_lengths(scene, values)
-    arrays.update(contour_edge_cut=cuts["contour_edge_cut_m"], span_edge_cut=cuts["span_edge_cut_m"])
-    if result is not None:
-        names = list(result.variables)
-        arrays["variables"] = np.array(names, dtype=str)
-        arrays["history_objective"] = np.array([h["objective"] for h in result.history], dtype=np.float64)
-        rows = [np.concatenate([np.ravel(h["values"][n]) for n in names]) for h in result.history]
-        arrays["history_values"] = np.array(rows, dtype=np.float64).reshape(len(rows), -1)
-    return save_npz(path, arrays)
-
-
-def save_npz(path, arrays: dict) -> Path:
-    """``np.savez_compressed(path, **arrays)``, never cut short by a stop of the command.
-
-    A Ctrl-C or SIGTERM that lands while a member of the zip file is being
-    closed leaves its write handle open; closing the zip file then raises
-    ValueError ("Can't close the ZIP file while there is an open writing
-    handle") in place of the stop, and the run ended with exit 2. The write
-    runs as an `interrupts.deferred` section: a stop arriving in it is raised
-    when the file is complete.
-    """
-    path = Path(path)
-    with interrupts.deferred(), open(path, "wb") as f:
-        np.savez_compressed(f, **arrays)
-    interrupts.check()
-    return path
-
-
-# ------------------------------------------------------------------ the folder
-def write_selig(path, airfoil, comment: str = "") -> Path:
-    """Write a chord-normalised `targets.Airfoil` as a Selig ``.dat`` file (name line, then x z).
-
-    Points run in the airfoil's own (Selig) order: trailing edge, upper
-    surface, leading edge, lower surface. `targets.load_airfoil` reads it
-    back.
-    """
-    name = " ".join(str(airfoil.name).split()) or "airfoil"
-    lines = [name + (f"  ({comment})" if comment else "")]
-    lines += [f"{x: .8f} {z: .8f}" for x, z in zip(np.asarray(airfoil.x), np.asarray(airfoil.z))]
-    path = Path(path)
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def write_cut_pattern(path, scene, parameters) -> Path:
-    """Write the fabric's cut lengths (`rib_design.cut_lengths`) as CSV, one row per contour node.
-
-    Columns: ``j`` (contour node), ``surface`` (upper/lower, Selig order),
-    ``x_over_chord`` (at the root rib), ``arc_cut_root_m`` and
-    ``arc_cut_mid_m`` (cut length along the contour from the trailing edge
-    to the node, at the root rib's row and at mid-bay), ``span_cut_m`` (cut
-    length of the span fibre through the node, rib to rib),
-    ``span_mounted_m`` (its mounted length), ``span_prestrain`` (the local
-    prestrain of that span fibre) and ``contour_prestrain`` (that of the
-    contour edge from the node to the next; both the uniform prestrains
-    unless a cut pattern, `forward_solver.model.cut_field`, varies them). The
-    ``# `` header lines give the prestrains and each row's cut perimeter.
-    """
-    from ..rib_design import cut_lengths
-
-    cuts = cut_lengths(scene, parameters)
-    bay = scene.bay
-    contour = cuts["contour_edge_cut_m"]
-    mid = bay.n_span // 2
-    arc_root = np.concatenate([[0.0], np.cumsum(contour[0])])[: bay.n_contour]
-    arc_mid = np.concatenate([[0.0], np.cumsum(contour[mid])])[: bay.n_contour]
-    x = np.asarray(bay.contour_root[:, 0])
-    j_le = int(np.argmin(x))
-    field = ("" if parameters.cut_pattern is None else
-             f" plus a cut pattern of {np.size(parameters.cut_pattern) // 2} terms per direction (local "
-             "prestrain in the last two columns)")
-    lines = [f"# cut lengths of the fabric: reference length = mounted length / (1 + prestrain), "
-             f"prestrain span {float(parameters.prestrain_span):.6g}, chord {float(parameters.prestrain_chord):.6g}"
-             + field,
-             f"# cut perimeter (trailing edge around to trailing edge): root rib "
-             f"{cuts['contour_cut_m'][0]:.6f} m, mid-bay {cuts['contour_cut_m'][mid]:.6f} m, tip rib "
-             f"{cuts['contour_cut_m'][-1]:.6f} m",
-             "j,surface,x_over_chord,arc_cut_root_m,arc_cut_mid_m,span_cut_m,span_mounted_m,span_prestrain,"
-             "contour_prestrain"]
-    contour_prestrain = cuts["contour_prestrain"]  # a flat panel's last node takes its last edge's
-    contour_prestrain = np.concatenate([contour_prestrain, contour_prestrain[-1:]])[: bay.n_contour]
-    for j in range(bay.n_contour):
-        surface = "upper" if j <= j_le else "lower"
-        lines.append(f"{j},{surface},{x[j]:.6f},{arc_root[j]:.6f},{arc_mid[j]:.6f},"
-                     f"{cuts['span_cut_m'][j]:.6f},{cuts['span_mounted_m'][j]:.6f},"
-                     f"{cuts['span_prestrain'][j]:.6g},{contour_prestrain[j]:.6g}")
-    path = Path(path)
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-#: Names of the files a report writes (`report.write_report`). An
+#: Names of the files a report writes (`folder.write_report`). An
 #: output folder may hold other files; `check_output_folder` refuses one that holds a file of these names
 #: that no earlier report there wrote (`written_files`), before the long work.
 REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|stl)|(bay_[0-9]+_)?cut_pattern\.csv|"
@@ -422,7 +198,7 @@ def _check_name(out_dir) -> Path:
 
 
 def check_output_folder(out_dir, replaces=None) -> Path:
-    """The absolute output path, after checking that `write_report` may write into it.
+    """The absolute output path, after checking that a report (`folder.write_report`) may write into it.
 
     The folder may hold other files (they are never touched); it must not
     hold a file of a report's name (`REPORT_FILES`) that no earlier report
@@ -672,28 +448,24 @@ def _discard(staging: Path) -> None:
 
 
 @contextmanager
-def staged_folder(out_dir):
-    """Write a report's files atomically: yield a temporary folder, put its files in place on success.
+def staged_folder(out):
+    """Write a report's files atomically into ``out`` (the folder `check_output_folder` returned): yield a
+    temporary folder, put its files in place on success.
 
-    A new ``out_dir`` is the temporary folder (``.NAME.partial-`` and 8 hex
-    digits, beside it) renamed. Into an existing one (checked by
-    `check_output_folder`), the temporary folder (``.report.partial-`` and 8
-    hex digits, inside it) has its files moved one by one, each replacing
-    only its namesake of an earlier report; the earlier report's files that
-    this one does not write (listed in its ``summary.json``, e.g. ``rib.dat``
-    of a rib-shape run) are removed, unless they changed since
-    (`changed_files`: kept), and ``summary.json`` comes last; a changed file
-    that this report would replace is refused (ValueError, nothing moved). Every
-    other file in ``out_dir`` is left as it is; ``out_dir`` itself is never
-    removed. On any exception before that, KeyboardInterrupt included, the
-    temporary folder is removed and ``out_dir`` is left as it was; a stop
-    (`interrupts`) that arrives while the files move is held until they are
-    in place. A temporary folder that a killed process (SIGKILL, power loss)
-    left behind is removed, or its moves finished, by the next writer of the
-    same ``out_dir`` (`remove_stale_partials`); the writer locks its own
-    until it ends.
+    A new ``out`` is the temporary folder (``.NAME.partial-`` and 8 hex
+    digits, beside it) renamed. Into an existing one the temporary folder
+    (``.report.partial-`` and 8 hex digits, inside it) has its files moved one
+    by one, each replacing only its namesake of an earlier report; the
+    earlier report's files that this one does not write are removed, unless
+    they changed since (`changed_files`: kept), and ``summary.json`` comes
+    last; a changed file that this report would replace is refused
+    (ValueError, nothing moved). On any exception before that,
+    KeyboardInterrupt included, the temporary folder is removed and ``out``
+    is left as it was; a stop (`interrupts`) that arrives while the files
+    move is held until they are in place. The writer locks its temporary
+    folder until it ends (`remove_stale_partials` leaves it alone).
     """
-    out = check_output_folder(out_dir)
+    out = Path(os.path.abspath(os.fspath(out)))
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_partials(out)
     inside = out.is_dir() and not out.is_symlink()

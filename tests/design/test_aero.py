@@ -2,24 +2,20 @@
 
 NeuralFoil is in the ``test`` extra; the tests that evaluate it are skipped
 where it is not installed (an environment set up before it joined the
-extra). Input checks and the missing-package path run without it.
+extra). Input checks and the missing-package path run without it. The
+command's ``--aero``: tests/command/test_aero_cli.py.
 """
 
 import json
-import os
-import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from inverse_design import aero
-from inverse_design.app import cli
 from inverse_design.aero import AeroUnavailable, aerodynamic_cost, alpha_range, compare_sections
 from targets import Airfoil, naca
 
-ROOT = Path(__file__).resolve().parents[2]
 ALPHAS = np.arange(-4.0, 10.5, 1.0)
 RE = 1e6
 
@@ -108,7 +104,7 @@ def test_bay_sections(bay_solution, target):
 
 def test_plot(bay_solution, target):
     _neuralfoil()
-    from inverse_design.app.plots import plot_aero
+    from inverse_design.app.wing_figures import plot_aero
 
     comparison = aerodynamic_cost(bay_solution, target, 1.0, reynolds=RE, alphas=[0.0, 2.0, 4.0],
                                   model_size="small")
@@ -155,42 +151,3 @@ def test_missing_neuralfoil(monkeypatch, bay_solution, target):
     with pytest.raises(AeroUnavailable, match=r'pip install "inflatable-wing\[aero\]"') as info:
         aerodynamic_cost(bay_solution, target, 1.0, reynolds=RE, alphas=ALPHAS)
     assert isinstance(info.value, ImportError)
-
-
-def test_cli_without_neuralfoil_exits_before_solving(monkeypatch, tmp_path, capsys):
-    monkeypatch.setitem(sys.modules, "neuralfoil", None)
-    code = cli.main(["--aero", "--evaluate", "--n-span", "5", "--n-contour", "32", "--no-compilation-cache",
-                     "--out", str(tmp_path / "out")])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1
-    assert err[0].startswith("optimise-pressure: error: --aero")
-    assert 'pip install "inflatable-wing[aero]"' in err[0]
-    assert not (tmp_path / "out").exists()
-
-
-def test_cli_bad_alpha_range_in_case_file(tmp_path, capsys):
-    case = tmp_path / "case.toml"
-    case.write_text("aero = true\nalpha-range = [-4, 10]\n")
-    assert cli.main(["--config", str(case), "--out", str(tmp_path / "out")]) == 2
-    assert "alpha-range must be a list [start, stop, step]" in capsys.readouterr().err
-
-
-# ------------------------------------------------------------------ the command
-def test_cli_writes_aero(tmp_path):
-    _neuralfoil()
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               INFLATABLE_WING_CACHE=str(tmp_path / "cache"))
-    done = subprocess.run([sys.executable, "-m", "inverse_design.app.cli", "--aero", "--evaluate", "--n-span", "5",
-                           "--n-contour", "32", "--reynolds", "5e5", "--alpha-range", "-2", "6", "2",
-                           "--out", "out"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    out = tmp_path / "out"
-    summary = json.loads((out / "summary.json").read_text())
-    assert (out / "bay_0_aero.png").stat().st_size > 10_000 and "bay_0_aero.png" in summary["files"]
-    record = summary["bays"][0]["aero"]
-    assert record["reynolds"] == 5e5 and record["alphas_deg"] == [-2.0, 0.0, 2.0, 4.0, 6.0]
-    for section in ("target", "mid_bay", "bay_average"):
-        assert len(record["sections"][section]["cd"]) == 5
-    largest = record["max_abs_difference"]["mid_bay"]
-    assert largest["cl"] > 0 and largest["cd"] > 0 and largest["cm"] > 0
-    assert "aerodynamics at Re 5e+05" in done.stdout

@@ -1,0 +1,154 @@
+"""The run of a case: a checked `case.Case` to a design (or one equilibrium) and its output folder.
+
+`run_case` runs every case on one path, one bay and a wing of ``[[rib]]``
+tables alike: the grid and the output folder are checked before the long
+work, then the checks that need the solver (`design.check_wing`: ribs too
+close for the grid, a design too large for the memory), the warnings about
+the inputs, the design (`design.optimise`, `inverse_design.optimise_wing`;
+``--refine``: `design.refine`) or one equilibrium (``--evaluate``:
+`design.evaluate`), the aerodynamic comparison and the tolerance analysis,
+and `folder.write_report` writes the folder. No physics lives here; every
+call into the design library is in `design`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import threading
+import time
+
+from . import interrupts
+from .case import Case
+from .options import PROG
+from .output_folder import changed_files, check_output_folder, output_lock
+from .resources import check_grid
+
+__all__ = ["REPORT_MODULES", "WORKER_MODULES", "run_case", "safe_point", "warn"]
+
+#: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
+REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
+#: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
+#: the figures and of the DXF patterns they write, and the modules their tasks name.
+WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
+
+
+def safe_point(entry=None) -> None:
+    """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
+    interrupts.check()
+
+
+def _import_report_modules() -> None:
+    for name in REPORT_MODULES:
+        try:
+            importlib.import_module(name)
+        except Exception:  # noqa: BLE001 - the report imports it again and says what failed
+            pass
+
+
+def _import_report_modules_meanwhile() -> None:
+    """Import the report's libraries (matplotlib, ezdxf: 0.4 s) on a second thread while the design
+    runs: the design's compiling and computing release Python's lock, the import takes it then
+    (measured: the design slows by about what the report saves)."""
+    if (os.cpu_count() or 1) > 1:
+        threading.Thread(target=_import_report_modules, name="import-report", daemon=True).start()
+
+
+def run_case(case: Case, progress: bool = False, started: float | None = None, workers=None) -> dict:
+    """Run ``case`` (one bay, or a wing of ``[[rib]]`` tables), write the output folder and return its summary.
+
+    The whole run holds the output folder's lock (`output_folder.output_lock`): a second run into the same
+    ``--out`` meanwhile is refused at once (ValueError, exit 2) instead of racing this one. ``started`` (a
+    `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the start of `cli.main`, so that it
+    includes importing JAX. ``workers`` (a `workers.ReportWorkers`, the command's, which import
+    `WORKER_MODULES`) write figures and DXF patterns (`folder.write_report`).
+
+    Raises:
+        ValueError: bad input (`options.InputError` among them).
+        forward_solver.ConvergenceError: a forward solve failed (nothing written).
+    """
+    with output_lock(case.options.out):
+        return _run(case, progress, time.perf_counter() if started is None else started, workers)
+
+
+def _run(case: Case, progress: bool, start: float, workers) -> dict:
+    """`run_case`'s work, under the lock."""
+    # (not at the top: a report worker imports this module, through `cli`, and must not import JAX)
+    from . import design
+    from .folder import ReportOptions, write_report
+
+    o = case.options
+    check_grid(o.n_span, o.n_contour, evaluate=o.evaluate, allow_large=o.allow_large_grid)
+    alphas = design.aero_angles(case) if o.aero else None  # (before any solve: a missing package fails fast)
+    out = check_output_folder(o.out, replaces=case.may_write)  # before the long work, not after it
+    design.check_equilibrium_method(case)
+    _import_report_modules_meanwhile()  # (the figures are built here, also when workers save them)
+    tolerances = design.tolerances(case)  # (before any solve)
+    design.check_wing(case)  # ribs too close for the grid are refused before any warning is shown
+    notes = warn(case)
+    if not o.no_patterns:  # (before the design: the report would fail after it)
+        design.check_flat_panels(case)
+    interrupts.check()  # (a stop during the checks: before the long work)
+    timings = {"setup": time.perf_counter() - start}
+    if progress:  # (a terminal: the progress bar's first line, before the first solve compiles)
+        print(f"{PROG}: {_starting_line(case)}", file=sys.stderr, flush=True)
+    t = time.perf_counter()
+    if o.evaluate:
+        result = design.evaluate(case)
+        timings["equilibrium"] = time.perf_counter() - t
+    else:
+        result = design.optimise(case, tolerances, progress=progress, callback=safe_point)
+        if o.refine:
+            result = design.refine(case, result, tolerances, progress=progress, callback=safe_point)
+        timings["optimisation"] = time.perf_counter() - t
+    aero = None
+    if alphas is not None:
+        t = time.perf_counter()
+        aero = design.compare_aero(case, result, alphas)
+        timings["aero"] = time.perf_counter() - t
+    analysis = design.analyse_tolerances(case, result, tolerances, notes) if tolerances else None
+    if analysis is not None:
+        timings["tolerance"] = analysis.timings["tolerance"]
+        timings["samples"] = analysis.timings.get("samples", 0.0)
+    interrupts.check()
+    report = ReportOptions(bounds=None if o.evaluate else case.bounds, magnification=o.magnification,
+                           rib_limits=case.limits.ribs, patterns=not o.no_patterns,
+                           seam_allowance_mm=o.seam_allowance, inputs=case.inputs, timings=timings, aero=aero,
+                           warnings=notes, tolerance=analysis)
+    try:
+        return write_report(out, result, options=report, workers=workers)
+    finally:
+        if analysis is not None and analysis.samples_file:
+            os.unlink(analysis.samples_file)
+
+
+def _starting_line(case: Case) -> str:
+    """What the run solves now, shown before its first solve (which compiles the solver: minutes for a
+    large wing without a compilation cache, before the progress bar's first tick)."""
+    o = case.options
+    bays = f"{case.n_bays} bays" if case.n_bays > 1 else "1 bay"
+    grid = f"{o.n_span} x {o.n_contour} nodes{' each' if case.n_bays > 1 else ''}"
+    if o.evaluate:
+        return f"solving the equilibrium of {bays} of {grid}"
+    return (f"designing {bays} of {grid} ({', '.join(case.variables)}; method {o.method}, at most "
+            f"{o.max_iterations} iterations): the first wing solve compiles the solver")
+
+
+def warn(case: Case) -> list[str]:
+    """The run's warning lines, each shown on stderr as one ``warning:`` line (unless ``--quiet``); the
+    run records them in the summary: the inputs, the grid, the seam allowance, the terms of the designed
+    fields, the Reynolds number (`design.warning_lines`), the options given that the run ignores
+    (`case.Case.ignored_options`), and the earlier report's files that changed since and that this run
+    keeps (`output_folder.changed_files`)."""
+    from . import design  # (not at the top: a report worker imports this module and must not import JAX)
+
+    o = case.options
+    lines = design.warning_lines(case) + case.ignored_options()
+    lines += [f"{name} in {o.out} changed since the earlier report wrote it: kept as it is (this run "
+              f"writes no {name}), and no longer counted as a report file"
+              for name in changed_files(o.out) if not case.may_write(name)]
+    if not o.quiet:
+        for line in lines:
+            print(f"{PROG}: warning: {line}", file=sys.stderr)
+    return lines
