@@ -41,7 +41,7 @@ CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
 def command_in_the_test_processes():
     """The command's runs in this process: the report written serially (its workers are fresh interpreters
     that import the report's libraries, a few seconds of CPU each, twice per run), and the solver's plain
-    jitted programs, which the library tests compile (the exported ones, `forward_solver.compilation.stored`,
+    jitted programs, which the library tests compile (the exported ones, `forward_solver.compilation`,
     would compile again; the runs in subprocesses keep them in the run's cache: docs/compilation.md)."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(cli, "ReportWorkers", NoWorkers)

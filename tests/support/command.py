@@ -43,15 +43,15 @@ class NoWorkers:
 
 
 def plain_programs(use_compilation_cache):
-    """`cli.use_compilation_cache` without the solver's exported programs (`forward_solver.compilation.stored`):
+    """`cli.use_compilation_cache` without the solver's exported programs (`forward_solver.compilation`):
     a run in a test process uses the plain jitted programs that the library tests there compile (the
     exported ones would compile again)."""
-    from forward_solver.compilation import stored  # (imports JAX: only once a test calls the command)
+    from forward_solver.compilation import program_store, use_program_store  # (imports JAX: only once a test calls the command)
 
     def without_stored_programs(path):
-        previous = stored.program_store()
+        previous = program_store()
         on = use_compilation_cache(path)
-        stored.use_program_store(previous)
+        use_program_store(previous)
         return on
 
     return without_stored_programs
