@@ -91,15 +91,16 @@ def case_arguments(case: str, set_name: str, method: str, grid=None) -> list[str
 def design(argv: list[str]):
     """The design the command runs for ``argv`` (as `inverse_design.app.command.run`, no report)."""
     from forward_solver import Bay, Fabric, Scene, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_pressure, optimise_wing
+    from inverse_design import DesignRequest, Layout, Limits, SolverSettings, methods, optimise_pressure, optimise_wing
     from inverse_design.app.case import design_inputs, load_section, parse_arguments
 
     args, _ = parse_arguments(argv)
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    options = dict(initial=initial, bounds=bounds, objective=args.objective, method=args.method,
+    options = dict(initial=initial, bounds=bounds, objective=args.objective,
+                   method=methods.named(args.method, objective=args.objective, tolerance=args.tolerance),
                    limits=Limits(tension=constraints, ribs=rib_limits),
-                   solver=SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+                   solver=SolverSettings(max_iterations=args.max_iterations,
                                          equilibrium_method=args.equilibrium_method, max_steps=args.max_steps))
     ribs = getattr(args, "wing", None)
     if ribs is not None:
@@ -108,15 +109,13 @@ def design(argv: list[str]):
                    for k, r in enumerate(ribs)]
         wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
                     stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-        return optimise_wing(wing, fabric, targets, variables,
-                             layout=Layout(n_span=args.n_span, n_contour=args.n_contour,
-                                           cut_pattern=args.cut_pattern_layout),
-                             **options)
+        layout = Layout(n_span=args.n_span, n_contour=args.n_contour, cut_pattern=args.cut_pattern_layout)
+        return optimise_wing(wing, fabric, targets, DesignRequest(variables, layout=layout, **options))
     target = load_section(args.target, "--target")
     rib = target if args.rib is None else load_section(args.rib, "--rib")
     bay = Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
                            n_contour=args.n_contour)
-    return optimise_pressure(Scene(bay, fabric), target, variables, rib=rib, **options)
+    return optimise_pressure(Scene(bay, fabric), target, variables, **options)
 
 
 def run_one(case: str, set_name: str, method: str, grid=None) -> dict:

@@ -41,7 +41,7 @@ def resident_mb() -> float:
 
 def design(cells: int):
     from forward_solver import Fabric, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_wing
+    from inverse_design import DesignRequest, Layout, Limits, SolverSettings, optimise_wing
     from inverse_design.app.case import design_inputs, load_section, parse_arguments
 
     args, _ = parse_arguments(["--config", str(CASE)])
@@ -51,10 +51,10 @@ def design(cells: int):
     sections = [load_section(r["section"], "section") for r in ribs]
     wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
                 stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-    return optimise_wing(wing, fabric, sections, names, initial=initial, bounds=bounds, objective=args.objective,
-                         method=args.method, limits=Limits(tension=constraints, ribs=rib_limits),
-                         solver=SolverSettings(max_iterations=args.max_iterations),
-                         layout=Layout(n_span=args.n_span, n_contour=args.n_contour))
+    return optimise_wing(wing, fabric, sections, DesignRequest(
+        names, initial, bounds, objective=args.objective, method=args.method,
+        limits=Limits(tension=constraints, ribs=rib_limits), solver=SolverSettings(max_iterations=args.max_iterations),
+        layout=Layout(n_span=args.n_span, n_contour=args.n_contour)))
 
 
 def main() -> None:
@@ -67,7 +67,7 @@ def main() -> None:
 
 
 def measure(options) -> None:
-    from inverse_design.tolerance import tolerance_analysis
+    from inverse_design.tolerance import Sampling, tolerance_analysis
 
     load_start = os.getloadavg()[0]
     times = {}
@@ -94,8 +94,8 @@ def measure(options) -> None:
                     memory.append((row["sample"] + 1, round(resident_mb())))
 
             before = resident_mb()
-            analysis = tolerance_analysis(result, ["defaults"], spec=3.0, samples=options.samples, seed=0,
-                                          on_sample=on_sample)
+            analysis = tolerance_analysis(result, ["defaults"], spec=3.0,
+                                          sampling=Sampling(samples=options.samples, seed=0, on_sample=on_sample))
         csv_kb = path.stat().st_size / 1024
     samples = analysis.timings["samples"]
     ratio = times["tolerance second"] / times["design second"]

@@ -150,7 +150,7 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.app import case as case_reader
     from inverse_design.constraints import Constraints
-    from inverse_design import Layout, Limits, optimise_wing
+    from inverse_design import DesignRequest, Layout, Limits, optimise_wing
     from inverse_design.app.case import EXAMPLE_CASE
 
     values = case_reader.read_config(EXAMPLE_CASE)
@@ -159,12 +159,12 @@ def design_case(fabric, variables=("pressure",)) -> dict:
     wing = Wing(airfoils=(af,) * len(ribs), chords=tuple(r["chord"] for r in ribs),
                 stations=tuple(r["station"] for r in ribs))
     t = time.perf_counter()
-    res = optimise_wing(wing, fabric, None, variables,
-                        initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
-                                 "prestrain_chord": values["prestrain_chord"]},
-                        bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
-                        method="slsqp", limits=Limits(tension=Constraints()),  # design_solves.py compares the methods
-                        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"]))
+    res = optimise_wing(wing, fabric, None, DesignRequest(
+        variables, {"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
+                    "prestrain_chord": values["prestrain_chord"]},
+        {"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
+        method="slsqp", limits=Limits(tension=Constraints()),  # design_solves.py compares the methods
+        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"])))
     wall = time.perf_counter() - t
     bays = res.per_bay
     return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
@@ -175,7 +175,7 @@ def design_case(fabric, variables=("pressure",)) -> dict:
             "rms_before": res.initial_rms_error, "rms_after": res.rms_error,
             "bay_rms_before": bays.initial_rms_error.tolist(), "bay_rms_after": bays.rms_error.tolist(),
             "bay_max_after": bays.max_error.tolist(), "bay_results": list(res.bay_results),
-            "bay_min_tension": bays.min_tension.tolist(), "active": res.active_constraints,
+            "bay_min_tension": bays.min_tension.tolist(), "active": res.limits.active,
             "rib_shapes": None if bays.rib_shapes is None else bays.rib_shapes.tolist(), "rib_limits": bays.rib_limits}
 
 

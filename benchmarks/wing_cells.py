@@ -9,8 +9,8 @@ Four designs each (`DESIGNS`), by the command's own namespace
 pressure and the uniform prestrains; the pressure and one shared cut field;
 the pressure and a cut field per bay; the pressure, a cut field per bay and a
 shape per rib (about 800 variables on 40 cells). Gauss-Newton with the block
-Jacobian (`inverse_design.blocks`) and the sparse step QP
-(`inverse_design.step_qp`).
+Jacobian (`inverse_design.methods.blocks`) and the sparse step QP
+(`inverse_design.methods.step_qp`).
 
 Each design runs in a subprocess of its own, which reports its peak resident
 memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: JAX's buffers are not
@@ -32,7 +32,6 @@ bays.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import subprocess
@@ -70,7 +69,7 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     import numpy as np
 
     from forward_solver import Fabric, Wing
-    from inverse_design import Layout, Limits, SolverSettings, optimise_wing
+    from inverse_design import DesignRequest, Layout, Limits, SolverSettings, methods, optimise_wing
     from inverse_design.app.case import design_inputs, load_section, parse_arguments
     from inverse_design.app.report import le_recessions
     from inverse_design.memory import fix_mmap_threshold
@@ -94,12 +93,13 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
                 stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
     limits = Limits(tension=constraints, ribs=rib_limits)
-    solver = SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
-                            equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
+    solver = SolverSettings(max_iterations=args.max_iterations, equilibrium_method=args.equilibrium_method,
+                            max_steps=args.max_steps)
     layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
     start = time.perf_counter()
-    result = optimise_wing(wing, fabric, targets, names, initial=initial, bounds=bounds, objective=args.objective,
-                           method="gauss_newton", limits=limits, solver=solver, layout=layout)
+    result = optimise_wing(wing, fabric, targets, DesignRequest(
+        names, initial, bounds, objective=args.objective, limits=limits, layout=layout, solver=solver,
+        method=methods.named("gauss_newton", tolerance=args.tolerance)))
     seconds = time.perf_counter() - start
     worst = int(np.argmax(result.per_bay.rms_error))
     size = sum(np.size(v) for v in result.history[-1]["values"].values()) if result.history else None
@@ -114,8 +114,7 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     mid_chords = [0.5 * (b.chord_root + b.chord_tip) for b in result.wing_solution.bays]
     record["LE recession, largest (mm)"] = round(float(np.max(1e3 * le_recessions(result) * mid_chords)), 2)
     if refine:
-        fine = refine_design(result, layout=dataclasses.replace(layout, n_span=33, n_contour=64), bounds=bounds,
-                             limits=limits, solver=solver)
+        fine = refine_design(result, Layout(n_span=33, n_contour=64))
         change = fine.grid_change["change"]
         record["33x64 rms"] = float(f"{fine.rms_error:.4g}")
         record["33x64 move"] = "; ".join(f"{k} {v:.3g}" for k, v in change.items())

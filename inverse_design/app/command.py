@@ -10,7 +10,6 @@ result to the report writer, for one bay or a wing alike. No physics lives here.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib
 import os
 import sys
@@ -129,8 +128,9 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
     from forward_solver.solvers.bays import check_rib_gaps, default_strategy
 
+    from .. import methods
     from ..optimise import evaluate_design, optimise_pressure, optimise_wing, refine_design
-    from ..settings import Layout, Limits, SolverSettings
+    from ..settings import DesignRequest, Layout, Limits, SolverSettings
     from .export import check_output_folder
     from .report import ReportOptions, write_report
 
@@ -140,9 +140,11 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
     tolerances = check_tolerance_options(args, fabric)  # (before any solve)
-    solver = None if args.evaluate else SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+    solver = None if args.evaluate else SolverSettings(max_iterations=args.max_iterations,
                             equilibrium_method=args.equilibrium_method, max_steps=args.max_steps,
-                            root_condition=args.root_condition, progress=progress, callback=safe_point)
+                            progress=progress, callback=safe_point)
+    method = None if args.evaluate else methods.named(args.method, objective=args.objective, tolerance=args.tolerance,
+                                                      condition=args.root_condition)
     # (a single equilibrium is solved to solve_equilibrium's default residual, not the gradients')
     equilibrium = SolverSettings(rtol=1e-8, equilibrium_method=args.equilibrium_method, max_steps=args.max_steps)
     options = dict(bounds=bounds, limits=Limits(tension=constraints, ribs=rib_limits), solver=solver)
@@ -150,19 +152,13 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         options["tolerances"] = tolerances
     inputs = {"wing": None, **vars(args), "sources": sources}  # (the same keys for a bay and a case file's ribs)
     if wing_ribs is None:
-        def scene_on(n_span: int) -> Scene:
-            return Scene(Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=n_span,
-                                          n_contour=args.n_contour), fabric)
-
-        scene = scene_on(args.n_span)
+        scene = Scene(Bay.from_airfoil(rib, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
+                                       n_contour=args.n_contour), fabric)
         bays = [(args.rib_spacing, args.chord)]
 
         def design():
             return optimise_pressure(scene, target, variables=variables, initial=initial, objective=args.objective,
-                                     method=args.method, rib=rib, **options)
-
-        def refine(result):
-            return refine_design(result, scene_on(2 * args.n_span - 1), target, rib=rib, **options)
+                                     method=method, **options)
 
         def evaluate():
             return evaluate_design(scene, target, initial, objective=args.objective, wing=Wing.from_scene(scene),
@@ -184,11 +180,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         layout = Layout(cut_pattern=args.cut_pattern_layout, n_span=args.n_span, n_contour=args.n_contour)
 
         def design():
-            return optimise_wing(wing, fabric, targets, variables, initial=initial, objective=args.objective,
-                                 method=args.method, layout=layout, **options)
-
-        def refine(result):
-            return refine_design(result, layout=dataclasses.replace(layout, n_span=2 * args.n_span - 1), **options)
+            return optimise_wing(wing, fabric, targets, DesignRequest(variables, initial, objective=args.objective,
+                                                                      method=method, layout=layout, **options))
 
         def evaluate():
             return evaluate_design(wing.scenes(fabric, args.n_span, args.n_contour), targets, initial,
@@ -209,8 +202,8 @@ def _run(args: argparse.Namespace, sources: dict | None, progress: bool, started
         timings["equilibrium"] = time.perf_counter() - t
     else:
         result = design()
-        if args.refine:
-            result = refine(result)
+        if args.refine:  # (the design again on twice the span rows)
+            result = refine_design(result, Layout(n_span=2 * args.n_span - 1, n_contour=args.n_contour))
         timings["optimisation"] = time.perf_counter() - t
     aero = _aero(args, result, alphas, timings)
     tolerance = run_tolerance(args, result, tolerances, timings, notes) if tolerances else None

@@ -71,7 +71,7 @@ def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: d
     """
     from forward_solver import ConvergenceError
 
-    from ..tolerance import tolerance_analysis
+    from ..tolerance import Sampling, tolerance_analysis
 
     stream = {"file": None, "writer": None}
 
@@ -86,8 +86,8 @@ def run_tolerance(args: argparse.Namespace, result, tolerances: dict, timings: d
         stream["file"].flush()
 
     try:
-        analysis = tolerance_analysis(result, tolerances, spec=args.shape_spec, samples=args.samples, seed=args.seed,
-                                      on_sample=on_sample, scheduler=args.scheduler or None)
+        analysis = tolerance_analysis(result, tolerances, spec=args.shape_spec, sampling=Sampling(
+            samples=args.samples, seed=args.seed, on_sample=on_sample, scheduler=args.scheduler or None))
     except BaseException as exc:
         if stream["file"] is not None:
             stream["file"].close()

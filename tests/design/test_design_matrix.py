@@ -31,9 +31,9 @@ import numpy as np
 import pytest
 
 from forward_solver import Bay, Fabric, Scene, Wing
-from inverse_design import Constraints, optimise_pressure, optimise_wing
+from inverse_design import Constraints, DesignRequest, methods, optimise_pressure, optimise_wing
 from inverse_design.app.case import design_inputs, load_section, parse_arguments
-from inverse_design.optimise import AUTO, AUTO_FOR_WORST
+from inverse_design.methods import AUTO, AUTO_FOR_WORST, GaussNewton
 from inverse_design.settings import Layout, Limits, SolverSettings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,9 +79,10 @@ def command_design(argv, **changes):
     args, _ = parse_arguments(list(argv))
     fabric = Fabric(stiffness_span=args.stiffness_span, stiffness_chord=args.stiffness_chord, poisson=args.poisson)
     initial, variables, rib_limits, bounds, constraints = design_inputs(args)
-    options = dict(initial=initial, bounds=bounds, objective=args.objective, method=args.method,
+    options = dict(initial=initial, bounds=bounds, objective=args.objective,
+                   method=methods.named(args.method, objective=args.objective, tolerance=args.tolerance),
                    limits=Limits(tension=constraints, ribs=rib_limits),
-                   solver=SolverSettings(max_iterations=args.max_iterations, tolerance=args.tolerance,
+                   solver=SolverSettings(max_iterations=args.max_iterations,
                                          equilibrium_method=args.equilibrium_method, max_steps=args.max_steps))
     options.update(changes)
     ribs = getattr(args, "wing", None)
@@ -89,10 +90,8 @@ def command_design(argv, **changes):
         sections = [load_section(r["section"], "section") for r in ribs]
         wing = Wing(airfoils=tuple(sections), chords=tuple(r["chord"] for r in ribs),
                     stations=tuple(r["station"] for r in ribs), trailing_edge=args.trailing_edge)
-        return optimise_wing(wing, fabric, sections, variables,
-                             layout=Layout(n_span=args.n_span, n_contour=args.n_contour,
-                                           cut_pattern=args.cut_pattern_layout),
-                             **options), options
+        layout = Layout(n_span=args.n_span, n_contour=args.n_contour, cut_pattern=args.cut_pattern_layout)
+        return optimise_wing(wing, fabric, sections, DesignRequest(variables, layout=layout, **options)), options
     target = load_section(args.target, "--target")
     bay = Bay.from_airfoil(target, chord=args.chord, rib_spacing=args.rib_spacing, n_span=args.n_span,
                            n_contour=args.n_contour)
@@ -102,11 +101,11 @@ def command_design(argv, **changes):
 @pytest.mark.parametrize("case, variables", CELLS)
 def test_the_default_method_converges(case, variables):
     res, options = command_design([*CASES[case], *VARIABLE_SETS[variables], *GRIDS.get((case, variables), GRID)])
-    assert options["method"] == "auto" and res.method == AUTO
+    assert options["method"] == GaussNewton() and res.method == AUTO  # ("auto", the command's default)
     assert res.success, res.message
-    assert not res.violated_constraints
+    assert not res.limits.violated
     assert np.isfinite([res.rms_error, res.max_error]).all()
-    if not res.violated_at_start:  # a start that met every limit is an iterate: never worse
+    if not res.limits.violated_at_start:  # a start that met every limit is an iterate: never worse
         assert res.rms_error <= res.initial_rms_error * (1 + 1e-9)
     for name in set(res.variables) - {"rib_shape", "cut_pattern"}:  # (a shape's and a field's are not per value)
         lower, upper = options["bounds"][name]
@@ -132,9 +131,9 @@ def test_an_infeasible_ceiling_fails_and_names_the_limit(method):
     limits = Limits(tension=Constraints(min_tension=None, max_tension=INFEASIBLE_CEILING))
     res, options = command_design(["--variables", "pressure", "--method", method, *GRID], limits=limits)
     assert not res.success
-    assert set(res.violated_constraints) == {"max_tension"}
-    excess = res.constraint_values["max_tension"] - INFEASIBLE_CEILING
-    assert res.violated_constraints["max_tension"] == pytest.approx(excess, rel=1e-12)
+    assert set(res.limits.violated) == {"max_tension"}
+    excess = res.limits.values["max_tension"] - INFEASIBLE_CEILING
+    assert res.limits.violated["max_tension"] == pytest.approx(excess, rel=1e-12)
     assert excess > 1000.0  # N/m: far beyond the ceiling, not a tolerance effect
     assert "max_tension violated" in res.message and f"{INFEASIBLE_CEILING:.4g} N/m" in res.message
     assert np.isfinite([res.pressure, res.rms_error, res.max_error]).all() and math.isfinite(excess)
