@@ -13,7 +13,7 @@ fractions of the local chord. The sections are a bay's span rows at
   non-smooth where two rows tie; `mean_square` takes a smooth maximum);
 * ``"robust"``: the rows of "average", and the design minimises the
   linearised 95th percentile of their rms under the manufacturing
-  tolerances (`robust`); here, at one equilibrium, it is "average".
+  tolerances (`tolerance.robust`); here, at one equilibrium, it is "average".
 
 RMS and maximum are taken over the section's nodes (each node weighted
 equally, as `section_errors`).
@@ -71,7 +71,6 @@ __all__ = [
     "target_distance",
     "section_distances",
     "objective_residuals",
-    "objective_value",
     "design_errors",
     "BLEND_POINTS",
     "same_section",
@@ -305,7 +304,7 @@ def distance_errors(d, objective: str) -> tuple[float, float]:
     return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
 
 
-def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay") -> jnp.ndarray:
+def objective_residuals(nodes, target, chord: float, objective: str = DEFAULT_OBJECTIVE) -> jnp.ndarray:
     """One bay's residual vector whose sum of squares is the objective (mean square distance, chord^2).
 
     Args:
@@ -321,12 +320,7 @@ def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay")
     return distance_residuals(section_distances(nodes, target, chord, etas), objective)
 
 
-def objective_value(nodes, target, chord: float, objective: str = "mid_bay"):
-    """One bay's objective as one smooth scalar, chord^2 (`mean_square`)."""
-    return mean_square(section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0])), objective)
-
-
-def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:
+def design_errors(nodes, target, chord: float, objective: str = DEFAULT_OBJECTIVE) -> tuple[float, float]:
     """``(rms, max)`` normal distance of one bay in fractions of chord, over the objective's sections.
 
     For ``"worst"`` both refer to the worst row (largest RMS). Computed in

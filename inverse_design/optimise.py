@@ -6,55 +6,11 @@ rib scales for every bay, and a rib shape shared by every rib or one per rib
 (`variables`); the objective is the bays' distances from their row targets
 weighted by planform area (`objectives`); the tension limits hold over every
 cell of every bay (`constraints`); the ribs' manufacturability limits per rib
-(`rib_design`). Methods (values of `methods`, each with its own knobs; the
-strings are shortcuts; the objective, constraints and their derivatives are
-in `problem.DesignProblem`):
-
-* ``"auto"`` (default): ``"gauss_newton"`` for one bay and for a wing,
-  whatever the variables; ``"slsqp"`` for the objective "worst", which
-  gauss_newton refuses. On the design matrix (every documented variable set
-  on the default bay, the built-in wing, a NACA 0012 bay and a bay of a
-  ``.dat`` section, 17x64: ``benchmarks/design_matrix.py``) gauss_newton
-  converges on every cell, in as many forward solves as SLSQP or fewer (3
-  against 7 on the default case, at the same optimum), and where SLSQP
-  stops at its iteration cap (a cut pattern, a rib shape on the wing and
-  on a ``.dat`` section, the prestrains with a rib shape); where both
-  converge its rms error is SLSQP's within 0.01% or lower (its largest
-  error at most 0.21% above SLSQP's).
-* ``"slsqp"`` (`methods.SLSQP`): `scipy.optimize.minimize` with SLSQP on the mean
-  square distance (`objectives.mean_square`: for "worst" a smooth maximum
-  over the rows), with the bounds, the tension limits
-  (`constraints.constraint_functions`) and the rib limits as inequality
-  constraints. The objective's and each constraint's gradient come from
-  reverse mode through the implicit equilibrium (``jax.vjp`` of
-  `forward_solver.solve_bays`): one forward solve and one adjoint solve per
-  function per iterate, whatever the number of variables.
-* ``"gauss_newton"`` (`methods.GaussNewton`): trust-region SQP with the Gauss-Newton Hessian:
-  each iterate is one forward solve with the
-  Jacobian of the stacked row distances and of every cell's tension rows by
-  forward mode through the implicit equilibrium (``jax.jacfwd``: per bay one
-  back-solve per variable with the solve's own LU factor); the step solves a
-  small QP of the linearised fit with the linearised tension and rib limits
-  as constraints, without a forward solve. Its number of solves barely grows
-  with the number of variables (SLSQP learns its Hessian one iterate at a
-  time). Not for the objective "worst" (no sum of squares).
-* ``"least_squares"`` (`methods.LeastSquares`): `scipy.optimize.least_squares` (trust-region
-  reflective, with the bounds) on the vector of section distances
-  (`objectives.distance_residuals`, each bay's scaled by the square root of
-  its weight) plus exterior tension penalties; its Jacobian from forward mode
-  (``jax.jacfwd``, one tangent solve per variable). Fast on unconstrained
-  fits (inverse crimes).
-* ``"optax"`` (`methods.Optax`): an optax optimiser (Adam by default) on the mean square
-  error plus penalties, gradient from reverse mode, projection onto the
-  bounds after every step; meant for many variables.
-* ``"root"`` (`methods.Root`): `scipy.optimize.brentq` on the pressure of one bay alone, for a
-  scalar condition at mid-bay: ``Root(condition="thickness")`` (maximum
-  thickness of the mid-bay section equal to the target's) or
-  ``"mean_offset"`` (zero mean normal distance). The bracket is found by
-  stepping the pressure geometrically (factor 2) from its start towards both
-  bounds; when the condition does not change sign inside the bounds a
-  ValueError says so. A wing of several bays has no one mid-bay section:
-  refused.
+(`rib_design`). The method is a value of `methods` with its own knobs (the
+strings are shortcuts: "auto", the default, runs `methods.GaussNewton`, or
+`methods.SLSQP` for the objective "worst"; `methods.LeastSquares`,
+`methods.Optax`, and `methods.Root` on one bay's mid-bay condition); the
+objective, constraints and their derivatives are `problem.DesignProblem`'s.
 
 Every result is checked the same way: the design is a success only if the
 method converged, every bay's final solve converged, and no tension or rib
@@ -67,6 +23,7 @@ Every forward solve warm-starts from the previous iterate's equilibrium
 ``jax.enable_x64(True)`` (thread-local; the caller's configuration is
 untouched).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -112,22 +69,10 @@ def optimise_wing(wing: Wing, fabric, targets: Sequence | None = None, request: 
         fabric: the skin's `forward_solver.Fabric` (one for the whole wing).
         targets: the target section of each rib (N + 1 `targets.Airfoil`), one
             `targets.Airfoil` for every rib, or None: each rib's own section.
-        request: what is asked (`settings.DesignRequest`): the variables (from
-            `variables.VARIABLES`), their start and bounds (a per-rib
-            ``rib_shape`` start is one ``(2 K,)`` row for every rib or ``(n_ribs,
-            2 K)``; a per-bay ``cut_pattern`` start one row for every bay or
-            ``(n_bays, 2 K)``); the objective per bay, "mid_bay", "average"
-            (default) or "worst" (`objectives`), combined over bays weighted by
-            planform area, or "robust": the linearised 95th percentile of the
-            "average" rms under the request's tolerances, with the tension limits
-            at every cell's own 5th / 95th percentile (`tolerance.robust`;
-            gauss_newton only); the method (`methods`: "auto", the default, is
-            `methods.GaussNewton`, whose forward solves hardly grow with the
-            number of variables, or `methods.SLSQP` for the objective "worst";
-            "root" solves one scalar condition at one bay's mid-bay section:
-            one bay only); the tension and rib limits (rib limits need slsqp or
-            gauss_newton); the layout of the vector variables and every bay's
-            grid (`settings.Layout`); the solver settings.
+        request: what is asked (`settings.DesignRequest`: the variables, their start and bounds, the
+            objective per bay, combined over bays weighted by planform area, the method, the limits,
+            the tolerances of the objective "robust", the layout of the vector variables and every
+            bay's grid, the solver settings).
         **moved: the keyword arguments that moved into ``request``: refused
             with a TypeError that names where each went.
 
@@ -271,7 +216,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
                                             name) as bar:
         problem = DesignProblem(scenes, WingTargets([scene.bay for scene in scenes], targets, objective), design,
                                 tension=constraints, ribs=geometries, solver=settings, tolerances=request.tolerances)
-        problem.on_record = notify(bar, settings.callback, method)
+        problem.history.on_record = notify(bar, settings.callback, method)
         bar.set_postfix_str("initial equilibrium")
         u0 = design.start_vector()
         sol0 = method.start(problem, u0)
@@ -288,7 +233,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
         except BaysConvergenceError as failure:
             # Stop at the best iterate whose forward solves converged ("objective" is the
             # mean square error, or for "root" the condition, whose size is what counts).
-            best = problem.best_iterate()
+            best = problem.history.best()
             u = u0 if best is None else best
             success, message = False, _failed_solve_message(failure)
         u = np.clip(np.asarray(u, dtype=np.float64), design.lower, design.upper)
@@ -327,7 +272,7 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
     return DesignResult(
         parameters=parameters, rms_error=after["wing_rms"], max_error=float(np.max(after["max"])),
         initial_rms_error=before["wing_rms"], initial_max_error=float(np.max(before["max"])), wing_solution=sol,
-        request=dataclasses.replace(request, variables=design.names), per_bay=per_bay, history=problem.history,
+        request=dataclasses.replace(request, variables=design.names), per_bay=per_bay, history=problem.history.entries,
         success=bool(success and sol.converged), message=message, limits=limits, solves=problem.solves,
         wall_time=time.perf_counter() - start, wing=wing)
 

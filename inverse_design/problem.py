@@ -37,6 +37,7 @@ from forward_solver.solution import BaysConvergenceError, BaysSolution
 from forward_solver.solvers.bays import default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
+from .history import History
 from .methods.blocks import compressed_seeds, decompress
 from .objectives import WingTargets
 from .settings import SolverSettings
@@ -86,7 +87,7 @@ class DesignProblem:
     Attributes:
         seeds: ``(seeds, columns)`` of the Gauss-Newton Jacobian's forward pass (`blocks.compressed_seeds`).
         robust: the robust objective's terms (`tolerance.robust.RobustTerms`), or None.
-        history: one dict per iterate (`record`); ``on_record`` is called with each.
+        history: the iterates (`history.History`).
         solves: forward solves so far.
 
     The constraint vector is the tension rows (`constraints.Constraints.names`,
@@ -113,9 +114,7 @@ class DesignProblem:
         self.previous: BaysSolution | None = None  # warm start (and its LU factors)
         self._previous_key = None
         self.solves = 0
-        self.history: list[dict] = []
-        self._entries: dict = {}  # the newest history entry at each point, by `key_of`
-        self.on_record = None  # called with each new history entry (progress bar, callback)
+        self.history = History(variables)
         self._cache: dict = {}  # the last evaluation with its derivatives
         self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
         # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
@@ -176,7 +175,7 @@ class DesignProblem:
 
     def solve_near(self, u, initial: BaysSolution) -> BaysSolution:
         """The concrete `BaysSolution` at the scaled vector ``u``, warm from ``initial``: counted among the
-        solves, but neither archived nor the next warm start (a central difference's side, `robust`).
+        solves, but neither archived nor the next warm start (a central difference's side, `tolerance.robust`).
         It may not have converged: check ``converged``."""
         sol = self._solve(u, initial)
         return self._concrete(sol, _aux(sol), u)
@@ -251,22 +250,6 @@ class DesignProblem:
         """The cached evaluation at ``key`` (`variables.key_of` a vector), or None."""
         return self._cache.get(key)
 
-    def entry_at(self, u) -> dict | None:
-        """The newest history entry recorded at the scaled vector ``u`` (the same floats), or None."""
-        return self._entries.get(key_of(u))
-
-    def best_iterate(self) -> np.ndarray | None:
-        """Scaled vector of the best recorded iterate (None before any): the feasible one (every
-        smooth constraint >= 0) with the least objective in size, else the least violating one."""
-
-        def violation(entry):
-            return max([0.0] + [-c for c in entry.get("constraints", [])])
-
-        if not self.history:
-            return None
-        best = min(self.history, key=lambda h: (violation(h), abs(h["objective"])))
-        return self.variables.from_values(best["values"])
-
     def _with_rib_rows(self, u, g, jg, recorded):
         """The constraint rows ``g`` with the rib limits' rows appended (their Jacobian to ``jg``), and the
         history's ``recorded`` rows with the least thickness row and the least curvature row over the ribs."""
@@ -313,7 +296,7 @@ class DesignProblem:
                 y = np.asarray(y)
             g, jg, recorded = self._with_rib_rows(u, y[1:], rows[1:], y[1:])
             self._cache = {key: (y[0], rows[0], g, jg, sol)}
-            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
+            self.history.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
         return self._cache[key]
 
     # ------------------------------------------------------- gauss-newton
@@ -327,8 +310,8 @@ class DesignProblem:
         if self.robust is None:
             return r, jr, g, jg, sol
         stacked, jstacked, g, jg = self.robust.assemble(u, r, jr, g, jg, sol)
-        if new and self.history:  # the iterate's linearised 95th percentile of the rms, chord
-            self.history[-1]["robust_p95"] = math.sqrt(max(self.robust.quantile(r, self.robust.raw(u, sol)), 0.0))
+        if new and self.history.entries:  # the iterate's linearised 95th percentile of the rms, chord
+            self.history.entries[-1]["robust_p95"] = math.sqrt(max(self.robust.quantile(r, self.robust.raw(u, sol)), 0.0))
         return stacked, jstacked, g, jg, sol
 
     def reweight(self, u) -> bool:
@@ -367,7 +350,7 @@ class DesignProblem:
             recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
             g, jg, recorded = self._with_rib_rows(u, g, jg, recorded)
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
+            self.history.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
                         jacobian=f"{len(self.scenes)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
 
@@ -407,7 +390,7 @@ class DesignProblem:
             (r, jac), sol = self._transformed(lambda w, v: value_and_jacobian(w, v), self.residuals, u)
             r, jac = np.asarray(r), np.asarray(jac)
             self._cache = {key: (r, jac, sol)}
-            self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
+            self.history.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
         return self._cache[key]
 
     def loss_and_gradient(self, u):
@@ -440,25 +423,6 @@ class DesignProblem:
             t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
         return {**self.targets.errors(d), "min_tension": np.array([x.min() for x in t]),
                 "max_tension": np.array([x.max() for x in t]), "tensions": t}
-
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: BaysSolution, constraints=None,
-               jacobian: str | None = None):
-        """Append the history entry of an iterate at ``u`` (``jacobian``: its Jacobian's blocks, as the
-        progress bar shows them) and call `on_record` with it."""
-        entry = {
-            "values": self.variables.values(np.asarray(u, dtype=np.float64)),
-            "objective": float(objective),
-            "gradient_norm": float(gradient_norm),
-            "steps": int(np.max(solution.steps)),
-        }
-        if constraints is not None:
-            entry["constraints"] = [float(c) for c in constraints]
-        if jacobian is not None:
-            entry["jacobian"] = jacobian
-        self.history.append(entry)
-        self._entries[key_of(u)] = entry
-        if self.on_record is not None:
-            self.on_record(entry)
 
 
 def check_field_terms(variables: DesignVariables, n_contour: int) -> None:

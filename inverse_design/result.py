@@ -13,7 +13,7 @@ from forward_solver.solution import BaysSolution, Result
 from .settings import DesignRequest
 from .variables import VARIABLES
 
-__all__ = ["DesignResult", "LimitReport", "PerBayResults", "WingDesignResult"]
+__all__ = ["FORMER_LIMIT_FIELDS", "DesignResult", "LimitReport", "PerBayResults", "WingDesignResult"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,36 +194,15 @@ class DesignResult(ParameterViews):
         """``(n_bays,)`` `forward_solver.Result` names of the final solves."""
         return tuple(Result(int(r)).name for r in np.asarray(self.wing_solution.result))
 
-    # The limit fields' former names, read-only, for one release: read ``limits`` instead.
-    @property
-    def active_constraints(self) -> list:
-        """``limits.active`` (the former field; kept for one release)."""
-        return self.limits.active
 
-    @property
-    def violated_constraints(self) -> dict:
-        """``limits.violated`` (the former field; kept for one release)."""
-        return self.limits.violated
-
-    @property
-    def violated_where(self) -> dict:
-        """``limits.violated_where`` (the former field; kept for one release)."""
-        return self.limits.violated_where
-
-    @property
-    def violated_at_start(self) -> dict:
-        """``limits.violated_at_start`` (the former field; kept for one release)."""
-        return self.limits.violated_at_start
-
-    @property
-    def violated_at_start_where(self) -> dict:
-        """``limits.violated_at_start_where`` (the former field; kept for one release)."""
-        return self.limits.violated_at_start_where
-
-    @property
-    def constraint_values(self) -> dict:
-        """``limits.values`` (the former field; kept for one release)."""
-        return self.limits.values
+#: The former limit fields of `DesignResult` and the `LimitReport` field each reads now: read-only
+#: properties kept for one release (read ``result.limits`` instead).
+FORMER_LIMIT_FIELDS = {"active_constraints": "active", "violated_constraints": "violated",
+                       "violated_where": "violated_where", "violated_at_start": "violated_at_start",
+                       "violated_at_start_where": "violated_at_start_where", "constraint_values": "values"}
+for _former, _field in FORMER_LIMIT_FIELDS.items():
+    setattr(DesignResult, _former, property(lambda self, name=_field: getattr(self.limits, name),
+                                            doc=f"``limits.{_field}`` (the former field; kept for one release)."))
 
 
 #: The wing's name of the result (one class for one bay and a wing).

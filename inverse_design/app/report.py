@@ -87,7 +87,7 @@ from .export import (check_output_folder, save_npz, staged_folder, write_cut_pat
                      write_selig, write_stl)
 from .export import file_checksums
 from .cut_files import write_bay_patterns
-from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
+from ..objectives import WingTargets, distance_errors, same_section
 from ..optimise import DesignResult
 from .plots import (plot_aero, plot_cut_fields, plot_deviation, plot_history, plot_rib_design, plot_section,
                     plot_tensions, plot_tolerance, plot_wing_overview)
@@ -335,31 +335,15 @@ def _same_sections(result: DesignResult) -> bool:
 
 
 def mid_bay_targets(result: DesignResult) -> list:
-    """Each bay's target at mid-bay: its two ribs' targets blended at the local chord
-    (`objectives.row_targets`; the rib's own when both ribs have the same target)."""
-    out = []
-    for k, bay in enumerate(result.wing_solution.bays):
-        root, tip = result.per_bay.targets[k], result.per_bay.targets[k + 1]
-        out.append(root if same_section(root, tip) else
-                   row_targets(root, tip, bay.chord_root, bay.chord_tip, [0.5])[0])
-    return out
+    """Each bay's target at mid-bay (`objectives.WingTargets.mid_bay_targets`)."""
+    return WingTargets(result.wing_solution.bays, result.per_bay.targets, "mid_bay").mid_bay_targets()
 
 
 def _mid_bay_errors(result: DesignResult) -> dict:
     """RMS (weighted by bay area) and largest distance of the bays' mid-bay sections from their targets."""
-    import jax
-
     sol = result.wing_solution
-    rms, largest = [], []
-    with jax.enable_x64(True):
-        for k, bay in enumerate(sol.bays):
-            etas = np.array([0.5])
-            rows = row_targets(result.per_bay.targets[k], result.per_bay.targets[k + 1], bay.chord_root,
-                               bay.chord_tip, etas)
-            d = np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas)))
-            r, m = distance_errors(d, "mid_bay")
-            rms.append(r)
-            largest.append(m)
+    distances = WingTargets(sol.bays, result.per_bay.targets, "mid_bay").deviation(sol.nodes)
+    rms, largest = zip(*(distance_errors(d, "mid_bay") for d in distances))
     weights = np.asarray(result.per_bay.weights, np.float64)
     return {"rms": float(np.sqrt(np.sum(weights * np.square(rms)))), "max": float(np.max(largest))}
 
@@ -480,17 +464,9 @@ def wing_nodes(result: DesignResult) -> np.ndarray:
 
 def wing_deviation(result: DesignResult) -> np.ndarray:
     """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
-    fractions of the local chord (positive outside; `objectives` module docstring)."""
-    import jax
-
-    sol, targets = result.wing_solution, result.per_bay.targets
-    out = []
-    with jax.enable_x64(True):
-        for k, bay in enumerate(sol.bays):
-            etas = np.linspace(0.0, 1.0, bay.n_span)
-            rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
-            out.append(np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas))))
-    return np.stack(out)
+    fractions of the local chord (positive outside; `objectives.WingTargets.deviation` of every row)."""
+    sol = result.wing_solution
+    return np.stack(WingTargets(sol.bays, result.per_bay.targets, "average").deviation(sol.nodes))
 
 
 # ------------------------------------------------------------------ the folder

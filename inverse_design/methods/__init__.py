@@ -8,8 +8,15 @@
 * `Optax` (``"optax"``): an optax optimiser (`optax_descent`).
 
 ``method=`` of `optimise.optimise_wing` and `optimise.optimise_pressure` takes one of these values or a
-shortcut string (`METHODS`): ``"auto"`` is `GaussNewton`, or `SLSQP` for the objective "worst" (no sum
-of squares for Gauss-Newton). `named` builds a method from its shortcut and the user's knobs.
+shortcut string (`METHODS`); `named` builds a method from its shortcut and the user's knobs.
+``"auto"`` is `GaussNewton`, or `SLSQP` for the objective "worst" (no sum of squares for
+Gauss-Newton): on the design matrix (every documented variable set on the default bay, the built-in
+wing, a NACA 0012 bay and a bay of a ``.dat`` section, 17x64: ``benchmarks/design_matrix.py``)
+Gauss-Newton converges on every cell, in as many forward solves as SLSQP or fewer (3 against 7 on
+the default case, at the same optimum), and where SLSQP stops at its iteration cap (a cut pattern, a
+rib shape on the wing and on a ``.dat`` section, the prestrains with a rib shape); where both
+converge its rms error is SLSQP's within 0.01% or lower (its largest error at most 0.21% above
+SLSQP's).
 """
 
 from __future__ import annotations

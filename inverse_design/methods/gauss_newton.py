@@ -145,7 +145,7 @@ class GaussNewton(Method):
             may_restore = violation(g) > FLOOR_MARGIN and not restored and solves < max_iterations
             d, predicted, reachable, kept = trust_region_step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi,
                                                               penalty, GN_QP_PENALTY, restore=may_restore)
-            entry = problem.entry_at(u)
+            entry = problem.history.at(u)
             if entry is not None:  # the limit rows the step's QP kept and could reach (of g.size), in the history
                 entry["qp_rows"] = max(int(kept), int(entry.get("qp_rows", 0)))
                 entry["qp_reachable_rows"] = max(int(reachable), int(entry.get("qp_reachable_rows", 0)))

@@ -76,7 +76,7 @@ class Optax(Method):
             at_lower = (np.asarray(u) <= lower) & (grad_np > 0)
             at_upper = (np.asarray(u) >= upper) & (grad_np < 0)
             projected = np.where(at_lower | at_upper, 0.0, grad_np)
-            problem.record(np.asarray(u), value, np.linalg.norm(projected), solution=sol)
+            problem.history.record(np.asarray(u), value, np.linalg.norm(projected), solution=sol)
             if float(value) < best:
                 since = 0 if float(value) < best * (1.0 - OPTAX_GAIN) else since + 1
                 best_u, best = u, float(value)

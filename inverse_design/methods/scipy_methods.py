@@ -44,8 +44,11 @@ class _Stalled(Exception):
 
 @dataclass(frozen=True)
 class SLSQP(Method):
-    """`scipy.optimize.minimize` with SLSQP on the mean square distance, with the bounds, the tension
-    limits and the rib limits as inequality constraints (`run`).
+    """`scipy.optimize.minimize` with SLSQP on the mean square distance (`objectives.mean_square`: for
+    "worst" a smooth maximum over the rows), with the bounds, the tension limits
+    (`constraints.constraint_functions`) and the rib limits as inequality constraints (`run`). The
+    gradients come from reverse mode through the implicit equilibrium: one forward solve and one
+    adjoint solve per function per iterate, whatever the number of variables.
 
     Args:
         tolerance: ``ftol`` on the objective relative to its starting value (1e-6: one part in a
@@ -107,13 +110,13 @@ class SLSQP(Method):
                 method="SLSQP", bounds=scipy.optimize.Bounds(design.lower, design.upper),
                 constraints=constraints, options={"maxiter": max_iterations, "ftol": tolerance})
         except _EvaluationCap:
-            return (problem.best_iterate(), False,
+            return (problem.history.best(), False,
                     f"stopped after {cap} evaluations ({cap} forward solves, the cap for max_iterations="
                     f"{max_iterations}) without converging; the result is the best iterate")
         except _Stalled as stall:
             values = ", ".join(f"{n} {np.round(v, 6).tolist() if isinstance(v, list) else format(v, '.6g')}"
                                for n, v in design.values(stall.args[0]).items())
-            return (problem.best_iterate(), False,
+            return (problem.history.best(), False,
                     f"SLSQP's line search kept returning to one point ({values}) after {len(visited)} "
                     "evaluations: no step improves the objective while meeting the constraints there "
                     "(typically no design within the bounds meets the limits); the result is the best "
@@ -152,7 +155,9 @@ class LeastSquares(Method):
 @dataclass(frozen=True)
 class Root(Method):
     """`scipy.optimize.brentq` on the pressure of one bay alone, for a scalar condition at its mid-bay
-    section (`optimise` module docstring).
+    section. The bracket is found by stepping the pressure geometrically (`BRACKET_FACTOR`) from its
+    start towards both bounds; when the condition does not change sign inside the bounds a ValueError
+    says so. A wing of several bays has no one mid-bay section: refused.
 
     Args:
         condition: "thickness" (the section's maximum thickness equal to the target's) or
@@ -203,7 +208,7 @@ class Root(Method):
                 u = np.array([key])
                 sol = problem.solve(u)
                 memo[key] = measure(sol.nodes[0])
-                problem.record(u, memo[key], solution=sol)
+                problem.history.record(u, memo[key], solution=sol)
             return memo[key]
 
         lo, hi = design.lower[0], design.upper[0]

@@ -220,8 +220,8 @@ def test_design_errors_are_float64_whatever_the_callers_jax_setting(scene, gener
     offset = 1e-9  # m, chord 1 m: below float32's resolution of 1 m coordinates (6e-8)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no "explicitly requested dtype float64" truncation
-        rms, largest = design_errors(nodes * (1 + offset), generated, 1.0)
-        rms0, _ = design_errors(nodes, generated, 1.0)
+        rms, largest = design_errors(nodes * (1 + offset), generated, 1.0, "mid_bay")
+        rms0, _ = design_errors(nodes, generated, 1.0, "mid_bay")
     assert rms0 < 1e-12
     assert 0.1 * offset < rms < 10 * offset and largest < 10 * offset
 
