@@ -387,8 +387,13 @@ def refine_design(result: DesignResult, layout: Layout, solver: SolverSettings |
         start of the design (measured on the coarser grid).
 
     Raises:
+        TypeError: for a finer grid that is not a `settings.Layout` (the scene and target of one bay,
+            the bounds, limits and tolerances are the request's).
         ValueError: for a single equilibrium or a design of a flat panel (no rib sections to rebuild).
     """
+    if not isinstance(layout, Layout):
+        raise TypeError(f"refine_design takes the finer grid as layout=Layout(n_span=..., n_contour=...) (what was "
+                        f"asked is result.request's), got {type(layout).__name__}")
     if not result.variables or result.wing is None:
         raise ValueError("refine_design refines a design of bays built from airfoils (result.wing); this result "
                          f"is {'a single equilibrium' if not result.variables else 'a flat panel'}")

@@ -1,6 +1,6 @@
 """The first-order tolerance analysis of a design (`tolerance_analysis`) and its budget.
 
-First order (`tolerance_analysis`): per bay, one forward-mode JVP of the
+First order: per bay (`model.ToleranceModel.bay_jacobian`), one forward-mode JVP of the
 equilibrium (`forward_solver.solve_equilibrium`'s implicit derivative,
 within `forward_solver.derivatives.implicit.forward_only`: the design's own equilibrium and
 LU factor where the design kept them (its last solve), else one Newton solve

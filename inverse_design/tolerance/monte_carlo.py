@@ -1,9 +1,9 @@
 """The Monte Carlo check of a tolerance analysis: wings drawn from the stated distributions, solved.
 
-Monte Carlo (``samples``): draws wings from the stated distributions and
+Monte Carlo (`first_order.Sampling`'s ``samples``): draws wings from the stated distributions and
 solves each bay warm from the nominal equilibrium (chord Newton with its
 kept factor, the fallbacks of `forward_solver.solvers.chain` where not) to
-`SAMPLE_RTOL`, in this process, or on a Dask cluster (``scheduler``: the
+`SAMPLE_RTOL`, in this process, or on a Dask cluster (its ``scheduler``: the
 samples in chunks, each worker making the nominal factor once by the same
 solve as here, so the same seed gives the same numbers). A sample whose solve
 fails is counted and named, never dropped.
