@@ -149,9 +149,9 @@ def main() -> None:
                "start_average_rms": result.initial_rms_error,
                "average_rms": result.rms_error, "average_max": result.max_error,
                "mid_bay_rms": mid.rms, "mid_bay_max": mid.max, "le_recession_mm": recession_mm(result.solution),
-               "min_tension": result.constraint_values.get("min_tension"),
-               "max_tension": result.constraint_values.get("max_tension"),
-               "active": result.active_constraints, "solves": result.solves, "wall_s": wall, "finer": []}
+               "min_tension": result.limits.values.get("min_tension"),
+               "max_tension": result.limits.values.get("max_tension"),
+               "active": result.limits.active, "solves": result.solves, "wall_s": wall, "finer": []}
         for n_span, n_contour in finer:
             sol = solve_equilibrium(scene(n_span, n_contour), p.replace(stiffness_span=None, stiffness_chord=None),
                                     rtol=1e-10, method="relax+newton")
@@ -211,8 +211,8 @@ def wing_main(args) -> None:
 
     from forward_solver import Fabric
     from forward_solver import Wing
-    from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
-    from inverse_design.objectives import section_errors
+    from inverse_design import Constraints, DesignRequest, Layout, SolverSettings, optimise_wing
+    from inverse_design.objectives import WingTargets, section_errors
     from inverse_design.problem import DesignProblem
     from inverse_design.variables import DesignVariables
     from targets import naca
@@ -256,10 +256,10 @@ def wing_main(args) -> None:
         label, variables, bounds, layout = cases[key]
         initial = {**start, **({"cut_pattern": np.zeros(12)} if "cut_pattern" in variables else {})}
         t = time.perf_counter()
-        result = optimise_wing(wing, fabric, None, variables, initial=initial,
-                               bounds={"pressure": (1e3, 1e5), **bounds}, objective="average",
-                               solver=SolverSettings(max_iterations=args.max_iterations),
-                               layout=Layout(n_span=args.n_span, n_contour=args.n_contour, **layout))
+        result = optimise_wing(wing, fabric, None, DesignRequest(
+            variables, initial, {"pressure": (1e3, 1e5), **bounds}, objective="average",
+            solver=SolverSettings(max_iterations=args.max_iterations),
+            layout=Layout(n_span=args.n_span, n_contour=args.n_contour, **layout)))
         wall = time.perf_counter() - t
         sol, bays = result.wing_solution, result.per_bay
         solutions = [sol.bay_solution(k) for k in range(3)]
@@ -275,9 +275,9 @@ def wing_main(args) -> None:
                "wing_rms": result.rms_error, "bay_rms": bays.rms_error.tolist(),
                "bay_max": bays.max_error.tolist(), "mid_bay_rms": [m[0] for m in mids],
                "mid_bay_max": [m[1] for m in mids], "le_recession_mm": [m[2] for m in mids],
-               "min_tension": result.constraint_values.get("min_tension"),
-               "max_tension": result.constraint_values.get("max_tension"),
-               "active": result.active_constraints, "solves": result.solves, "wall_s": wall, "finer": []}
+               "min_tension": result.limits.values.get("min_tension"),
+               "max_tension": result.limits.values.get("max_tension"),
+               "active": result.limits.active, "solves": result.solves, "wall_s": wall, "finer": []}
         given = {n: (bays.rib_shapes if n == "rib_shape" and bays.rib_shapes is not None else
                      bays.cut_patterns if n == "cut_pattern" and bays.cut_patterns is not None else
                      getattr(p, n)) for n in variables}
@@ -285,8 +285,9 @@ def wing_main(args) -> None:
             with jax.enable_x64(True):
                 design = DesignVariables.build(variables, {**start, **given}, {"pressure": (1e3, 1e5), **bounds},
                                                n_ribs=4, rib_shape="per_rib", **layout)
-                problem = DesignProblem(wing.scenes(fabric, n_span, n_contour), [target] * 4, design, "average",
-                                        Constraints(), rtol=1e-10)
+                scenes = wing.scenes(fabric, n_span, n_contour)
+                problem = DesignProblem(scenes, WingTargets([s.bay for s in scenes], [target] * 4, "average"), design,
+                                        tension=Constraints(), solver=SolverSettings(rtol=1e-10))
                 u = design.start_vector()
                 fine = problem.solve(u)
                 measured = problem.measure(fine, u)

@@ -62,17 +62,15 @@ def bay_case(method):
 def wing3_case(method):
     from forward_solver import Fabric
     from forward_solver import Wing
-    from inverse_design import Constraints, Layout, Limits, SolverSettings, optimise_wing
+    from inverse_design import Constraints, DesignRequest, Layout, Limits, SolverSettings, optimise_wing
     from targets import naca
 
     af = naca("2412")
     wing = Wing(airfoils=(af, af, af, af), chords=(1.0, 0.85, 0.7, 0.6), stations=(0.0, 0.25, 0.5, 0.75))
-    return optimise_wing(wing, Fabric(), None, ("pressure", "rib_shape"),
-                         initial={"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.02},
-                         bounds={"pressure": (1e3, 1e5)}, objective="average", method=method,
-                         limits=Limits(tension=Constraints()),
-                         solver=SolverSettings(max_iterations=200 if method == "slsqp" else 50),
-                         layout=Layout(n_span=17, n_contour=64))
+    return optimise_wing(wing, Fabric(), None, DesignRequest(
+        ("pressure", "rib_shape"), {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.02},
+        {"pressure": (1e3, 1e5)}, objective="average", method=method, limits=Limits(tension=Constraints()),
+        solver=SolverSettings(max_iterations=200 if method == "slsqp" else 50), layout=Layout(n_span=17, n_contour=64)))
 
 
 def _children_cpu() -> float:

@@ -107,8 +107,8 @@ def grid_runs(grids=GRIDS) -> list[dict]:
         rows.append({"grid": f"{n_span}x{n_contour}", "method": method, "success": result.success,
                      "pressure_pa": result.pressure, "rib_thickness_scale": result.rib_thickness_scale,
                      "rms_error": result.rms_error, "max_error": result.max_error,
-                     "min_tension": result.constraint_values["min_tension"],
-                     "active": result.active_constraints, "forward_solves": result.solves,
+                     "min_tension": result.limits.values["min_tension"],
+                     "active": result.limits.active, "forward_solves": result.solves,
                      "optimiser_s": result.wall_time})
     return rows
 

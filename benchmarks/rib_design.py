@@ -92,7 +92,7 @@ def main() -> None:
                "start_average_rms": result.initial_rms_error,
                "average_rms": result.rms_error, "average_max": result.max_error,
                "mid_bay_rms": mid.rms, "mid_bay_max": mid.max,
-               "active": result.active_constraints, "constraint_values": result.constraint_values,
+               "active": result.limits.active, "constraint_values": result.limits.values,
                "solves": result.solves, "wall_s": wall, "finer": []}
         for n_span, n_contour in finer:
             fine = scene(n_span, n_contour)

@@ -58,7 +58,7 @@ def main() -> None:
 
 
 def measure(options) -> None:
-    from inverse_design.tolerance import tolerance_analysis
+    from inverse_design.tolerance import Sampling, tolerance_analysis
 
     times = {}
     start = time.perf_counter()
@@ -72,7 +72,7 @@ def measure(options) -> None:
         designs.append(time.perf_counter() - start)
         analyses.append(tolerance_analysis(result, ["defaults"], spec=3.0).timings["tolerance"])
     times["design second"], times["tolerance second"] = statistics.median(designs), statistics.median(analyses)
-    analysis = tolerance_analysis(result, ["defaults"], spec=3.0, samples=options.samples, seed=0)
+    analysis = tolerance_analysis(result, ["defaults"], spec=3.0, sampling=Sampling(samples=options.samples, seed=0))
     samples = analysis.timings["samples"]
     ratio = times["tolerance second"] / times["design second"]
     rows = [

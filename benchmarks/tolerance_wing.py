@@ -59,7 +59,7 @@ def main() -> None:
 
 
 def measure(options) -> None:
-    from inverse_design.tolerance import tolerance_analysis
+    from inverse_design.tolerance import Sampling, tolerance_analysis
 
     load_start = os.getloadavg()[0]
     times = {}
@@ -86,8 +86,8 @@ def measure(options) -> None:
                     memory.append((row["sample"] + 1, round(resident_mb())))
 
             before = resident_mb()
-            analysis = tolerance_analysis(result, ["defaults"], spec=3.0, samples=options.samples, seed=0,
-                                          on_sample=on_sample)
+            analysis = tolerance_analysis(result, ["defaults"], spec=3.0,
+                                          sampling=Sampling(samples=options.samples, seed=0, on_sample=on_sample))
         csv_kb = path.stat().st_size / 1024
     samples = analysis.timings["samples"]
     ratio = times["tolerance second"] / times["design second"]

@@ -150,7 +150,7 @@ def strategies(fabric, repeats: int, counts=(3, 8), grid=(17, 64)) -> list:
 
 def design_case(fabric, variables=("pressure",)) -> dict:
     from inverse_design.constraints import Constraints
-    from inverse_design import Layout, Limits, optimise_wing
+    from inverse_design import DesignRequest, Layout, Limits, optimise_wing
     from inverse_design.app.case import Case
     from inverse_design.app.case_file import EXAMPLE_CASE
 
@@ -160,12 +160,12 @@ def design_case(fabric, variables=("pressure",)) -> dict:
     wing = Wing(airfoils=(af,) * len(case.ribs), chords=tuple(r.chord for r in case.ribs),
                 stations=tuple(r.station for r in case.ribs))
     t = time.perf_counter()
-    res = optimise_wing(wing, fabric, None, variables,
-                        initial={"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
-                                 "prestrain_chord": values["prestrain_chord"]},
-                        bounds={"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
-                        method="slsqp", limits=Limits(tension=Constraints()),  # design_solves.py compares the methods
-                        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"]))
+    res = optimise_wing(wing, fabric, None, DesignRequest(
+        variables, {"pressure": values["pressure"], "prestrain_span": values["prestrain_span"],
+                    "prestrain_chord": values["prestrain_chord"]},
+        {"pressure": tuple(values["pressure_bounds"])}, objective=values["objective"],
+        method="slsqp", limits=Limits(tension=Constraints()),  # design_solves.py compares the methods
+        layout=Layout(n_span=values["n_span"], n_contour=values["n_contour"])))
     wall = time.perf_counter() - t
     bays = res.per_bay
     return {"case": str(EXAMPLE_CASE.name), "variables": list(variables),
@@ -176,7 +176,7 @@ def design_case(fabric, variables=("pressure",)) -> dict:
             "rms_before": res.initial_rms_error, "rms_after": res.rms_error,
             "bay_rms_before": bays.initial_rms_error.tolist(), "bay_rms_after": bays.rms_error.tolist(),
             "bay_max_after": bays.max_error.tolist(), "bay_results": list(res.bay_results),
-            "bay_min_tension": bays.min_tension.tolist(), "active": res.active_constraints,
+            "bay_min_tension": bays.min_tension.tolist(), "active": res.limits.active,
             "rib_shapes": None if bays.rib_shapes is None else bays.rib_shapes.tolist(), "rib_limits": bays.rib_limits}
 
 

@@ -9,8 +9,8 @@ Four designs each (`DESIGNS`), the command's own designs of the cases
 pressure and the uniform prestrains; the pressure and one shared cut field;
 the pressure and a cut field per bay; the pressure, a cut field per bay and a
 shape per rib (about 800 variables on 40 cells). Gauss-Newton with the block
-Jacobian (`inverse_design.blocks`) and the sparse step QP
-(`inverse_design.step_qp`).
+Jacobian (`inverse_design.methods.blocks`) and the sparse step QP
+(`inverse_design.methods.step_qp`).
 
 Each design runs in a subprocess of its own, which reports its peak resident
 memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: JAX's buffers are not
@@ -74,6 +74,7 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     from inverse_design.app.measures import le_recessions
     from inverse_design.memory import fix_mmap_threshold
     from inverse_design.optimise import refine_design
+    from inverse_design.settings import Layout
 
     fix_mmap_threshold()  # as the command does
     load_start = _load()
@@ -103,9 +104,7 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     mid_chords = [0.5 * (b.chord_root + b.chord_tip) for b in result.wing_solution.bays]
     record["LE recession, largest (mm)"] = round(float(np.max(1e3 * le_recessions(result) * mid_chords)), 2)
     if refine:
-        fine = refine_design(result, layout=dataclasses.replace(wing_case.layout, n_span=33, n_contour=64),
-                             bounds=wing_case.bounds, limits=wing_case.limits,
-                             solver=command_design.solver_settings(wing_case))
+        fine = refine_design(result, Layout(n_span=33, n_contour=64))
         change = fine.grid_change["change"]
         record["33x64 rms"] = float(f"{fine.rms_error:.4g}")
         record["33x64 move"] = "; ".join(f"{k} {v:.3g}" for k, v in change.items())

@@ -342,6 +342,7 @@ def _cell_cosines(nodes, columns) -> np.ndarray:
 
 def mounted_skin(scene, parameters) -> np.ndarray:
     """``(n_span, n_contour, 3)`` the mounted skin of a bay (`forces.mounted_nodes`), m."""
+    # (imported here, not at the top: the report's JAX-free workers import this module, app.cut_files)
     import jax
 
     from forward_solver.programs import mounted_compiled
@@ -365,7 +366,7 @@ def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:
     Raises:
         ValueError: if a panel cannot be laid flat at its cut lengths (`develop`).
     """
-    from .rib_design import cut_lengths
+    from .rib_design import cut_lengths  # (here: app.cut_files's JAX-free workers import this module)
 
     cuts = cut_lengths(scene, parameters)
     contour, span = cuts["contour_edge_cut_m"], cuts["span_edge_cut_m"]
@@ -414,6 +415,7 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
         leading edge, lower surface, trailing edge; a closed trailing edge's
         point once).
     """
+    # (imported here: app.cut_files's JAX-free workers import this module)
     from forward_solver.model.rib_shape import bernstein_basis, class_function
 
     if not chordal_error > 0:

@@ -1,8 +1,8 @@
 """The peak memory of a design, estimated from its bays, grid and variables before it starts.
 
-A Gauss-Newton design (`methods.gauss_newton`) holds, per bay, its
+A Gauss-Newton design (`methods.GaussNewton`) holds, per bay, its
 equilibrium and LU factor (the nodes' count times a constant) and the
-tangents of its Jacobian blocks (`blocks.compressed_seeds`: shared + per-bay
+tangents of its Jacobian blocks (`methods.blocks.compressed_seeds`: shared + per-bay
 + 2 x per-rib of them, each a node array through the force kernel and the
 back-solve), over a base of the interpreter, JAX and the compiled
 programs. So the estimate is linear::
@@ -55,7 +55,7 @@ PER_TANGENT_NODE_MIB = 0.0005
 
 def design_tangents(names, n_bays: int, *, cut_pattern_terms: int = 0, rib_shape_terms: int = 0,
                     cut_pattern: str = "shared", rib_shape: str = "per_rib") -> int:
-    """The Jacobian's tangents per bay (`blocks.compressed_seeds`) of a design, from its names and layouts.
+    """The Jacobian's tangents per bay (`methods.blocks.compressed_seeds`) of a design, from its names and layouts.
 
     Args:
         names: the optimised variable names.

@@ -13,7 +13,7 @@ fractions of the local chord. The sections are a bay's span rows at
   non-smooth where two rows tie; `mean_square` takes a smooth maximum);
 * ``"robust"``: the rows of "average", and the design minimises the
   linearised 95th percentile of their rms under the manufacturing
-  tolerances (`robust`); here, at one equilibrium, it is "average".
+  tolerances (`tolerance.robust`); here, at one equilibrium, it is "average".
 
 RMS and maximum are taken over the section's nodes (each node weighted
 equally, as `section_errors`).
@@ -35,7 +35,9 @@ likewise divided by ``c(eta)`` (`section_points`).
 A wing's objective is the sum of its bays' objectives weighted by bay
 planform area ``(c_r + c_t) / 2 * (y_t - y_r)`` over the wing's
 (`bay_weights`); for one bay between equal ribs it is the bay's objective
-itself.
+itself. `WingTargets` holds a wing's rows, local chords, stations and
+weights, built once: the design problem, the tolerance model,
+`optimise.evaluate_design` and the command's report measure through it.
 
 The JAX side (`target_distance`, `bay_distances`, `mean_square`,
 `distance_residuals`) is differentiable: the distance's derivative in the
@@ -48,6 +50,7 @@ call it eagerly (under ``jax.grad`` / ``jax.jvp`` but not ``jax.jit``).
 
 from __future__ import annotations
 
+import math
 from functools import partial
 from typing import NamedTuple
 
@@ -55,8 +58,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from targets import Airfoil
+
 __all__ = [
+    "DEFAULT_OBJECTIVE",
     "OBJECTIVES",
+    "WingTargets",
     "SectionErrors",
     "section_errors",
     "station_etas",
@@ -64,7 +71,6 @@ __all__ = [
     "target_distance",
     "section_distances",
     "objective_residuals",
-    "objective_value",
     "design_errors",
     "BLEND_POINTS",
     "same_section",
@@ -83,6 +89,10 @@ BLEND_POINTS = 401
 
 #: Objective names accepted by `objective_residuals` and `optimise_pressure`.
 OBJECTIVES = ("mid_bay", "average", "worst", "robust")
+
+#: The objective of `optimise.optimise_wing`, `optimise.optimise_pressure`, `optimise.evaluate_design`
+#: and the ``optimise-pressure`` command when none is given: every row of every bay.
+DEFAULT_OBJECTIVE = "average"
 
 
 class SectionErrors(NamedTuple):
@@ -194,8 +204,7 @@ def row_targets(root, tip, chord_root: float, chord_tip: float, etas) -> list:
         ``root`` itself for every row when both sections are the same, else
         the blend of the two at their chords (``root`` at 0, ``tip`` at 1).
     """
-    from targets import Airfoil
-
+    
     if same_section(root, tip):
         return [root] * len(etas)
     a, b = root.resample(BLEND_POINTS), tip.resample(BLEND_POINTS)
@@ -295,7 +304,7 @@ def distance_errors(d, objective: str) -> tuple[float, float]:
     return float(np.sqrt(np.mean(d**2))), float(np.max(np.abs(d)))
 
 
-def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay") -> jnp.ndarray:
+def objective_residuals(nodes, target, chord: float, objective: str = DEFAULT_OBJECTIVE) -> jnp.ndarray:
     """One bay's residual vector whose sum of squares is the objective (mean square distance, chord^2).
 
     Args:
@@ -311,12 +320,7 @@ def objective_residuals(nodes, target, chord: float, objective: str = "mid_bay")
     return distance_residuals(section_distances(nodes, target, chord, etas), objective)
 
 
-def objective_value(nodes, target, chord: float, objective: str = "mid_bay"):
-    """One bay's objective as one smooth scalar, chord^2 (`mean_square`)."""
-    return mean_square(section_distances(nodes, target, chord, station_etas(objective, nodes.shape[0])), objective)
-
-
-def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tuple[float, float]:
+def design_errors(nodes, target, chord: float, objective: str = DEFAULT_OBJECTIVE) -> tuple[float, float]:
     """``(rms, max)`` normal distance of one bay in fractions of chord, over the objective's sections.
 
     For ``"worst"`` both refer to the worst row (largest RMS). Computed in
@@ -327,3 +331,80 @@ def design_errors(nodes, target, chord: float, objective: str = "mid_bay") -> tu
         etas = station_etas(objective, nodes.shape[0])
         d = np.asarray(section_distances(nodes, target, chord, etas))
     return distance_errors(d, objective)
+
+
+class WingTargets:
+    """A wing's bays measured against their targets, built once (module docstring).
+
+    Args:
+        bays: the `forward_solver.Bay` of each bay, root to tip (one grid).
+        targets: the target section (`targets.Airfoil`) of each rib, ``len(bays) + 1``.
+        objective: one of `OBJECTIVES`: the rows measured (`station_etas`).
+
+    Attributes:
+        etas: the rows' span stations, fractions of the rib spacing.
+        weights: ``(n_bays,)`` planform-area weights (`bay_weights`).
+        chords: per bay, the local chord of each row, m (`local_chords`).
+        rows: per bay, the target `targets.Airfoil` of each row (`row_targets`).
+
+    Raises:
+        ValueError: for an unknown objective.
+    """
+
+    def __init__(self, bays, targets, objective: str = DEFAULT_OBJECTIVE):
+        self.bays, self.targets, self.objective = list(bays), list(targets), objective
+        self.etas = station_etas(objective, self.bays[0].n_span)
+        self.weights = bay_weights(self.bays)
+        self.chords = [local_chords(bay, self.etas) for bay in self.bays]
+        self.rows = [row_targets(self.targets[k], self.targets[k + 1], bay.chord_root, bay.chord_tip, self.etas)
+                     for k, bay in enumerate(self.bays)]
+
+    @property
+    def n_distances(self) -> int:
+        """Distances of one bay: ``len(etas) * n_contour``."""
+        return len(self.etas) * self.bays[0].n_contour
+
+    @property
+    def residual_size(self) -> int:
+        """Length of `residuals` over the wing (for "worst", one row per bay)."""
+        per_bay = self.bays[0].n_contour * (1 if self.objective == "worst" else len(self.etas))
+        return per_bay * len(self.bays)
+
+    def distances(self, k: int, nodes):
+        """``(n_rows, n_contour)`` signed distances of bay ``k``'s rows from their targets, fractions of
+        the local chord (`bay_distances`; JAX nodes allowed)."""
+        return bay_distances(nodes, self.rows[k], self.etas, self.chords[k])
+
+    def residuals(self, distances):
+        """The stacked residuals whose sum of squares is the wing's objective ("mid_bay", "average"):
+        each bay's `distance_residuals` times the square root of its weight."""
+        return jnp.concatenate([math.sqrt(w) * distance_residuals(d, self.objective)
+                                for w, d in zip(self.weights, distances)])
+
+    def objective_value(self, distances):
+        """The wing's objective, chord^2: the bays' `mean_square`, weighted by area."""
+        return weighted_mean_square(list(distances), np.asarray(self.weights, np.float64), self.objective)
+
+    def deviation(self, nodes) -> list:
+        """Per bay, the concrete ``(n_rows, n_contour)`` distances of its rows at the stacked
+        ``(n_bays, n_span, n_contour, 3)`` ``nodes`` (m), fractions of the local chord, in float64
+        whatever the caller's JAX configuration."""
+        with jax.enable_x64(True):
+            return [np.asarray(self.distances(k, np.asarray(nodes[k]))) for k in range(len(self.bays))]
+
+    def errors(self, distances) -> dict:
+        """``rms``, ``max`` (``(n_bays,)``, fractions of the local chord, over the objective's rows:
+        `distance_errors`) and ``wing_rms`` (one bay: its own; a wing: the square root of the bays'
+        mean squares weighted by area) of concrete per-bay ``distances``."""
+        errors = [distance_errors(d, self.objective) for d in distances]
+        mean_squares = np.array([np.mean(np.asarray(d) ** 2) if self.objective != "worst" else e[0] ** 2
+                                 for d, e in zip(distances, errors)])
+        rms = np.array([e[0] for e in errors])
+        wing = float(rms[0]) if len(errors) == 1 else float(np.sqrt(np.sum(self.weights * mean_squares)))
+        return {"rms": rms, "max": np.array([e[1] for e in errors]), "wing_rms": wing}
+
+    def mid_bay_targets(self) -> list:
+        """Each bay's target at mid-bay: its two ribs' targets blended at the local chord (`row_targets`;
+        the rib's own when both ribs carry the same section)."""
+        return [row_targets(self.targets[k], self.targets[k + 1], bay.chord_root, bay.chord_tip, [0.5])[0]
+                for k, bay in enumerate(self.bays)]

@@ -163,8 +163,8 @@ def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | Non
     if grid is not None and design and grid[0] < LIMITS["n_span"]:
         lines.append(f"the design grid has {grid[0]} span nodes, fewer than the {LIMITS['n_span']} that the "
                      "grid study found enough (on 9 the default design lands at 6.4 kPa and rib scale 0.945 "
-                     f"against 1 kPa and 1.0 on 17 or more; docs/design_studies.md): give --n-span "
-                     f"{LIMITS['n_span']} or more, or --refine")
+                     f"against 1 kPa and 1.0 on 17 or more; docs/design_studies.md): design on n_span "
+                     f"{LIMITS['n_span']} or more, or refine the design on a finer grid (refine_design)")
     if seam_allowance_mm is not None and seam_allowance_mm > LIMITS["seam_allowance_mm"]:
         lines.append(f"seam allowance {seam_allowance_mm:g} mm is more than {LIMITS['seam_allowance_mm']:g} mm: "
                      "the value is in millimetres; check it")
@@ -172,8 +172,9 @@ def check_plausibility(fabric, parameters, bays: Sequence, bounds: Mapping | Non
         if grid is not None and count > LIMITS["terms_per_contour_node"] * grid[1]:
             lines.append(f"{name.replace('_', ' ')} of {count} terms on {grid[1]} contour nodes: more than a "
                          f"quarter of the nodes ({LIMITS['terms_per_contour_node'] * grid[1]:g}), so each term "
-                         f"spans fewer than 4 nodes and the grid cannot resolve it; give --{name.replace('_', '-')}"
-                         f"-terms {int(LIMITS['terms_per_contour_node'] * grid[1])} or fewer, or more --n-contour")
+                         f"spans fewer than 4 nodes and the grid cannot resolve it; give {name} terms "
+                         f"{int(LIMITS['terms_per_contour_node'] * grid[1])} or fewer, or more contour nodes "
+                         "(n_contour)")
     low, high = LIMITS["reynolds"]
     if reynolds is not None and not low <= reynolds <= high:
         lines.append(f"Reynolds number {reynolds:.3g} lies outside NeuralFoil's training data ({low:.1g} to "

@@ -4,15 +4,17 @@ The bays are `forward_solver.Scene`s sharing one fabric and grid (a single
 bay, or the bays of a `forward_solver.Wing`), solved together by
 `forward_solver.solve_bays` (on a CPU a loop of `solve_equilibrium`, chord
 Newton with its LU factor). Every forward solve warm-starts from the previous
-iterate's equilibrium and is solved to the optimiser's ``rtol`` by the
+iterate's equilibrium and is solved to the settings' ``rtol`` by the
 ``"auto"`` chain of `forward_solver.solve_equilibrium` (a failed warm solve is
-retried cold, then by Newton; `forward_solver.solvers.chain`) unless
-``solver_options`` name one method (then a failed warm solve is retried cold
-here). The objective (`objectives.mean_square` of each bay,
-weighted by `objectives.bay_weights`) and the smooth tension constraints
+retried cold, then by Newton; `forward_solver.solvers.chain`) unless the
+settings name one equilibrium method (then a failed warm solve is retried
+cold here). The bays are measured against their targets by one
+`objectives.WingTargets`: the objective (each bay's `objectives.mean_square`,
+weighted by area) and the smooth tension constraints
 (`constraints.constraint_functions` over every cell of every bay) get their
 gradients by reverse mode through the N-bay forward solve (one adjoint solve
-per output); the penalty residuals their Jacobian by forward mode. Every
+per output); the penalty residuals and the Gauss-Newton rows their Jacobian by
+forward mode (`forward_solver.derivatives.forward.value_and_jacobian`). Every
 converged solve is archived, so the result is never re-solved. A bay whose
 cold solve fails raises `BaysConvergenceError`; its NaN nodes never reach
 the optimiser.
@@ -30,22 +32,19 @@ import numpy as np
 import scipy.sparse
 
 from forward_solver import solve_bays
-from forward_solver.solution import BaysConvergenceError
-from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
-from forward_solver.derivatives.implicit import forward_only
-from forward_solver.solution import BaysSolution
+from forward_solver.derivatives.forward import value_and_jacobian
+from forward_solver.solution import BaysConvergenceError, BaysSolution
 from forward_solver.solvers.bays import default_strategy
 
-from .blocks import compressed_seeds, decompress
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
-from .objectives import (bay_distances, bay_weights, distance_errors, distance_residuals, local_chords,
-                         row_targets, station_etas, weighted_mean_square)
-from .variables import DesignVariables, concrete_rows
+from .history import History
+from .methods.blocks import compressed_seeds, decompress
+from .objectives import WingTargets
+from .settings import SolverSettings
+from .tolerance.robust import RobustTerms, check_robust_tolerances
+from .variables import DesignVariables, concrete_rows, key_of
 
-__all__ = ["DesignProblem", "BaysConvergenceError", "check_field_terms", "check_solver_options", "key_of"]
-
-#: The forward solves' options when none are given.
-DEFAULT_SOLVER_OPTIONS = {"method": "auto", "max_steps": 200_000}
+__all__ = ["DesignProblem", "check_field_terms"]
 
 
 @jax.jit
@@ -65,25 +64,10 @@ def _of_bay(nodes, k: int):
     return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
-def _value_and_jacobian(wrapped, v, basis=None):
-    """``wrapped(v)``'s value, its Jacobian in ``v`` (forward mode; a NumPy array) and its auxiliary
-    output; with ``basis`` (``(n_tangents, v.size)``) its derivatives along those tangents instead
-    (``(n_outputs, n_tangents)``: `blocks.compressed_seeds`).
-
-    ``jax.jacfwd`` less its bookkeeping: the basis of tangents is NumPy's and the Jacobian is
-    transposed on the host (``jax.jacfwd`` built and unravelled them with a dozen eager operations,
-    each compiled on its own in a fresh process). Nothing here is transposed, so the implicit
-    tangents are `forward_only`: the host LU back-solves the batch of them as arrays.
-    """
-
-    def push(t):
-        r, dr, aux = jax.jvp(wrapped, (v,), (t,), has_aux=True)
-        return r, dr, aux
-
-    basis = np.eye(v.size, dtype=np.float64) if basis is None else np.asarray(basis, np.float64)
-    with forward_only(basis.shape[0]):
-        r, jac, aux = jax.vmap(push, out_axes=(None, 0, None))(basis)
-    return r, np.asarray(jac).T, aux
+def _aux(sol) -> dict:
+    """The arrays of a solve that a transformation hands back as its auxiliary output."""
+    return {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps,
+            "mounted": sol.mounted}
 
 
 class DesignProblem:
@@ -91,90 +75,67 @@ class DesignProblem:
 
     Args:
         scenes: the bays, root to tip (one fabric, switches and grid).
-        targets: the target section of each rib (``len(scenes) + 1``).
+        targets: the bays' rows against their targets and the objective (`objectives.WingTargets`).
         variables: the `DesignVariables`.
-        objective: one of `objectives.OBJECTIVES` (per bay).
-        constraints: the tension limits, or None.
-        rtol: relative residual of every bay's solve.
-        solver_options: ``{"method", "max_steps"}`` of every bay's solve
-            (`check_solver_options`).
-        rib_geometries: the `rib_design.RibGeometry` whose limits are SLSQP
-            rows (empty: none): one per rib for a shape per rib, else one per
-            distinct starting section of a shared shape.
-        rib_indices: the rib of each geometry (default 0, 1, ...).
+        tension: the tension limits (`constraints.Constraints`), or None.
+        ribs: ``(rib, RibGeometry)`` pairs whose limits are constraint rows (`rib_design.RibGeometry`):
+            one per rib for a shape per rib, else one per distinct starting section of a shared shape.
+        solver: the forward solves' residual, equilibrium method and step cap (`settings.SolverSettings`).
         tolerances: the manufacturing tolerances of the objective "robust"
-            (`robust.check_robust_tolerances`: None for every default).
+            (`tolerance.robust.check_robust_tolerances`: None for every default).
+
+    Attributes:
+        seeds: ``(seeds, columns)`` of the Gauss-Newton Jacobian's forward pass (`blocks.compressed_seeds`).
+        robust: the robust objective's terms (`tolerance.robust.RobustTerms`), or None.
+        history: the iterates (`history.History`).
+        solves: forward solves so far.
 
     The constraint vector is the tension rows (`constraints.Constraints.names`,
     over all bays), then every rib geometry's `rib_design.RibGeometry.functions`
     rows.
     """
 
-    def __init__(self, scenes, targets, variables: DesignVariables, objective, constraints, *,
-                 rtol=GRADIENT_RTOL, solver_options=None, rib_geometries=(), rib_indices=None, tolerances=None):
+    def __init__(self, scenes, targets: WingTargets, variables: DesignVariables, *, tension=None, ribs=(),
+                 solver: SolverSettings = SolverSettings(), tolerances=None):
         self.scenes = list(scenes)
-        self.bays = [scene.bay for scene in self.scenes]
-        check_field_terms(variables, self.bays[0].n_contour)
+        check_field_terms(variables, self.scenes[0].bay.n_contour)
         self.fabric = self.scenes[0].fabric
-        self.targets = list(targets)
-        self.variables = variables
-        self.objective = objective
-        self.constraints = constraints
-        self.rtol = rtol
-        # {"method": ..., "max_steps": ...} of every forward solve (`check_solver_options`).
-        self.solver_options = check_solver_options(solver_options)
-        self.weights = bay_weights(self.bays)
-        self.etas = station_etas(objective, self.bays[0].n_span)
-        self.chords = [local_chords(bay, self.etas) for bay in self.bays]
-        self.rows = [row_targets(self.targets[k], self.targets[k + 1], bay.chord_root, bay.chord_tip, self.etas)
-                     for k, bay in enumerate(self.bays)]
-        self.chord = max(bay.chord for bay in self.bays)
+        self.targets, self.variables, self.tension, self.solver = targets, variables, tension, solver
+        self.ribs = list(ribs)
+        self.chord = max(scene.bay.chord for scene in self.scenes)
         self.tension_scale = tension_scale(variables.start, self.chord)
+        self.seeds = compressed_seeds(variables, len(self.scenes))
         # The loop (CPU): the chain, or the method named; the batch (accelerators) relaxes.
-        self.method = self.solver_options["method"]
+        self.method = solver.equilibrium_method
         if self.method == "auto" and default_strategy() == "batch":
             self.method = "relax"
         # Small design grids: one relaxation loop to compile beats grid sequencing.
-        self.sequencing = self.bays[0].n_contour > 128
+        self.sequencing = self.scenes[0].bay.n_contour > 128
         self.previous: BaysSolution | None = None  # warm start (and its LU factors)
         self._previous_key = None
         self.solves = 0
-        self.history: list[dict] = []
-        self._entries: dict = {}  # the newest history entry at each point, by `key_of`
-        self.on_record = None  # called with each new history entry (progress bar, callback)
+        self.history = History(variables)
         self._cache: dict = {}  # the last evaluation with its derivatives
         self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
         # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
         self._measured: dict = {}
         self._recording: dict | None = None  # within a transformed evaluation: what it computes
-        # objective "robust": the tolerance columns and the quantile rows (`robust.RobustTerms`)
-        self.robust = None
-        if objective == "robust":
-            from .robust import RobustTerms, check_robust_tolerances
-
-            self.robust = RobustTerms(self, check_robust_tolerances(tolerances))
-        # The ribs' manufacturability limits: no solve in them, so their Jacobian comes from forward
-        # mode on the design vector alone.
-        self.rib_geometries = list(rib_geometries)
-        self.rib_indices = list(range(len(self.rib_geometries)) if rib_indices is None else rib_indices)
-        if self.rib_geometries:
+        self.robust = (RobustTerms(self, check_robust_tolerances(tolerances)) if targets.objective == "robust"
+                       else None)
+        if self.ribs:  # no solve in them: their Jacobian by forward mode on the design vector alone
             def rib_rows(u):
                 parameters, shapes = variables.parameters(u), variables.rib_shapes_at(u)
                 return jnp.concatenate([g.functions(parameters if shapes is None
                                                     else parameters.replace(rib_shape=shapes[k]))
-                                        for k, g in zip(self.rib_indices, self.rib_geometries)])
+                                        for k, g in self.ribs])
 
             self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
 
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
         """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
-        return self._record("distances", [bay_distances(_of_bay(nodes, k), self.rows[k], self.etas, self.chords[k])
-                                          for k in range(len(self.bays))])
-
-    def objective_value(self, distances):
-        """The design's objective, chord^2: the bays' `objectives.mean_square`, weighted by area."""
-        return weighted_mean_square(list(distances), np.asarray(self.weights, np.float64), self.objective)
+        return self._record("distances", [self.targets.distances(k, _of_bay(nodes, k))
+                                          for k in range(len(self.scenes))])
 
     def tensions(self, nodes, u) -> list:
         """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
@@ -188,10 +149,14 @@ class DesignProblem:
             self._recording[name] = values
         return values
 
+    def _limit_rows(self) -> int:
+        """How many tension limits the constraint rows begin with."""
+        return 0 if self.tension is None else len(self.tension.names(self.fabric))
+
     # ------------------------------------------------------------ solves
     def _solve(self, u, initial) -> BaysSolution:
-        sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.rtol,
-                         max_steps=self.solver_options["max_steps"], method=self.method, initial=initial,
+        sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.solver.rtol,
+                         max_steps=self.solver.max_steps, method=self.method, initial=initial,
                          rib_shapes=self.variables.rib_shapes_at(u), cut_patterns=self.variables.cut_patterns_at(u),
                          sequencing=self.sequencing)
         # The chain's tries count as solves (of its slowest bay); a named method's solve is one.
@@ -208,6 +173,13 @@ class DesignProblem:
             cut_patterns=concrete_rows(self.variables.cut_patterns_at(u)),
             parameters=self.variables.parameters(u).resolved(self.fabric).as_floats())
 
+    def solve_near(self, u, initial: BaysSolution) -> BaysSolution:
+        """The concrete `BaysSolution` at the scaled vector ``u``, warm from ``initial``: counted among the
+        solves, but neither archived nor the next warm start (a central difference's side, `tolerance.robust`).
+        It may not have converged: check ``converged``."""
+        sol = self._solve(u, initial)
+        return self._concrete(sol, _aux(sol), u)
+
     def _transformed(self, transform, function, u):
         """``transform(wrapped)(u)`` and the concrete `BaysSolution`, where ``wrapped(v)`` solves every
         bay at ``v`` and returns ``(function(v, solution), aux)``; the warm start first, then cold.
@@ -223,8 +195,7 @@ class DesignProblem:
             def wrapped(v):
                 sol = self._solve(v, initial)
                 held["sol"] = sol
-                aux = {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps,
-                       "mounted": sol.mounted}
+                aux = _aux(sol)
                 if not sol.converged:  # NaN nodes: stop here, nothing downstream is used
                     return jnp.zeros(0), aux
                 self._recording = {}
@@ -275,24 +246,21 @@ class DesignProblem:
         return self._transformed(plain, lambda v, sol: jnp.zeros(0), u)[1]
 
     def cached(self, key):
-        """The cached evaluation at ``key`` (`key_of` a vector), or None."""
+        """The cached evaluation at ``key`` (`variables.key_of` a vector), or None."""
         return self._cache.get(key)
 
-    def entry_at(self, u) -> dict | None:
-        """The newest history entry recorded at the scaled vector ``u`` (the same floats), or None."""
-        return self._entries.get(key_of(u))
-
-    def best_iterate(self) -> np.ndarray | None:
-        """Scaled vector of the best recorded iterate (None before any): the feasible one (every
-        smooth constraint >= 0) with the least objective in size, else the least violating one."""
-
-        def violation(entry):
-            return max([0.0] + [-c for c in entry.get("constraints", [])])
-
-        if not self.history:
-            return None
-        best = min(self.history, key=lambda h: (violation(h), abs(h["objective"])))
-        return self.variables.from_values(best["values"])
+    def _with_rib_rows(self, u, g, jg, recorded):
+        """The constraint rows ``g`` with the rib limits' rows appended (their Jacobian to ``jg``), and the
+        history's ``recorded`` rows with the least thickness row and the least curvature row over the ribs."""
+        if not self.ribs:
+            return g, jg, recorded
+        g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
+        jg = (scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)], format="csr") if scipy.sparse.issparse(jg)
+              else np.vstack([jg, jac_rib]))
+        per_rib = g_rib.reshape(len(self.ribs), -1)
+        n_thick = self.ribs[0][1].upper.size
+        recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
+        return np.concatenate([g, g_rib]), jg, recorded
 
     # ----------------------------------------------- smooth constraints (slsqp)
     def evaluate(self, u):
@@ -311,63 +279,43 @@ class DesignProblem:
         if key not in self._cache:
 
             def outputs(v, sol):
-                f = self.objective_value(self.distances(sol.nodes))
-                if self.constraints is None:
+                f = self.targets.objective_value(self.distances(sol.nodes))
+                if self.tension is None:
                     return _prepend(f, jnp.zeros(0, f.dtype))
-                return _prepend(f, constraint_functions(self.constraints, self.tensions(sol.nodes, v),
+                return _prepend(f, constraint_functions(self.tension, self.tensions(sol.nodes, v),
                                                         self.fabric, self.tension_scale))
 
-            n_outputs = 1 + (0 if self.constraints is None else len(self.constraints.names(self.fabric)))
-            if self.variables.size <= n_outputs:
-                (y, rows), sol = self._transformed(_value_and_jacobian, outputs, u)
+            if self.variables.size <= 1 + self._limit_rows():
+                (y, rows), sol = self._transformed(lambda w, v: value_and_jacobian(w, v), outputs, u)
                 y, rows = np.asarray(y), np.asarray(rows)
             else:
                 (y, pullback), sol = self._transformed(
                     lambda wrapped, v: jax.vjp(wrapped, v, has_aux=True), outputs, u)
                 rows = np.stack([np.asarray(pullback(e)[0]) for e in jnp.eye(y.size, dtype=y.dtype)])
                 y = np.asarray(y)
-            recorded = y[1:]
-            if self.rib_geometries:
-                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-                y, rows = np.concatenate([y, g_rib]), np.vstack([rows, jac_rib])
-                # history: the least thickness row and the least curvature row over the ribs
-                per_rib = g_rib.reshape(len(self.rib_geometries), -1)
-                n_thick = self.rib_geometries[0].upper.size
-                recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
-            self._cache = {key: (y[0], rows[0], y[1:], rows[1:], sol)}
-            self.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
+            g, jg, recorded = self._with_rib_rows(u, y[1:], rows[1:], y[1:])
+            self._cache = {key: (y[0], rows[0], g, jg, sol)}
+            self.history.record(u, y[0], np.linalg.norm(rows[0]), solution=sol, constraints=recorded)
         return self._cache[key]
 
     # ------------------------------------------------------- gauss-newton
-    def shape_residuals(self, nodes):
-        """The stacked row distances: each bay's `objectives.distance_residuals` times the square root
-        of its weight, so that their sum of squares is the objective ("mid_bay", "average")."""
-        return jnp.concatenate([math.sqrt(w) * distance_residuals(d, self.objective)
-                                for w, d in zip(self.weights, self.distances(nodes))])
-
-    @property
-    def shape_size(self) -> int:
-        """Length of `shape_residuals`."""
-        per_bay = self.bays[0].n_contour * (1 if self.objective == "worst" else len(self.etas))
-        return per_bay * len(self.bays)
-
     def linearised(self, u):
         """`nominal_linearised`, or for the objective "robust" its stacked residual and quantile rows
-        (`robust.RobustTerms.assemble`: ``r @ r`` the majoriser of the linearised 95th percentile of the
-        mean square, less its constant)."""
+        (`tolerance.robust.RobustTerms.assemble`: ``r @ r`` the majoriser of the linearised 95th
+        percentile of the mean square, less its constant)."""
         key = key_of(u)
         new = key not in self._cache
         r, jr, g, jg, sol = self.nominal_linearised(u)
         if self.robust is None:
             return r, jr, g, jg, sol
         stacked, jstacked, g, jg = self.robust.assemble(u, r, jr, g, jg, sol)
-        if new and self.history:  # the iterate's linearised 95th percentile of the rms, chord
-            self.history[-1]["robust_p95"] = math.sqrt(max(self.robust.quantile(r, self.robust.raw(u, sol)), 0.0))
+        if new and self.history.entries:  # the iterate's linearised 95th percentile of the rms, chord
+            self.history.entries[-1]["robust_p95"] = math.sqrt(max(self.robust.quantile(r, self.robust.raw(u, sol)), 0.0))
         return stacked, jstacked, g, jg, sol
 
     def reweight(self, u) -> bool:
         """At an accepted iterate ``u`` (evaluated last): the robust majoriser's weight set there
-        (`robust.RobustTerms.reweight`); False (nothing changes) for the other objectives."""
+        (`tolerance.robust.RobustTerms.reweight`); False (nothing changes) for the other objectives."""
         if self.robust is None:
             return False
         r, _, _, _, sol = self.nominal_linearised(u)
@@ -375,95 +323,73 @@ class DesignProblem:
         return True
 
     def nominal_linearised(self, u):
-        """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`shape_residuals`, ``r @ r``
-        the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each limit
-        (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
+        """``(r, dr/du, g, dg/du, solution)`` at ``u``: the shape residuals (`objectives.WingTargets.residuals`,
+        ``r @ r`` the objective) and the constraints ``g >= 0``: every cell's fibre tensions against each
+        limit (`constraints.cell_constraints`, not an aggregate: each row is smooth, so its linearisation
         holds over a longer step) and the rib limits' rows, with their Jacobians (``scipy.sparse``
         CSR) by forward mode through the implicit equilibrium, bay by bay: one wing solve, then per
         bay one back-solve with its own LU factor per variable that moves it (the shared ones, its
         row of a per-bay cut field, its two ribs' rows of per-rib shapes), all bays in one pass of
-        compressed tangents (`blocks.compressed_seeds`); the rib limits' rows without a solve.
+        compressed tangents (`seeds`); the rib limits' rows without a solve.
 
         Raises:
             BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
         key = key_of(u)
         if key not in self._cache:
-            seeds, columns = compressed_seeds(self.variables, len(self.bays))
-            (y, compressed), sol = self._transformed(partial(_value_and_jacobian, basis=seeds),
+            seeds, columns = self.seeds
+            (y, compressed), sol = self._transformed(partial(value_and_jacobian, basis=seeds),
                                                      self._linearised_outputs, u)
             y = np.asarray(y)
-            n = self.shape_size
+            n = self.targets.residual_size
             jac = decompress(compressed, self._row_bays(y.size), columns, self.variables.size)
             r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
-            n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
+            n_limits = self._limit_rows()
             # history: the least row of each tension limit (as `evaluate`'s aggregates, >= 0 feasible)
             recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
-            if self.rib_geometries:
-                g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-                g, jg = np.concatenate([g, g_rib]), scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)],
-                                                                        format="csr")
-                per_rib = g_rib.reshape(len(self.rib_geometries), -1)
-                n_thick = self.rib_geometries[0].upper.size
-                recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
+            g, jg, recorded = self._with_rib_rows(u, g, jg, recorded)
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
-                        jacobian=f"{len(self.bays)} bay blocks x {seeds.shape[0]} tangents")
+            self.history.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
+                        jacobian=f"{len(self.scenes)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
-        shape = self.shape_residuals(sol.nodes)
-        if self.constraints is None:
+        shape = self.targets.residuals(self.distances(sol.nodes))
+        if self.tension is None:
             return shape
         t = jnp.concatenate(self.tensions(sol.nodes, v))
-        return jnp.concatenate([shape, cell_constraints(self.constraints, t, self.fabric, self.tension_scale)])
+        return jnp.concatenate([shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale)])
 
     def _row_bays(self, n_rows: int) -> np.ndarray:
         """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
         tension limit's rows over every bay's cells (span, then chord tensions of each bay)."""
-        n_bays = len(self.bays)
-        shape = np.repeat(np.arange(n_bays), self.shape_size // n_bays)
-        n_limits = 0 if self.constraints is None else len(self.constraints.names(self.fabric))
+        n_bays = len(self.scenes)
+        shape = np.repeat(np.arange(n_bays), self.targets.residual_size // n_bays)
+        n_limits = self._limit_rows()
         if not n_limits:
             return shape
         per_bay = (n_rows - shape.size) // (n_limits * n_bays)
         return np.concatenate([shape, np.tile(np.repeat(np.arange(n_bays), per_bay), n_limits)])
 
-    def _dense_rows(self, u):
-        """``(r, dr/du, g, dg/du)`` of the tension limits by forward mode through the whole wing: every
-        variable's tangent through every bay, dense (NumPy)."""
-        (y, jac), _ = self._transformed(_value_and_jacobian, self._linearised_outputs, u)
-        y, jac = np.asarray(y), np.asarray(jac)
-        n = self.shape_size
-        return y[:n], jac[:n], y[n:], jac[n:]
-
-    def dense_linearised(self, u):
-        """`linearised`'s ``(r, dr/du, g, dg/du)`` of the tension limits (no rib limits), its Jacobians
-        dense, one tangent per variable through the whole wing (the reference the compressed blocks
-        are checked against)."""
-        return self._dense_rows(u)
-
     # ------------------------------------------------------ penalty methods
     def residuals(self, v, sol):
-        """Shape residuals (each bay's `objectives.distance_residuals` times the square root of its
-        weight) and tension penalties at ``v`` (a JAX value allowed) of the solution ``sol``."""
-        shape = jnp.concatenate([math.sqrt(w) * distance_residuals(d, self.objective)
-                                 for w, d in zip(self.weights, self.distances(sol.nodes))])
-        if self.constraints is None:
+        """Shape residuals (`objectives.WingTargets.residuals`) and tension penalties at ``v`` (a JAX
+        value allowed) of the solution ``sol``."""
+        shape = self.targets.residuals(self.distances(sol.nodes))
+        if self.tension is None:
             return shape
         t = jnp.concatenate(self.tensions(sol.nodes, v))
-        return jnp.concatenate([shape, penalty_residuals(self.constraints, t, self.fabric, self.tension_scale)])
+        return jnp.concatenate([shape, penalty_residuals(self.tension, t, self.fabric, self.tension_scale)])
 
     def residuals_and_jacobian(self, u):
         """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
         key = key_of(u)
         if key not in self._cache:
-
-            (r, jac), sol = self._transformed(_value_and_jacobian, self.residuals, u)
+            (r, jac), sol = self._transformed(lambda w, v: value_and_jacobian(w, v), self.residuals, u)
             r, jac = np.asarray(r), np.asarray(jac)
             self._cache = {key: (r, jac, sol)}
-            self.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
+            self.history.record(u, np.sum(r**2), np.linalg.norm(2.0 * jac.T @ r), solution=sol)
         return self._cache[key]
 
     def loss_and_gradient(self, u):
@@ -483,44 +409,19 @@ class DesignProblem:
     # ------------------------------------------------------------ measurements
     def measure(self, sol: BaysSolution, u) -> dict:
         """Per-bay errors and tensions of a concrete converged solution at ``u``: ``rms``, ``max``
-        (arrays over the bays, fractions of the local chord), ``wing_rms`` (the square root of the
-        weighted mean squares), ``tensions`` (per bay, N/m) and their extremes."""
+        (arrays over the bays, fractions of the local chord), ``wing_rms`` (`objectives.WingTargets.errors`),
+        ``tensions`` (per bay, N/m) and their extremes."""
         nodes, kept = self._measured.get(key_of(u), (None, {}))
         if nodes is not sol.nodes:  # another solve at u than the evaluation's
             kept = {}
         d = kept.get("distances")
         if d is None:
             d = [np.asarray(x) for x in self.distances(jnp.asarray(sol.nodes))]
-        errors = [distance_errors(x, self.objective) for x in d]
         t = kept.get("tensions")
         if t is None:
             t = [np.asarray(x) for x in self.tensions(jnp.asarray(sol.nodes), np.asarray(u, np.float64))]
-        mean_squares = np.array([np.mean(x**2) if self.objective != "worst" else e[0] ** 2
-                                 for x, e in zip(d, errors)])
-        rms = np.array([e[0] for e in errors])
-        return {"rms": rms, "max": np.array([e[1] for e in errors]),
-                "wing_rms": float(rms[0]) if len(d) == 1 else float(np.sqrt(np.sum(self.weights * mean_squares))),
-                "min_tension": np.array([x.min() for x in t]), "max_tension": np.array([x.max() for x in t]),
-                "tensions": t}
-
-    def record(self, u, objective, gradient_norm=math.nan, *, solution: BaysSolution, constraints=None,
-               jacobian: str | None = None):
-        """Append the history entry of an iterate at ``u`` (``jacobian``: its Jacobian's blocks, as the
-        progress bar shows them) and call `on_record` with it."""
-        entry = {
-            "values": self.variables.values(np.asarray(u, dtype=np.float64)),
-            "objective": float(objective),
-            "gradient_norm": float(gradient_norm),
-            "steps": int(np.max(solution.steps)),
-        }
-        if constraints is not None:
-            entry["constraints"] = [float(c) for c in constraints]
-        if jacobian is not None:
-            entry["jacobian"] = jacobian
-        self.history.append(entry)
-        self._entries[key_of(u)] = entry
-        if self.on_record is not None:
-            self.on_record(entry)
+        return {**self.targets.errors(d), "min_tension": np.array([x.min() for x in t]),
+                "max_tension": np.array([x.max() for x in t]), "tensions": t}
 
 
 def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
@@ -537,34 +438,5 @@ def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
     terms = width // 2
     if terms > n_contour:
         raise ValueError(f"a cut pattern of {terms} terms per fibre direction on {n_contour} contour nodes: at "
-                         f"most one term per contour node moves the skin; give --cut-pattern-terms {n_contour} "
-                         "or fewer, or more --n-contour")
-
-
-def check_solver_options(options) -> dict:
-    """``{"method", "max_steps"}`` of the design's forward solves, checked, over the defaults.
-
-    ``method`` is one of `forward_solver.solvers.chain.EQUILIBRIUM_METHODS` ("auto":
-    the fallback chain), ``max_steps`` the step cap of each relaxation.
-    """
-    from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
-
-    if options is None:
-        return dict(DEFAULT_SOLVER_OPTIONS)
-    if not isinstance(options, dict):
-        raise ValueError(f"solver_options must be a dict with keys method, max_steps, got {options!r}")
-    unknown = set(options) - set(DEFAULT_SOLVER_OPTIONS)
-    if unknown:
-        raise ValueError(f"solver_options: unknown key(s) {sorted(unknown)}; the keys are method, max_steps")
-    merged = {**DEFAULT_SOLVER_OPTIONS, **options}
-    if merged["method"] not in EQUILIBRIUM_METHODS:
-        raise ValueError(f"solver_options: method must be one of {EQUILIBRIUM_METHODS}, got {merged['method']!r}")
-    steps = merged["max_steps"]
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"solver_options: max_steps must be a positive integer, got {steps!r}")
-    return merged
-
-
-def key_of(u) -> tuple:
-    """A hashable key of a scaled vector (its float values)."""
-    return tuple(float(x) for x in np.asarray(u, dtype=np.float64).reshape(-1))
+                         f"most one term per contour node moves the skin; give a cut pattern of {n_contour} terms "
+                         "or fewer per fibre direction, or more contour nodes (n_contour)")

@@ -4,14 +4,14 @@ Four frozen dataclasses, each checked when it is built (a ValueError says
 what to change):
 
 * `DesignRequest`: what is asked, the variables, their start and bounds,
-  the objective, the method and the `Limits`; `DesignResult.request`
-  records it.
+  the objective, the method (a value of `methods`, with its own knobs), the
+  `Limits`, the layout and the solver settings; `DesignResult.request`
+  records it (`optimise.refine_design` runs it again on a finer grid).
 * `Limits`: the tension limits over every cell (`constraints.Constraints`)
   and the manufacturability limits of a shaped rib (`rib_design.RibLimits`).
-* `SolverSettings`: how the optimiser and every forward solve run
-  (iteration cap, tolerance, optax optimiser, residual tolerance, the
-  equilibrium method and its step cap, the progress bar and callback, the
-  condition of ``method="root"``).
+* `SolverSettings`: what every method shares: the iteration cap, the
+  forward solves' residual tolerance, equilibrium method and step cap, the
+  progress bar and callback (a method's own tolerance is the method's).
 * `Layout`: how vector variables are laid out over a wing (a rib shape per
   rib or shared, a cut pattern shared or per bay) and every bay's grid.
 """
@@ -22,21 +22,50 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
+from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
 
 from .constraints import Constraints
-from .objectives import check_objective
+from .methods import resolve
+from .objectives import DEFAULT_OBJECTIVE, check_objective
 from .rib_design import RibLimits
 from .variables import CUT_PATTERN_LAYOUTS, RIB_SHAPE_LAYOUTS
 
-__all__ = ["AUTO", "AUTO_FOR_WORST", "METHODS", "ROOT_CONDITIONS", "DesignRequest", "Layout", "Limits",
-           "SolverSettings"]
+__all__ = ["DesignRequest", "Layout", "Limits", "MOVED_KEYWORDS", "SolverSettings", "refuse_moved"]
 
-METHODS = ("auto", "slsqp", "gauss_newton", "least_squares", "optax", "root")
-ROOT_CONDITIONS = ("thickness", "mean_offset")
-#: What ``method="auto"`` runs (`optimise` module docstring) ...
-AUTO = "gauss_newton"
-#: ... and what it runs for the objective "worst" (no sum of squares for Gauss-Newton).
-AUTO_FOR_WORST = "slsqp"
+
+#: The old keyword arguments of `optimise_wing` and `optimise_pressure`, and the object that holds each now.
+MOVED_KEYWORDS = {
+    "constraints": "limits=Limits(tension=...)",
+    "rib_limits": "limits=Limits(ribs=...)",
+    "max_iterations": "solver=SolverSettings(max_iterations=...)",
+    "tolerance": "method=GaussNewton(tolerance=...), the tolerance of the method run (inverse_design.methods)",
+    "optimiser": "method=Optax(optimiser=...)",
+    "rtol": "solver=SolverSettings(rtol=...)",
+    "max_steps": "solver=SolverSettings(max_steps=...)",
+    "solver_options": "solver=SolverSettings(equilibrium_method=..., max_steps=...)",
+    "progress": "solver=SolverSettings(progress=...)",
+    "callback": "solver=SolverSettings(callback=...)",
+    "root_condition": "method=Root(condition=...)",
+    "rib_shape": "layout=Layout(rib_shape=...)",
+    "cut_pattern": "layout=Layout(cut_pattern=...)",
+    "n_span": "layout=Layout(n_span=...)",
+    "n_contour": "layout=Layout(n_contour=...)",
+    "rib": "the scene's bay, whose rib sections the rib limits are measured against (Bay.from_airfoil(rib, ...))",
+}
+
+
+#: The keywords of `SolverSettings` that moved onto the methods (`MOVED_KEYWORDS`).
+_METHOD_KNOBS = ("tolerance", "optimiser", "root_condition")
+
+
+def refuse_moved(function: str, keywords: Mapping, moved: Mapping | None = None) -> None:
+    """Raise a TypeError naming, for each old keyword given, the object that now holds it (``moved``:
+    the keyword and where it went, default `MOVED_KEYWORDS`)."""
+    if not keywords:
+        return
+    moved = MOVED_KEYWORDS if moved is None else moved
+    where = [f"{k} -> {moved[k]}" if k in moved else f"{k} (unknown)" for k in keywords]
+    raise TypeError(f"{function}() got keyword argument(s) it no longer takes: {'; '.join(where)}")
 
 
 @dataclass(frozen=True)
@@ -71,23 +100,14 @@ class Limits:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """How the optimiser and every forward solve run.
+    """What every design method shares: its iteration cap, how every forward solve runs, and what the
+    caller sees. A method's own knobs (its tolerance, an optax optimiser, a root condition) are the
+    method's (`methods`); those keywords given here are refused with a TypeError naming where they went.
 
     Args:
         max_iterations: cap on iterations (SLSQP iterations, and twice that
             in forward solves; Gauss-Newton forward solves; least-squares
             Jacobian evaluations; optax steps; brentq iterations).
-        tolerance: convergence tolerance in (0, 1), or None for the method's
-            default: SLSQP's ``ftol`` on the objective relative to its
-            starting value (1e-6: one part in a million of the mean square
-            error, far below what the grid resolves), ``ftol``/``xtol`` of
-            least_squares (1e-8), the relative pressure tolerance of brentq
-            (1e-8), the model's predicted fall of the merit relative to it
-            for gauss_newton (`optimise.GN_TOLERANCE`, 1e-3), the scaled
-            gradient norm of optax relative to its starting loss (1e-8).
-        optimiser: an ``optax.GradientTransformation`` (``method="optax"``;
-            None: ``optax.adam(0.05)`` on the scaled variables, its step
-            halved whenever the loss stops falling).
         rtol: relative residual every bay is solved to (the implicit
             gradient is only as good as the equilibrium; default
             `forward_solver.derivatives.custom_jvp.GRADIENT_RTOL`).
@@ -96,10 +116,6 @@ class SolverSettings:
             relax+newton, then Newton from where it stopped, then Newton with
             load continuation), "relax", "newton" or "relax+newton".
         max_steps: step cap of each bay's relaxation (default 200000).
-        root_condition: the scalar condition of ``method="root"`` at the
-            mid-bay section: "thickness" (default: the section's maximum
-            thickness equal to the target's) or "mean_offset" (zero mean
-            normal distance).
         progress: show a tqdm progress bar on stderr, one tick per wing
             solve (off by default: library code prints nothing unless asked).
         callback: called as ``callback(entry)`` after every iterate with the
@@ -108,27 +124,24 @@ class SolverSettings:
 
     Raises:
         ValueError: for a setting out of its range (the message names it and its range).
+        TypeError: for a keyword that moved onto the methods (`MOVED_KEYWORDS`).
     """
 
     max_iterations: int = 50
-    tolerance: float | None = None
-    optimiser: object = None
     rtol: float = GRADIENT_RTOL
     equilibrium_method: str = "auto"
     max_steps: int = 200_000
-    root_condition: str = "thickness"
     progress: bool = False
     callback: Callable | None = field(default=None, compare=False)
 
-    def __post_init__(self):
-        from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
+    def __new__(cls, *args, **kwargs):
+        refuse_moved("SolverSettings", {k: v for k, v in kwargs.items() if k in _METHOD_KNOBS})
+        return super().__new__(cls)
 
+    def __post_init__(self):
         if isinstance(self.max_iterations, bool) or not (isinstance(self.max_iterations, int)
                                                          and self.max_iterations >= 1):
             raise ValueError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
-        if self.tolerance is not None and not (isinstance(self.tolerance, float | int) and 0 < self.tolerance < 1):
-            raise ValueError(f"tolerance must lie in (0, 1) (or None for the method's default), got "
-                             f"{self.tolerance!r}")
         if not (isinstance(self.rtol, float | int) and 0 < self.rtol < 1):
             raise ValueError(f"rtol (the forward solves' relative residual) must lie in (0, 1), got {self.rtol!r}")
         if self.equilibrium_method not in EQUILIBRIUM_METHODS:
@@ -136,15 +149,8 @@ class SolverSettings:
                              f"{self.equilibrium_method!r}")
         if isinstance(self.max_steps, bool) or not (isinstance(self.max_steps, int) and self.max_steps >= 1):
             raise ValueError(f"max_steps must be a positive integer, got {self.max_steps!r}")
-        if self.root_condition not in ROOT_CONDITIONS:
-            raise ValueError(f"root_condition must be one of {ROOT_CONDITIONS}, got {self.root_condition!r}")
         if self.callback is not None and not callable(self.callback):
             raise ValueError(f"callback must be callable (or None), got {self.callback!r}")
-
-    @property
-    def solver_options(self) -> dict:
-        """``{"method", "max_steps"}`` of every forward solve (`problem.check_solver_options`)."""
-        return {"method": self.equilibrium_method, "max_steps": self.max_steps}
 
 
 @dataclass(frozen=True)
@@ -192,28 +198,34 @@ class DesignRequest:
             optimised stay at these values.
         bounds: ``{name: (lower, upper)}`` of optimised names (defaults
             `variables.DEFAULT_BOUNDS`).
-        objective: per bay "mid_bay", "average", "worst" or "robust" (`objectives`, `robust`).
-        method: one of `METHODS` ("auto": `AUTO`, or `AUTO_FOR_WORST` for
-            the objective "worst"); None for a single equilibrium
+        objective: per bay "mid_bay", "average" (`objectives.DEFAULT_OBJECTIVE`), "worst" or "robust"
+            (`objectives`, `tolerance.robust`).
+        method: a method value of `methods` (``GaussNewton(tolerance=...)``, ...) or its shortcut
+            (`methods.METHODS`; "auto": `methods.AUTO`, or `methods.AUTO_FOR_WORST` for the
+            objective "worst"), held as the value that runs; None for a single equilibrium
             (`optimise.evaluate_design`: nothing is optimised).
         limits: the `Limits` the design must meet.
         tolerances: the manufacturing tolerances of the objective "robust"
             (anything `tolerance.parse_tolerances` takes; None: every
             default); refused with another objective.
+        layout: how the vector variables are laid out and every bay's grid (`Layout`).
+        solver: what every method shares (`SolverSettings`).
 
     Raises:
         ValueError: for an unknown objective or method, limits that are not a
-            `Limits`, tolerances without the objective "robust", or "robust"
-            with a method other than gauss_newton.
+            `Limits`, tolerances without the objective "robust", "robust"
+            with a method other than gauss_newton, or settings of the wrong type.
     """
 
     variables: tuple = ("pressure",)
     initial: object = None
     bounds: Mapping | None = None
-    objective: str = "mid_bay"
-    method: str | None = "auto"
+    objective: str = DEFAULT_OBJECTIVE
+    method: object = "auto"
     limits: Limits = Limits()
     tolerances: object = None
+    layout: Layout = Layout()
+    solver: SolverSettings = SolverSettings()
 
     def __post_init__(self):
         if isinstance(self.variables, str):
@@ -221,50 +233,19 @@ class DesignRequest:
         else:
             object.__setattr__(self, "variables", tuple(self.variables))
         check_objective(self.objective)
-        if self.method is not None and self.method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.method is not None:
+            object.__setattr__(self, "method", resolve(self.method, self.objective))
         if not isinstance(self.limits, Limits):
             raise ValueError(f"limits must be an inverse_design.Limits, got {self.limits!r}")
         if self.tolerances is not None and self.objective != "robust":
             raise ValueError(f"tolerances are what objective='robust' designs for; the objective is "
                              f"{self.objective!r}: give objective='robust', or analyse the design afterwards "
                              "with inverse_design.tolerance.tolerance_analysis")
-        if self.objective == "robust" and self.method not in (None, "auto", "gauss_newton"):
+        if self.objective == "robust" and self.method is not None and not self.method.robust:
             raise ValueError(f"objective='robust' is a sum of squares that method='gauss_newton' minimises "
-                             f"(its derivatives are the tolerance Jacobian's); got method={self.method!r}: "
+                             f"(its derivatives are the tolerance Jacobian's); got method={self.method.name!r}: "
                              "give method='auto' or 'gauss_newton'")
-
-    @property
-    def method_to_run(self) -> str:
-        """The method that runs: ``method``, with "auto" resolved (`AUTO`, `AUTO_FOR_WORST`)."""
-        if self.method != "auto":
-            return self.method
-        return AUTO_FOR_WORST if self.objective == "worst" else AUTO
-
-
-#: The old keyword arguments of `optimise_wing` and `optimise_pressure`, and the object that holds each now.
-MOVED_KEYWORDS = {
-    "constraints": "limits=Limits(tension=...)",
-    "rib_limits": "limits=Limits(ribs=...)",
-    "max_iterations": "solver=SolverSettings(max_iterations=...)",
-    "tolerance": "solver=SolverSettings(tolerance=...)",
-    "optimiser": "solver=SolverSettings(optimiser=...)",
-    "rtol": "solver=SolverSettings(rtol=...)",
-    "max_steps": "solver=SolverSettings(max_steps=...)",
-    "solver_options": "solver=SolverSettings(equilibrium_method=..., max_steps=...)",
-    "progress": "solver=SolverSettings(progress=...)",
-    "callback": "solver=SolverSettings(callback=...)",
-    "root_condition": "solver=SolverSettings(root_condition=...)",
-    "rib_shape": "layout=Layout(rib_shape=...)",
-    "cut_pattern": "layout=Layout(cut_pattern=...)",
-    "n_span": "layout=Layout(n_span=...)",
-    "n_contour": "layout=Layout(n_contour=...)",
-}
-
-
-def refuse_moved(function: str, keywords: Mapping) -> None:
-    """Raise a TypeError naming, for each old keyword given, the object that now holds it."""
-    if not keywords:
-        return
-    where = [f"{k} -> {MOVED_KEYWORDS[k]}" if k in MOVED_KEYWORDS else f"{k} (unknown)" for k in keywords]
-    raise TypeError(f"{function}() got keyword argument(s) it no longer takes: {'; '.join(where)}")
+        if not isinstance(self.solver, SolverSettings):
+            raise ValueError(f"solver must be an inverse_design.SolverSettings, got {self.solver!r}")
+        if not isinstance(self.layout, Layout):
+            raise ValueError(f"layout must be an inverse_design.Layout, got {self.layout!r}")

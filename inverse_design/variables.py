@@ -45,7 +45,7 @@ from forward_solver.model.parameters import bay_parameters
 
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START",
            "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables",
-           "concrete_rows"]
+           "concrete_rows", "key_of"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
@@ -67,9 +67,9 @@ DEFAULT_RIB_SHAPE_TERMS = 4
 #: B-spline terms per fibre direction of a cut pattern started from a zero field (12 coefficients in all).
 DEFAULT_CUT_PATTERN_TERMS = 6
 
-#: Start of every parameter that is neither optimised nor given in ``initial``
-#: (stiffnesses unset: the scene's fabric).
-DEFAULT_START = Parameters(pressure=1e4, prestrain_span=0.005, prestrain_chord=0.005)
+#: Start of every parameter that is neither optimised nor given in ``initial`` (stiffnesses unset: the
+#: scene's fabric): 1e4 Pa and 2% prestrain both ways, the ``optimise-pressure`` command's defaults.
+DEFAULT_START = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
 
 #: Bounds used when the caller gives none: pressure in Pa; prestrain from a
 #: fabric cut to its mounted size (0) to 5% short; rib scales within +-50%;
@@ -375,6 +375,12 @@ class DesignVariables:
     @property
     def upper(self) -> np.ndarray:
         return self.bound(1)
+
+
+def key_of(u) -> tuple:
+    """A hashable key of a scaled vector (its float values): the design problem's caches and the robust
+    terms' are keyed by it."""
+    return tuple(float(x) for x in np.asarray(u, dtype=np.float64).reshape(-1))
 
 
 def concrete_rows(rows) -> np.ndarray | None:

@@ -24,20 +24,21 @@ from forward_solver import ConvergenceError, Fabric, Parameters, Wing
 from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
 from forward_solver.solvers.bays import check_rib_gaps, default_strategy
 
+from .. import methods
 from ..aero import AeroUnavailable, aerodynamic_cost, alpha_range, require_neuralfoil
 from ..constraints import Constraints
 from ..memory import design_tangents
 from ..optimise import evaluate_design, optimise_wing, refine_design
 from ..plausibility import LIMITS, check_plausibility
 from ..rib_design import RibLimits
-from ..settings import Layout, Limits, SolverSettings
-from ..tolerance import SOURCE_UNITS, connect_scheduler, parse_tolerances, tolerance_analysis
+from ..settings import DesignRequest, Layout, Limits, SolverSettings
+from ..tolerance import SOURCE_UNITS, Sampling, connect_scheduler, parse_tolerances, tolerance_analysis
 from . import resources
 from .measures import mid_bay_targets
 from .options import PROG, InputError
 
 __all__ = ["aero_angles", "analyse_tolerances", "check_equilibrium_method", "check_flat_panels", "check_wing",
-           "compare_aero", "evaluate", "fabric", "layout", "limits", "optimise", "refine", "solver_settings", "start",
+           "compare_aero", "evaluate", "fabric", "layout", "limits", "method", "optimise", "refine", "solver_settings", "start",
            "tolerances", "warning_lines", "wing"]
 
 
@@ -89,11 +90,18 @@ def layout(case, n_span: int | None = None) -> Layout:
 
 
 def solver_settings(case, progress: bool = False, callback=None) -> SolverSettings:
-    """How the design's optimiser and forward solves run (``--max-iterations``, ``--tolerance``, ...)."""
+    """How the design's optimiser and forward solves run (``--max-iterations``, ``--equilibrium-method``,
+    ``--max-steps``)."""
     o = case.options
-    return SolverSettings(max_iterations=o.max_iterations, tolerance=o.tolerance,
-                          equilibrium_method=o.equilibrium_method, max_steps=o.max_steps,
-                          root_condition=o.root_condition, progress=progress, callback=callback)
+    return SolverSettings(max_iterations=o.max_iterations, equilibrium_method=o.equilibrium_method,
+                          max_steps=o.max_steps, progress=progress, callback=callback)
+
+
+def method(case):
+    """The design method (`inverse_design.methods.named`: ``--method`` with ``--tolerance`` and
+    ``--root-condition`` where it has them)."""
+    o = case.options
+    return methods.named(o.method, objective=o.objective, tolerance=o.tolerance, condition=o.root_condition)
 
 
 # ------------------------------------------------------------------ checks before the long work
@@ -227,20 +235,19 @@ def optimise(case, tolerances: dict | None = None, *, progress: bool = False, ca
     limits and layout (``tolerances``: those of ``--objective robust``; ``changes``: keyword arguments of
     `optimise_wing` in place of the case's)."""
     o = case.options
-    arguments = dict(initial=case.start, bounds=case.bounds, objective=o.objective, method=o.method,
-                     limits=case.limits, solver=solver_settings(case, progress, callback), layout=case.layout)
+    arguments = dict(variables=case.variables, initial=case.start, bounds=case.bounds, objective=o.objective,
+                     method=method(case), limits=case.limits, solver=solver_settings(case, progress, callback),
+                     layout=case.layout)
     if o.objective == "robust":  # (designed for the tolerances the analysis then reports)
         arguments["tolerances"] = tolerances
     arguments.update(changes)
-    return optimise_wing(case.wing, case.fabric, case.targets, case.variables, **arguments)
+    return optimise_wing(case.wing, case.fabric, case.targets, DesignRequest(**arguments))
 
 
-def refine(case, result, tolerances: dict | None = None, *, progress: bool = False, callback=None):
+def refine(case, result):
     """``result`` confirmed and polished on twice the span resolution (`inverse_design.refine_design` on
-    2 ``--n-span`` - 1 span nodes)."""
-    extra = {"tolerances": tolerances} if case.options.objective == "robust" else {}
-    return refine_design(result, layout=layout(case, 2 * case.options.n_span - 1), bounds=case.bounds,
-                         limits=case.limits, solver=solver_settings(case, progress, callback), **extra)
+    2 ``--n-span`` - 1 span nodes; what was asked is the result's request)."""
+    return refine_design(result, layout(case, 2 * case.options.n_span - 1))
 
 
 def evaluate(case):
@@ -283,8 +290,8 @@ def analyse_tolerances(case, result, parsed: dict, notes: list):
         stream["file"].flush()
 
     try:
-        analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, samples=o.samples, seed=o.seed,
-                                      on_sample=on_sample, scheduler=o.scheduler or None)
+        analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, sampling=Sampling(
+            samples=o.samples, seed=o.seed, on_sample=on_sample, scheduler=o.scheduler or None))
     except BaseException as exc:
         if stream["file"] is not None:
             stream["file"].close()

@@ -1,20 +1,18 @@
 """What the report measures of a design beyond the result's own numbers: the wing against its row targets.
 
 Every bay's rows are measured against their targets blended between the
-bay's two ribs at the local chord (`inverse_design.objectives.row_targets`,
-`local_chords`), as the design's objective measures them: the deviation of
+bay's two ribs at the local chord (`inverse_design.objectives.WingTargets`),
+as the design's objective measures them: the deviation of
 every node (`wing_deviation`, the one deviation of the report: ``wing.npz``,
 ``equilibrium.npz``, the deviation figures), the mid-bay sections' errors
-(`mid_bay_errors`) and their noses' recession (`le_recessions`). Measured in
-float64 whatever the caller's JAX configuration (a thread-local scope).
+(`mid_bay_errors`) and their noses' recession (`le_recessions`).
 """
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 
-from ..objectives import bay_distances, distance_errors, local_chords, row_targets, same_section
+from ..objectives import WingTargets, distance_errors
 
 __all__ = ["chords_and_stations", "le_recessions", "mid_bay_errors", "mid_bay_targets", "wing_deviation",
            "wing_nodes"]
@@ -26,36 +24,22 @@ def chords_and_stations(result) -> tuple:
 
 
 def mid_bay_targets(result) -> list:
-    """Each bay's target at mid-bay: its two ribs' targets blended at the local chord
-    (`objectives.row_targets`; the rib's own when both ribs have the same target)."""
-    out = []
-    for k, bay in enumerate(result.wing_solution.bays):
-        root, tip = result.per_bay.targets[k], result.per_bay.targets[k + 1]
-        out.append(root if same_section(root, tip) else
-                   row_targets(root, tip, bay.chord_root, bay.chord_tip, [0.5])[0])
-    return out
-
-
-def _bay_deviation(result, k: int, etas) -> np.ndarray:
-    """``(len(etas), n_contour)`` signed distances of bay ``k``'s rows at ``etas`` from their targets."""
-    sol, targets = result.wing_solution, result.per_bay.targets
-    bay = sol.bays[k]
-    with jax.enable_x64(True):
-        rows = row_targets(targets[k], targets[k + 1], bay.chord_root, bay.chord_tip, etas)
-        return np.asarray(bay_distances(np.asarray(sol.nodes[k]), rows, etas, local_chords(bay, etas)))
+    """Each bay's target at mid-bay (`inverse_design.objectives.WingTargets.mid_bay_targets`)."""
+    return WingTargets(result.wing_solution.bays, result.per_bay.targets, "mid_bay").mid_bay_targets()
 
 
 def wing_deviation(result) -> np.ndarray:
     """``(n_bays, n_span, n_contour)`` signed normal distance of every node from its row's target,
-    fractions of the local chord (positive outside; `objectives` module docstring)."""
-    return np.stack([_bay_deviation(result, k, np.linspace(0.0, 1.0, bay.n_span))
-                     for k, bay in enumerate(result.wing_solution.bays)])
+    fractions of the local chord (positive outside; `WingTargets.deviation` of every row)."""
+    sol = result.wing_solution
+    return np.stack(WingTargets(sol.bays, result.per_bay.targets, "average").deviation(sol.nodes))
 
 
 def mid_bay_errors(result) -> dict:
     """RMS (weighted by bay area) and largest distance of the bays' mid-bay sections from their targets."""
-    rms, largest = zip(*(distance_errors(_bay_deviation(result, k, np.array([0.5])), "mid_bay")
-                         for k in range(result.n_bays)))
+    sol = result.wing_solution
+    distances = WingTargets(sol.bays, result.per_bay.targets, "mid_bay").deviation(sol.nodes)
+    rms, largest = zip(*(distance_errors(d, "mid_bay") for d in distances))
     weights = np.asarray(result.per_bay.weights, np.float64)
     return {"rms": float(np.sqrt(np.sum(weights * np.square(rms)))), "max": float(np.max(largest))}
 

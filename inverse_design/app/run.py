@@ -100,7 +100,7 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
     else:
         result = design.optimise(case, tolerances, progress=progress, callback=safe_point)
         if o.refine:
-            result = design.refine(case, result, tolerances, progress=progress, callback=safe_point)
+            result = design.refine(case, result)
         timings["optimisation"] = time.perf_counter() - t
     aero = None
     if alphas is not None:

@@ -112,7 +112,7 @@ def test_a_design_that_does_not_solve_again_keeps_its_report_and_skips_the_analy
     where that solve fails (here: one Newton step allowed), the run still writes the design's report and
     says in a warning line, kept in the summary, that the analysis is skipped."""
     from forward_solver import solve_equilibrium
-    from inverse_design import tolerance as tolerance_module
+    from inverse_design.tolerance import model as tolerance_module
 
     monkeypatch.setattr(tolerance_module, "solve_equilibrium",
                         lambda *a, **k: solve_equilibrium(*a, **{**k, "max_steps": 1, "rtol": 1e-30}))

@@ -21,7 +21,7 @@ import pytest
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_bays, solve_equilibrium
 from forward_solver.model.cut_field import contour_parameter, field_values, spline_basis
 from forward_solver import Wing
-from inverse_design import optimise_pressure, optimise_wing
+from inverse_design import DesignRequest, optimise_pressure, optimise_wing
 from inverse_design.app.formats import write_cut_pattern
 from inverse_design.rib_design import cut_lengths
 from inverse_design.variables import DesignVariables
@@ -193,10 +193,11 @@ def test_a_per_bay_design_from_the_shared_field(scene):
     start = {"pressure": 1e4, "prestrain_span": 0.02, "prestrain_chord": 0.0, "cut_pattern": np.zeros(8)}
     bounds = {"pressure": (1e3, 1e5), "cut_pattern": (-0.02, 0.05)}
     options = dict(variables=("pressure", "cut_pattern"), bounds=bounds, solver=SolverSettings(max_iterations=20))
-    shared = optimise_wing(wing, Fabric(), initial=start, layout=Layout(n_span=5, n_contour=32), **options)
+    shared = optimise_wing(wing, Fabric(), request=DesignRequest(initial=start, layout=Layout(n_span=5, n_contour=32),
+                                                                 **options))
     best = {**start, "pressure": shared.parameters.pressure, "cut_pattern": shared.parameters.cut_pattern}
-    separate = optimise_wing(wing, Fabric(), initial=best, layout=Layout(cut_pattern="per_bay", n_span=5,
-                                                                         n_contour=32), **options)
+    separate = optimise_wing(wing, Fabric(), request=DesignRequest(
+        initial=best, layout=Layout(cut_pattern="per_bay", n_span=5, n_contour=32), **options))
     assert shared.success and separate.success, (shared.message, separate.message)
     assert shared.per_bay.cut_patterns is None and separate.per_bay.cut_patterns.shape == (2, 8)
     assert separate.rms_error <= shared.rms_error * (1 + 1e-9)

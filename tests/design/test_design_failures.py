@@ -5,7 +5,8 @@ import pytest
 
 from forward_solver import Bay, ConvergenceError, Fabric, Scene
 from inverse_design import optimise_pressure
-from inverse_design.settings import Limits, SolverSettings
+from inverse_design.methods import Root
+from inverse_design.settings import Limits
 from targets import naca
 
 START = {"pressure": 1e4, "prestrain_span": 0.005, "prestrain_chord": 0.005}
@@ -24,8 +25,8 @@ def test_a_failed_forward_solve_stops_the_design_and_says_so(soft_scene):
     # bracketing of method="root" doubles the pressure towards its 1e6 Pa bound and meets a
     # pressure the fabric cannot hold. The result is the best iterate that solved.
     res = optimise_pressure(soft_scene, naca("2412"), ("pressure",), initial=START,
-                            bounds={"pressure": (1e4, 1e6)}, method="root",
-                            solver=SolverSettings(root_condition="mean_offset"), limits=Limits(tension=None))
+                            bounds={"pressure": (1e4, 1e6)}, method=Root(condition="mean_offset"),
+                            limits=Limits(tension=None), objective="mid_bay")
     assert not res.success
     assert "forward solve at pressure" in res.message and "diverged" in res.message
     assert res.solution.converged and np.isfinite(res.solution.nodes).all()
@@ -38,4 +39,5 @@ def test_a_failed_start_raises(soft_scene):
     # Nothing to return when the starting point itself has no equilibrium.
     with pytest.raises(ConvergenceError, match="diverged"):
         optimise_pressure(soft_scene, naca("2412"), ("pressure",), initial={**START, "pressure": 5e5},
-                          bounds={"pressure": (1e4, 1e6)}, method="least_squares", limits=Limits(tension=None))
+                          bounds={"pressure": (1e4, 1e6)}, method="least_squares", limits=Limits(tension=None),
+                          objective="mid_bay")

@@ -33,7 +33,7 @@ import pytest
 from inverse_design import Constraints
 from inverse_design.app import design
 from inverse_design.app.case import Case
-from inverse_design.optimise import AUTO, AUTO_FOR_WORST
+from inverse_design.methods import AUTO, AUTO_FOR_WORST
 from inverse_design.settings import Limits, SolverSettings
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -85,9 +85,9 @@ def test_the_default_method_converges(case, variables):
     res, command_case = command_design([*CASES[case], *VARIABLE_SETS[variables], *GRIDS.get((case, variables), GRID)])
     assert command_case.options.method == "auto" and res.method == AUTO
     assert res.success, res.message
-    assert not res.violated_constraints
+    assert not res.limits.violated
     assert np.isfinite([res.rms_error, res.max_error]).all()
-    if not res.violated_at_start:  # a start that met every limit is an iterate: never worse
+    if not res.limits.violated_at_start:  # a start that met every limit is an iterate: never worse
         assert res.rms_error <= res.initial_rms_error * (1 + 1e-9)
     for name in set(res.variables) - {"rib_shape", "cut_pattern"}:  # (a shape's and a field's are not per value)
         lower, upper = command_case.bounds[name]
@@ -113,9 +113,9 @@ def test_an_infeasible_ceiling_fails_and_names_the_limit(method):
     limits = Limits(tension=Constraints(min_tension=None, max_tension=INFEASIBLE_CEILING))
     res, command_case = command_design(["--variables", "pressure", "--method", method, *GRID], limits=limits)
     assert not res.success
-    assert set(res.violated_constraints) == {"max_tension"}
-    excess = res.constraint_values["max_tension"] - INFEASIBLE_CEILING
-    assert res.violated_constraints["max_tension"] == pytest.approx(excess, rel=1e-12)
+    assert set(res.limits.violated) == {"max_tension"}
+    excess = res.limits.values["max_tension"] - INFEASIBLE_CEILING
+    assert res.limits.violated["max_tension"] == pytest.approx(excess, rel=1e-12)
     assert excess > 1000.0  # N/m: far beyond the ceiling, not a tolerance effect
     assert "max_tension violated" in res.message and f"{INFEASIBLE_CEILING:.4g} N/m" in res.message
     assert np.isfinite([res.pressure, res.rms_error, res.max_error]).all() and math.isfinite(excess)

@@ -76,7 +76,7 @@ def test_the_issue_inputs_warn_and_warn_false_only_returns_the_lines():
     (dict(seam_allowance_mm=60.0), "seam allowance 60 mm is more than 50 mm: the value is in millimetres"),
     (dict(grid=(17, 32), terms={"cut_pattern": 9}),
      "cut pattern of 9 terms on 32 contour nodes: more than a quarter of the nodes (8)"),
-    (dict(grid=(17, 64), terms={"rib_shape": 17}), "give --rib-shape-terms 16 or fewer, or more --n-contour"),
+    (dict(grid=(17, 64), terms={"rib_shape": 17}), "give rib_shape terms 16 or fewer, or more contour nodes (n_contour)"),
     (dict(reynolds=1e9), "Reynolds number 1e+09 lies outside NeuralFoil's training data (3e+02 to 3e+08)"),
     (dict(reynolds=100.0), "Reynolds number 100 lies outside NeuralFoil's training data"),
 ], ids=["coarse grid", "seam allowance", "cut pattern terms", "rib shape terms", "reynolds high", "reynolds low"])

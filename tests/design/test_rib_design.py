@@ -105,11 +105,11 @@ def test_the_shaped_rib_beats_pressure_and_thickness_scale(scene, shaped_design)
     # The rib shape spans the thickness scale's offset nearly (K = 2 cannot copy it exactly), so
     # the design must do at least as well; on this case it does 10% better or more.
     assert shaped_design.rms_error < 0.9 * scaled.rms_error
-    values = shaped_design.constraint_values
+    values = shaped_design.limits.values
     assert values["rib_min_thickness"] >= 0.8 * (1 - 1e-3)
     assert values["rib_min_radius"] >= values["rib_min_radius_limit"] * (1 - 1e-3)
     assert values["min_tension"] >= -1e-3 * 1e3  # wrinkle-free within the tolerance
-    assert not shaped_design.violated_constraints
+    assert not shaped_design.limits.violated
     assert len(shaped_design.history[0]["values"]["rib_shape"]) == 4
 
 
@@ -122,7 +122,7 @@ def test_an_unreachable_rib_limit_is_a_failure_with_its_amount(scene):
                             limits=Limits(ribs=RibLimits(min_radius=0.03)))
     assert not res.success
     assert "rib_min_radius violated" in res.message
-    assert res.violated_constraints["rib_min_radius"] == pytest.approx(0.03 - 0.0158, abs=1e-3)
+    assert res.limits.violated["rib_min_radius"] == pytest.approx(0.03 - 0.0158, abs=1e-3)
 
 
 def test_rib_limits_need_slsqp(scene):

@@ -1,4 +1,4 @@
-"""The robust design (`inverse_design.robust`, docs/tolerances.md): the gradient of its objective and the
+"""The robust design (`inverse_design.tolerance.robust`, docs/tolerances.md): the gradient of its objective and the
 Jacobian of its percentile tension rows against central differences in float64, on one bay and on a
 2-bay wing (per-bay and per-rib tolerance columns), 5x32; a robust design of the wing; bad input."""
 
@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from forward_solver import Fabric, Wing
-from inverse_design import Constraints, optimise_wing
+from inverse_design import Constraints, Layout, optimise_wing
+from inverse_design.objectives import WingTargets
 from inverse_design.problem import DesignProblem
-from inverse_design.robust import QUANTILE_Z, check_robust_tolerances
 from inverse_design.settings import DesignRequest
+from inverse_design.tolerance.robust import QUANTILE_Z, check_robust_tolerances
 from inverse_design.variables import DesignVariables
 from targets import naca
 
@@ -28,8 +29,9 @@ def _problem(n_bays, variables):
     wing = _wing(n_bays)
     design = DesignVariables.build(variables, START, None, n_ribs=n_bays + 1, rib_shape="per_rib",
                                    cut_pattern="shared")
-    return DesignProblem(wing.scenes(Fabric(), 5, 32), [naca("2412")] * (n_bays + 1), design, "robust",
-                         Constraints())
+    scenes = wing.scenes(Fabric(), 5, 32)
+    return DesignProblem(scenes, WingTargets([s.bay for s in scenes], [naca("2412")] * (n_bays + 1), "robust"),
+                         design, tension=Constraints())
 
 
 def _check_against_central_differences(problem, u, step):
@@ -79,18 +81,12 @@ def test_the_robust_gradient_agrees_with_central_differences_on_a_wing_and_its_d
         _check_against_central_differences(problem, problem.variables.start_vector(), 1e-3)
         assert problem.robust.size == 15
     wing = _wing(2)
-    result = optimise_wing(wing, Fabric(), None, ("pressure",), initial=START, objective="robust",
-                           layout=_layout())
+    result = optimise_wing(wing, Fabric(), None, DesignRequest(("pressure",), START, objective="robust",
+                                                               layout=Layout(n_span=5, n_contour=32)))
     assert result.success, result.message
-    assert result.constraint_values["min_tension_p5"] >= 0.0  # (a wrinkle-free floor: no negative tension)
+    assert result.limits.values["min_tension_p5"] >= 0.0  # (a wrinkle-free floor: no negative tension)
     assert all(math.isfinite(h["robust_p95"]) and h["robust_p95"] > 0 for h in result.history)
     assert result.request.tolerances is None  # the defaults, as asked
-
-
-def _layout():
-    from inverse_design import Layout
-
-    return Layout(n_span=5, n_contour=32)
 
 
 def test_bad_robust_requests_are_refused():

@@ -10,8 +10,9 @@ import pytest
 
 from forward_solver import Fabric, Wing
 from inverse_design import SolverSettings, evaluate_design
-from inverse_design.tolerance import (DEFAULT_TOLERANCES, SOURCES, parse_tolerance, parse_tolerances, solve_sample,
-                                      tolerance_analysis, wing_outputs)
+from inverse_design.tolerance import (DEFAULT_TOLERANCES, SOURCES, Sampling, parse_tolerance, parse_tolerances,
+                                      tolerance_analysis)
+from support.design import solve_sample, wing_outputs
 from targets import naca
 
 START = {"pressure": 5e3, "prestrain_span": 0.02, "prestrain_chord": 0.02}
@@ -81,7 +82,7 @@ def test_linear_spread_agrees_with_monte_carlo_at_a_tenth_of_the_defaults(one_ba
     linear model's own 4000 draws against 64 solves: sampling noise of about 9%, so 25%)."""
     tolerances = _tenth_of_defaults()
     rows = []
-    analysis = tolerance_analysis(one_bay, tolerances, samples=64, seed=0, on_sample=rows.append)
+    analysis = tolerance_analysis(one_bay, tolerances, sampling=Sampling(samples=64, seed=0, on_sample=rows.append))
     assert analysis.sampled["count"] == 64 and analysis.sampled["failed"] == 0 and len(rows) == 64
     assert all(row["converged"] for row in rows)
     e = np.array([[row[c] - v for c, v in zip(analysis.columns, analysis.nominal)] for row in rows])
@@ -105,7 +106,7 @@ def test_a_sample_resolved_alone_reproduces_its_row(two_bays):
     tolerances = {"pressure": "2%", "stiffness_span": "10%", "cut_chord": "uniform:1", "rib_station": 1.0,
                   "rib_profile": 0.5}
     rows = []
-    tolerance_analysis(two_bays, tolerances, samples=2, seed=7, sample_rtol=1e-11, on_sample=rows.append)
+    tolerance_analysis(two_bays, tolerances, sampling=Sampling(samples=2, seed=7, rtol=1e-11, on_sample=rows.append))
     row = rows[1]
     assert set(row) >= {"sample", "pressure", "stiffness_span_bay_1", "cut_chord_bay_0", "rib_station_rib_2",
                         "rib_profile_rib_1", "rms", "max", "min_tension", "converged"}
@@ -149,7 +150,7 @@ def test_bad_tolerances_are_refused(name, value, message):
 
 def test_bad_samples_and_spec_are_refused(one_bay):
     with pytest.raises(ValueError, match="0 or more"):
-        tolerance_analysis(one_bay, {"pressure": "2%"}, samples=-1)
+        tolerance_analysis(one_bay, {"pressure": "2%"}, sampling=Sampling(samples=-1))
     with pytest.raises(ValueError, match="must be positive"):
         tolerance_analysis(one_bay, {"pressure": "2%"}, spec=0.0)
 
@@ -166,7 +167,8 @@ def test_a_failed_sample_is_counted_named_and_kept(one_bay):
     """A pressure scatter of uniform:150% draws negative pressures (a third of the wings): their solves
     are refused, and each such sample is counted, named with its bay and why, and kept as a row."""
     rows = []
-    analysis = tolerance_analysis(one_bay, {"pressure": "uniform:150%"}, samples=6, seed=0, on_sample=rows.append)
+    analysis = tolerance_analysis(one_bay, {"pressure": "uniform:150%"},
+                                  sampling=Sampling(samples=6, seed=0, on_sample=rows.append))
     failed = [row for row in rows if not row["converged"]]
     assert len(rows) == 6 and failed and analysis.sampled["failed"] == len(failed)
     assert all(row["pressure"] <= 0 and math.isnan(row["rms"]) for row in failed)

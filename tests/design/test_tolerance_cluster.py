@@ -7,8 +7,8 @@ import pytest
 
 from forward_solver import Fabric, Wing
 from inverse_design import SolverSettings, evaluate_design
-from inverse_design import tolerance as tolerance_module
-from inverse_design.tolerance import connect_scheduler, tolerance_analysis
+from inverse_design.tolerance import Sampling, connect_scheduler, tolerance_analysis
+from inverse_design.tolerance import monte_carlo as tolerance_module
 from targets import naca
 
 distributed = pytest.importorskip("distributed")
@@ -20,11 +20,12 @@ def test_the_same_seed_gives_the_same_samples_on_a_cluster():
     design = evaluate_design(wing.scenes(Fabric(), 5, 32), [af, af], {"pressure": 5e3, "prestrain_span": 0.02,
                              "prestrain_chord": 0.02}, objective="average", wing=wing, solver=SolverSettings(rtol=1e-11))
     tolerances = {"pressure": "2%", "stiffness_span": "10%", "cut_chord": 0.5, "rib_profile": 0.5}
-    here = tolerance_analysis(design, tolerances, samples=6, seed=3)
+    here = tolerance_analysis(design, tolerances, sampling=Sampling(samples=6, seed=3))
     streamed = []
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
-        there = tolerance_analysis(design, tolerances, samples=6, seed=3, scheduler=client, on_sample=streamed.append)
+        there = tolerance_analysis(design, tolerances, sampling=Sampling(samples=6, seed=3, scheduler=client,
+                                                                          on_sample=streamed.append))
         assert len(client.nthreads()) == 2
     assert [row["sample"] for row in streamed] == list(range(6))  # streamed in sample order
     assert there.sampled["count"] == 6 and there.sampled["failed"] == 0

@@ -68,7 +68,7 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
         pass
 
     def fake(*args, **kwargs):
-        seen["solver_options"] = kwargs["solver"].solver_options
+        seen["solver_options"] = {"method": kwargs["solver"].equilibrium_method, "max_steps": kwargs["solver"].max_steps}
         raise Stop
 
     monkeypatch.setattr(design, "optimise_wing", fake)

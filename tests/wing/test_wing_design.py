@@ -13,9 +13,9 @@ import pytest
 
 from forward_solver import Bay, Fabric, Scene
 from forward_solver import Wing
-from inverse_design import Constraints, optimise_pressure, optimise_wing
+from inverse_design import Constraints, DesignRequest, optimise_pressure, optimise_wing
 from inverse_design.constraints import VIOLATION_TOLERANCE
-from inverse_design.objectives import bay_distances, bay_weights, row_targets
+from inverse_design.objectives import WingTargets, bay_distances, bay_weights, row_targets
 from inverse_design.problem import DesignProblem
 from forward_solver.solution import BaysConvergenceError
 from inverse_design.rib_design import RibGeometry, RibLimits
@@ -37,8 +37,16 @@ def wing():
 
 @pytest.fixture(scope="module")
 def design(wing):
-    return optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=30),
-                         layout=LAYOUT)
+    return optimise_wing(wing, Fabric(), request=DesignRequest(initial=START, bounds=BOUNDS, layout=LAYOUT,
+                                                               solver=SolverSettings(max_iterations=30)))
+
+
+def _problem(wing, variables, rtol, **options):
+    """The design problem of ``wing`` on the test grid, objective "average", tension limits the defaults."""
+    scenes = wing.scenes(Fabric(), **GRID)
+    return DesignProblem(scenes, WingTargets([s.bay for s in scenes], wing.airfoils, "average"), variables,
+                         tension=Constraints(), solver=SolverSettings(rtol=rtol, **options.pop("solver", {})),
+                         **options)
 
 
 def test_objective_and_constraint_gradients_match_central_differences(wing):
@@ -46,8 +54,7 @@ def test_objective_and_constraint_gradients_match_central_differences(wing):
     # difference quotient's truncation (~1e-8 relative) and round-off stay far below 1e-5.
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
-        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-12)
+        problem = _problem(wing, variables, 1e-12)
         u = np.array([1.0])
         f, grad, g, dg, _ = problem.evaluate(u)
         h = 1e-4
@@ -66,8 +73,7 @@ def test_measure_reads_what_the_evaluation_computed(wing):
 
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
-        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-12)
+        problem = _problem(wing, variables, 1e-12)
         u = np.array([1.0])
         sol = problem.evaluate(u)[-1]
         calls = []
@@ -95,13 +101,12 @@ def test_per_rib_shape_gradients_match_central_differences(wing):
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure", "rib_shape"), {**START, "rib_shape": shapes}, BOUNDS,
                                           n_ribs=4, rib_shape="per_rib")
-        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-13, solver_options={"max_steps": 400_000},
-                                rib_geometries=[RibGeometry(af, RibLimits()) for af in wing.airfoils])
+        problem = _problem(wing, variables, 1e-13, solver={"max_steps": 400_000},
+                           ribs=[(k, RibGeometry(af, RibLimits())) for k, af in enumerate(wing.airfoils)])
         u = variables.start_vector()
         assert u.size == 1 + 16
         f, grad, g, dg, _ = problem.evaluate(u)
-        assert g.size == 1 + 4 * problem.rib_geometries[0].functions(
+        assert g.size == 1 + 4 * problem.ribs[0][1].functions(
             variables.bay_parameters(u, 0)).size  # wrinkle row, then every rib's limit rows
         h = 2e-4
         for index in (0, 1 + 4 + 1):  # the pressure; rib 1's coefficient 1
@@ -154,8 +159,8 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
     assert design.bay_results == ("converged",) * 3
     scale = 0.5 * START["pressure"] * 0.9  # the tension scale: p_start times the widest bay's chord / 2
     assert np.all(design.per_bay.min_tension >= -VIOLATION_TOLERANCE * scale)
-    assert "min_tension" in design.active_constraints and not design.violated_constraints
-    assert design.violated_at_start == {}  # 30 kPa: a taut skin everywhere
+    assert "min_tension" in design.limits.active and not design.limits.violated
+    assert design.limits.violated_at_start == {}  # 30 kPa: a taut skin everywhere
     assert design.solves == len(design.history) and design.solves < 20
     assert design.per_bay.rms_error.shape == (3,) and np.all(design.per_bay.rms_error > 0)
     w = design.per_bay.weights
@@ -164,25 +169,26 @@ def test_the_tapered_wing_optimum_is_no_worse_than_its_start_and_feasible(design
 
 def test_unmeetable_limits_are_named_with_their_bay(wing):
     # A ceiling of 50 N/m: at the lowest pressure, 1 kPa, the hoop tension is ~400 N/m.
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=3),
-                        limits=Limits(tension=Constraints(min_tension=None, max_tension=50.0)), layout=LAYOUT)
+    res = optimise_wing(wing, Fabric(), request=DesignRequest(
+        initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=3), layout=LAYOUT,
+        limits=Limits(tension=Constraints(min_tension=None, max_tension=50.0))))
     assert not res.success
-    assert set(res.violated_constraints) == {"max_tension"}
-    assert set(res.violated_where["max_tension"]) == {0, 1, 2}
-    assert res.violated_constraints["max_tension"] == max(res.violated_where["max_tension"].values())
+    assert set(res.limits.violated) == {"max_tension"}
+    assert set(res.limits.violated_where["max_tension"]) == {0, 1, 2}
+    assert res.limits.violated["max_tension"] == max(res.limits.violated_where["max_tension"].values())
     assert "max_tension violated in bay 0" in res.message and "above the ceiling 50 N/m" in res.message
     # The start (30 kPa) breaks the ceiling in every bay too, by more than the design does.
-    assert set(res.violated_at_start) == {"max_tension"}
-    start = res.violated_at_start_where["max_tension"]
+    assert set(res.limits.violated_at_start) == {"max_tension"}
+    start = res.limits.violated_at_start_where["max_tension"]
     assert set(start) == {0, 1, 2}
-    assert all(start[k] > res.violated_where["max_tension"][k] > 0 for k in start)
+    assert all(start[k] > res.limits.violated_where["max_tension"][k] > 0 for k in start)
 
 
 def test_a_one_bay_wing_agrees_with_optimise_pressure():
     af = naca("2412")
     wing = Wing(airfoils=(af, af), chords=(1.0, 1.0), stations=(0.0, 0.25))
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, solver=SolverSettings(max_iterations=30),
-                        layout=LAYOUT)
+    res = optimise_wing(wing, Fabric(), request=DesignRequest(initial=START, bounds=BOUNDS, layout=LAYOUT,
+                                                              solver=SolverSettings(max_iterations=30)))
     scene = Scene(Bay.from_airfoil(af, chord=1.0, rib_spacing=0.25, **GRID))
     single = optimise_pressure(scene, af, ("pressure",), initial=START, bounds=BOUNDS, objective="average",
                                solver=SolverSettings(max_iterations=30))
@@ -199,9 +205,7 @@ def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
     # path of every final solve, so the test compiles only the forward loop at its new step cap.
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure",), START, BOUNDS, n_ribs=4, rib_shape="per_rib")
-        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-11,
-                                solver_options={"method": "relax", "max_steps": 100})
+        problem = _problem(wing, variables, 1e-11, solver={"equilibrium_method": "relax", "max_steps": 100})
         with pytest.raises(BaysConvergenceError, match=r"bay 0 \(ribs 0 and 1.*max_steps_reached") as failure:
             problem.solve(np.array([1.0]))
     assert failure.value.bay == 0 and failure.value.failed == [0, 1, 2]
@@ -211,28 +215,33 @@ def test_a_failed_bay_is_reported_not_returned_as_nan(wing):
 def test_bad_wing_designs_are_refused(wing):
     with pytest.raises(ValueError, match=r"rib_shape start must be one row of 2K coefficients for every rib "
                                          r"or an \(4, 2K\) array"):
-        optimise_wing(wing, Fabric(), variables=("pressure", "rib_shape"),
-                      initial={**START, "rib_shape": np.zeros((3, 8))}, layout=LAYOUT)
+        optimise_wing(wing, Fabric(), request=DesignRequest(("pressure", "rib_shape"), layout=LAYOUT,
+                                                            initial={**START, "rib_shape": np.zeros((3, 8))}))
     with pytest.raises(ValueError, match="one target section per rib: the wing has 4 ribs, got 2"):
-        optimise_wing(wing, Fabric(), targets=[naca("2412")] * 2, layout=LAYOUT)
+        optimise_wing(wing, Fabric(), targets=[naca("2412")] * 2, request=DesignRequest(layout=LAYOUT))
     with pytest.raises(ValueError, match="objective must be one of"):
-        optimise_wing(wing, Fabric(), objective="tip", layout=LAYOUT)
+        optimise_wing(wing, Fabric(), request=DesignRequest(objective="tip", layout=LAYOUT))
     with pytest.raises(ValueError, match="unknown design variable"):
-        optimise_wing(wing, Fabric(), variables=("stiffness_span",), layout=LAYOUT)
+        optimise_wing(wing, Fabric(), request=DesignRequest(("stiffness_span",), layout=LAYOUT))
+    with pytest.raises(TypeError, match=r"layout -> request=DesignRequest\(layout=\.\.\.\)"):
+        optimise_wing(wing, Fabric(), layout=LAYOUT)
 
 
 def test_every_method_designs_a_wing_or_says_why_not(wing):
     # least_squares and optax run on the wing as on a bay (the bays' residuals weighted by the square
     # root of their area); brentq's mid-bay condition has no meaning over several bays: refused.
-    res = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="least_squares",
-                        solver=SolverSettings(max_iterations=4), limits=Limits(tension=None), layout=LAYOUT)
+    res = optimise_wing(wing, Fabric(), request=DesignRequest(
+        initial=START, bounds=BOUNDS, method="least_squares", solver=SolverSettings(max_iterations=4),
+        limits=Limits(tension=None), layout=LAYOUT))
     assert res.rms_error < res.initial_rms_error and res.per_bay.rms_error.shape == (3,)
     assert res.pressure < START["pressure"] and res.solves == len(res.history)
-    steps = optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="optax",
-                          solver=SolverSettings(max_iterations=2), limits=Limits(tension=None), layout=LAYOUT)
+    steps = optimise_wing(wing, Fabric(), request=DesignRequest(
+        initial=START, bounds=BOUNDS, method="optax", solver=SolverSettings(max_iterations=2),
+        limits=Limits(tension=None), layout=LAYOUT))
     assert len(steps.history) == 2 and steps.pressure != START["pressure"]
     with pytest.raises(ValueError, match="method='root' solves one scalar condition at one bay's mid-bay"):
-        optimise_wing(wing, Fabric(), initial=START, bounds=BOUNDS, method="root", layout=LAYOUT)
+        optimise_wing(wing, Fabric(), request=DesignRequest(initial=START, bounds=BOUNDS, method="root",
+                                                            layout=LAYOUT))
 
 
 def test_a_one_bay_result_keeps_the_single_bay_attributes_and_a_wing_its_bays(design):
@@ -250,8 +259,7 @@ def test_refine_design_confirms_a_wing_on_a_finer_grid(design):
     # fine design is itself a success.
     from inverse_design import refine_design
 
-    fine = refine_design(design, bounds=BOUNDS, layout=Layout(n_span=17, n_contour=32),
-                         solver=SolverSettings(max_iterations=30))
+    fine = refine_design(design, Layout(n_span=17, n_contour=32))  # (the design's bounds, limits and settings)
     change = fine.grid_change
     assert change["grids"] == [[9, 32], [17, 32]]
     assert change["values"]["pressure"][0] == pytest.approx(design.pressure, rel=1e-12)

@@ -1,6 +1,6 @@
 """The Gauss-Newton step's convex QP, sparse, by Clarabel's interior-point method.
 
-`methods.gauss_newton` steps by the QP (the linearised fit, the box, the
+`gauss_newton.GaussNewton` steps by the QP (the linearised fit, the box, the
 linearised limits with one slack for the largest violation)::
 
     minimise    0.5 |r + J d|^2 + 0.5 damping |d|^2 + 0.5 qp_penalty s
@@ -46,10 +46,10 @@ __all__ = ["reachable_rows", "solve_step_qp", "solve_working_set", "QP_TOLERANCE
            "WORKING_SET_ROUNDS"]
 
 #: Clarabel's relative gap and feasibility tolerances: far below the model falls that
-#: `methods.gauss_newton` compares (1e-3 of the merit at least for a step to count).
+#: `gauss_newton.GaussNewton` compares (1e-3 of the merit at least for a step to count).
 QP_TOLERANCE = 1e-10
 #: A row outside the working set that the step breaks by more than this (the rows' own unit, a
-#: fraction of the tension scale; far below `methods.GN_SLACK`) joins the set.
+#: fraction of the tension scale; far below `gauss_newton.GN_SLACK`) joins the set.
 WORKING_SET_TOLERANCE = 1e-9
 #: Rounds of the working set before every reachable row is taken at once.
 WORKING_SET_ROUNDS = 20

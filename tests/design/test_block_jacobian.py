@@ -1,25 +1,32 @@
-"""The design Jacobian bay by bay (`inverse_design.blocks`) and the sparse step QP (`inverse_design.step_qp`).
+"""The design Jacobian bay by bay (`inverse_design.methods.blocks`) and the sparse step QP
+(`inverse_design.methods.step_qp`) of the Gauss-Newton method.
 
 A 3-bay tapered NACA 2412 wing on 5x32 grids, designed with a cut field per
 bay and a shape per rib: the compressed forward pass against one tangent per
-variable through the whole wing; one bay's block alone against the same
-columns; the step QP by Clarabel against SLSQP on the dense QP. Then a wing
-whose three bays are equal: a field per bay ends where one shared field does.
+variable through the whole wing (`support.design.dense_linearised`); one
+bay's block alone, by the implicit derivative of its own solve
+(`forward_solver.solve_equilibrium` warm from the wing's, pushed along its
+columns by `forward_solver.derivatives.forward.value_and_jacobian`), against
+the same columns; the step QP by Clarabel against SLSQP on the dense QP
+(`support.design.dense_step`). Then a wing whose three bays are equal: a
+field per bay ends where one shared field does.
 """
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from forward_solver import Fabric
-from forward_solver import Wing
-from inverse_design import Constraints, Layout, SolverSettings, optimise_wing
-from inverse_design.blocks import bay_columns, bay_jacobian, compressed_seeds, implicit_equilibrium
+from forward_solver import Fabric, Wing, solve_equilibrium
+from forward_solver.derivatives.forward import value_and_jacobian
+from inverse_design import Constraints, DesignRequest, Layout, SolverSettings, optimise_wing
 from inverse_design.constraints import cell_tensions
-from inverse_design.methods import GN_PENALTY, GN_QP_PENALTY, _dense_step, _step
-from inverse_design.objectives import bay_distances, distance_residuals
+from inverse_design.methods.blocks import compressed_seeds
+from inverse_design.methods.gauss_newton import GN_PENALTY, GN_QP_PENALTY, trust_region_step
+from inverse_design.objectives import WingTargets, distance_residuals
 from inverse_design.problem import DesignProblem
 from inverse_design.variables import DesignVariables
+from support.design import bay_columns, dense_linearised, dense_step
 from targets import naca
 
 GRID = dict(n_span=5, n_contour=32)
@@ -34,28 +41,31 @@ def linearised():
     with jax.enable_x64(True):
         variables = DesignVariables.build(("pressure", "rib_thickness_scale", "cut_pattern", "rib_shape"), START,
                                           None, n_ribs=4, rib_shape="per_rib", cut_pattern="per_bay")
-        problem = DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average",
-                                Constraints(), rtol=1e-12)
+        scenes = wing.scenes(Fabric(), **GRID)
+        problem = DesignProblem(scenes, WingTargets([s.bay for s in scenes], wing.airfoils, "average"), variables,
+                                tension=Constraints(), solver=SolverSettings(rtol=1e-12))
         u = variables.start_vector() + 0.01 * np.sin(np.arange(variables.size))
         sparse = problem.linearised(u)
         block = _bay_block(problem, u, sparse[-1], 1)  # (with the solve's factors, before another solve)
-        dense = problem.dense_linearised(u)
+        dense = dense_linearised(problem, u)
     return problem, u, sparse, dense, block
 
 
 def _bay_block(problem, u, sol, k):
-    """Bay ``k``'s shape rows in its own columns, by `blocks.bay_jacobian` alone."""
-    scene = problem.scenes[k]
-    nodes_of = implicit_equilibrium(scene, sol.solutions[k])
+    """Bay ``k``'s shape rows in its own columns, by the implicit derivative of the bay alone: its solve
+    warm from the wing's (with that solve's factor), pushed along its own columns."""
+    scene, targets = problem.scenes[k], problem.targets
+    base = jnp.asarray(u, jnp.float64)
+    columns = bay_columns(problem.variables, len(problem.scenes))[k]
 
-    def outputs(v):
-        parameters = problem.variables.bay_parameters(v, k)
-        nodes = nodes_of(parameters.resolved(problem.fabric))
-        d = bay_distances(nodes, problem.rows[k], problem.etas, problem.chords[k])
-        return np.sqrt(problem.weights[k]) * distance_residuals(d, problem.objective), cell_tensions(scene, nodes,
+    def outputs(w):
+        parameters = problem.variables.bay_parameters(base.at[columns].set(w), k)
+        nodes = solve_equilibrium(scene, parameters, rtol=1e-12, method="newton", initial=sol.solutions[k]).nodes
+        d = targets.distances(k, nodes)
+        return np.sqrt(targets.weights[k]) * distance_residuals(d, targets.objective), cell_tensions(scene, nodes,
                                                                                                      parameters)
 
-    return bay_jacobian(outputs, u, bay_columns(problem.variables, len(problem.bays))[k])[1]
+    return value_and_jacobian(outputs, base[columns])[1]
 
 
 def test_compressed_seeds_move_each_bay_by_one_variable_each(linearised):
@@ -82,7 +92,7 @@ def test_one_bays_block_alone_equals_its_rows_of_the_wing_jacobian(linearised):
     problem, u, (_, jr, _, _, _), (_, jr_dense, _, _), block = linearised
     k = 1
     own = bay_columns(problem.variables, 3)[k]
-    n = problem.shape_size // 3
+    n = problem.targets.residual_size // 3
     rows = jr[k * n:(k + 1) * n].toarray()  # the same solve's (the dense one is at a second solve of u)
     np.testing.assert_allclose(block, rows[:, own], rtol=0, atol=1e-10 * np.max(np.abs(rows)))
     rows = jr_dense[k * n:(k + 1) * n]
@@ -97,8 +107,8 @@ def test_sparse_qp_step_equals_the_dense_qp_step(linearised):
     lo = np.maximum(problem.variables.lower - u, -1.0)
     hi = np.minimum(problem.variables.upper - u, 1.0)
     scale = 1.0 / np.sqrt(r @ r)
-    sparse = _step(r * scale, jr * scale, g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
-    dense = _dense_step(r * scale, jr.toarray() * scale, g, jg.toarray(), lo, hi, GN_PENALTY, GN_QP_PENALTY)
+    sparse = trust_region_step(r * scale, jr * scale, g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
+    dense = dense_step(r * scale, jr.toarray() * scale, g, jg.toarray(), lo, hi, GN_PENALTY, GN_QP_PENALTY)
     assert sparse[2] == dense[2] > 0  # the same rows kept
     assert sparse[1] == pytest.approx(dense[1], rel=1e-6)  # the model's predicted fall
     np.testing.assert_allclose(sparse[0], dense[0], rtol=0, atol=1e-4 * np.max(np.abs(dense[0])))
@@ -110,7 +120,8 @@ def equal_bays():
     wing = Wing(airfoils=(af,) * 4, chords=(0.8,) * 4, stations=(0.0, 0.25, 0.5, 0.75))
     options = dict(variables=("pressure", "cut_pattern"), initial=START, method="gauss_newton",
                    solver=SolverSettings(max_iterations=30))
-    return {layout: optimise_wing(wing, Fabric(), layout=Layout(cut_pattern=layout, **GRID), **options)
+    return {layout: optimise_wing(wing, Fabric(), request=DesignRequest(layout=Layout(cut_pattern=layout, **GRID),
+                                                                        **options))
             for layout in ("shared", "per_bay")}
 
 
@@ -140,8 +151,9 @@ def test_more_field_terms_than_contour_nodes_is_refused_before_a_solve():
     af = naca("2412")
     wing = Wing(airfoils=(af, af), chords=(1.0, 1.0), stations=(0.0, 0.25))
     variables = DesignVariables.build(("pressure", "cut_pattern"), {**START, "cut_pattern": np.zeros(2 * 33)}, None)
+    scenes = wing.scenes(Fabric(), **GRID)
     with pytest.raises(ValueError, match="33 terms per fibre direction on 32 contour nodes"):
-        DesignProblem(wing.scenes(Fabric(), **GRID), list(wing.airfoils), variables, "average", Constraints())
+        DesignProblem(scenes, WingTargets([s.bay for s in scenes], wing.airfoils), variables)
 
 
 def test_memory_estimate_counts_the_seeds_and_refuses_beyond_half_the_memory():

@@ -43,7 +43,7 @@ Derivatives in the design variables: ``r`` and ``t`` by forward mode through
 the implicit equilibrium (`problem.DesignProblem.linearised`); ``A`` and
 ``J_t S^1/2`` are themselves first derivatives, so theirs are second ones.
 They come from central differences of the analytical tolerance Jacobian
-(forward-mode tangents of the equilibrium, `tolerance._bay_jacobian`) at ``u
+(forward-mode tangents of the equilibrium, `model.ToleranceModel.bay_jacobian`) at ``u
 +- ROBUST_STEP`` in each scaled design variable: 2 extra wing solves per
 design variable and iterate, warm from the iterate's equilibrium, each with
 one back-solve per tolerance parameter and bay. Checked against central
@@ -67,6 +67,13 @@ import math
 import numpy as np
 import scipy.sparse
 
+from forward_solver.solution import BaysConvergenceError
+
+from ..constraints import VIOLATION_TOLERANCE, floor_threshold, tension_scale
+from ..variables import key_of
+from .inputs import DEFAULT_TOLERANCES, as_tolerances
+from .model import ToleranceModel
+
 __all__ = ["QUANTILE_Z", "ROBUST_STEP", "RobustTerms", "check_robust_tolerances"]
 
 #: The standard normal's 95th percentile: mean + 1.645 standard deviations.
@@ -78,15 +85,13 @@ ROBUST_STEP = 1e-4
 
 
 def check_robust_tolerances(tolerances) -> dict:
-    """``{name: Tolerance}`` of a robust design: the given ones (anything `tolerance.parse_tolerances`
+    """``{name: Tolerance}`` of a robust design: the given ones (anything `inputs.parse_tolerances`
     takes), or every default when None.
 
     Raises:
         ValueError: for bad tolerances, or none that scatters (every value 0).
     """
-    from .tolerance import DEFAULT_TOLERANCES, _as_tolerances
-
-    parsed = _as_tolerances(dict(DEFAULT_TOLERANCES) if tolerances is None else tolerances)
+    parsed = as_tolerances(dict(DEFAULT_TOLERANCES) if tolerances is None else tolerances)
     if not any(t.value > 0 for t in parsed.values()):
         raise ValueError("objective='robust' designs for the scatter of the tolerances, and every tolerance "
                          "given is 0: give at least one (e.g. pressure=2%), or leave them out for the defaults "
@@ -98,7 +103,9 @@ class RobustTerms:
     """The robust objective's and limits' terms of a `problem.DesignProblem` (module docstring).
 
     Args:
-        problem: the design problem (its scenes, targets, weights, rows, tension limits).
+        problem: the design problem: its targets (`objectives.WingTargets`), tension limits, fabric,
+            tension scale and solver settings, and its `problem.DesignProblem.solve_near` (each side of
+            a central difference).
         tolerances: ``{name: Tolerance}`` (`check_robust_tolerances`).
         step: the central-difference step in the scaled design variables.
     """
@@ -109,27 +116,25 @@ class RobustTerms:
         self.step = step
         self.scale = None  # s: sqrt(Var[ms]) at the last accepted iterate (None: set at the first)
         self.size = 0  # the tolerance parameters (columns), once `columns` has run
-        self._raw: dict = {}  # the columns and their derivatives by `problem.key_of`
+        self._raw: dict = {}  # the columns and their derivatives by `variables.key_of`
 
     # ------------------------------------------------------------ the columns
     def columns(self, sol) -> tuple[list, list, list]:
         """At the concrete `BaysSolution` ``sol``: per bay the scaled distance columns ``A_k`` (``(rows,
         cols_k)``, the design's residual units), the tension columns ``J_t S^1/2`` (``(cells, cols_k)``,
         N/m) and the global indices ``cols_k`` of its tolerance parameters."""
-        from .tolerance import _bay_jacobian, _Model
-
-        p = self.problem
-        model = _Model.at(sol, p.targets, p.weights, p.objective, self.tolerances)
+        targets = self.problem.targets
+        model = ToleranceModel(sol, targets, self.tolerances)
         nd = model.n_distances
         distances, tensions, touching = [], [], []
         for k in range(model.n_bays):
             start = sol.solutions[k] if sol.solutions is not None else np.asarray(sol.nodes[k])
-            _, jac = _bay_jacobian(model, k, start, p.rtol)
+            _, jac = model.bay_jacobian(k, start, self.problem.solver.rtol)
             cols = model.touching[k]
             jac = jac[:, cols] * model.std[cols][None, :]
-            # mm per unit -> chord fractions, then the design's weighting sqrt(w_k / n_k) (`shape_residuals`)
-            per_row = np.repeat(1e3 * np.asarray(model.chords[k], np.float64), p.bays[k].n_contour)
-            distances.append(jac[:nd] / per_row[:, None] * math.sqrt(p.weights[k] / nd))
+            # mm per unit -> chord fractions, then the design's weighting sqrt(w_k / n_k) (`WingTargets.residuals`)
+            per_row = np.repeat(1e3 * np.asarray(targets.chords[k], np.float64), targets.bays[k].n_contour)
+            distances.append(jac[:nd] / per_row[:, None] * math.sqrt(targets.weights[k] / nd))
             tensions.append(jac[nd:])
             touching.append(cols)
         self.size = model.size
@@ -138,9 +143,6 @@ class RobustTerms:
     def raw(self, u, sol, derivatives: bool = True) -> dict:
         """The columns at ``u`` (solved: ``sol``) and, with ``derivatives``, their central differences in
         every scaled design variable (each side a wing solve warm from ``sol``)."""
-        from forward_solver.solution import BaysConvergenceError
-        from .problem import key_of
-
         key = key_of(u)
         held = self._raw.get(key)
         if held is not None and (held["d_distances"] is not None or not derivatives):
@@ -157,10 +159,10 @@ class RobustTerms:
                 for sign in (1.0, -1.0):
                     v = u.copy()
                     v[j] += sign * self.step
-                    side = self.problem._solve(v, sol)
+                    side = self.problem.solve_near(v, sol)
                     if not side.converged:
                         raise BaysConvergenceError(side, side.failed_bays()[0])
-                    sides.append(self.columns(self.problem._concrete(side, _aux_of(side), v))[:2])
+                    sides.append(self.columns(side)[:2])
                 (dp, tp), (dm, tm) = sides
                 for k in range(len(distances)):
                     d_distances[k][..., j] = (dp[k] - dm[k]) / (2.0 * self.step)
@@ -189,8 +191,9 @@ class RobustTerms:
         return mean + QUANTILE_Z * math.sqrt(max(var, 0.0))
 
     def _bay_rows(self, r) -> list:
-        n = r.size // len(self.problem.bays)
-        return [slice(k * n, (k + 1) * n) for k in range(len(self.problem.bays))]
+        n_bays = len(self.problem.targets.bays)
+        n = r.size // n_bays
+        return [slice(k * n, (k + 1) * n) for k in range(n_bays)]
 
     def reweight(self, r, raw: dict) -> None:
         """Set the majoriser's ``s`` to ``sqrt(Var[ms])`` at an accepted iterate (module docstring)."""
@@ -230,7 +233,7 @@ class RobustTerms:
         """How many tension limits the constraint rows begin with (each one row per cell of every bay;
         the rib limits' rows, if any, follow them)."""
         p = self.problem
-        return 0 if p.constraints is None else len(p.constraints.names(p.fabric))
+        return 0 if p.tension is None else len(p.tension.names(p.fabric))
 
     def _shift(self, sigma, rows: int) -> np.ndarray:
         """``1.645 sigma`` over the tension scale on each tension limit's cell rows, 0 on the rib rows."""
@@ -263,7 +266,34 @@ class RobustTerms:
                 "std": math.sqrt(max(var, 0.0)), "g": g}
 
 
-def _aux_of(sol) -> dict:
-    """The arrays `problem.DesignProblem._concrete` takes from a solve (here a plain one, not transformed)."""
-    return {"nodes": sol.nodes, "result": sol.result, "residual": sol.residual, "steps": sol.steps,
-            "mounted": sol.mounted}
+    def limits_report(self, u) -> tuple[dict, tuple | None]:
+        """The tension limits at each cell's own percentile at the design ``u``: ``min_tension_p5`` and
+        ``max_tension_p95``, the least ``t - 1.645 sigma`` and the largest ``t + 1.645 sigma`` over the
+        cells (N/m), and, where one is broken by more than `constraints.VIOLATION_TOLERANCE` of the
+        tension scale, ``({name: {bay: amount}}, [sentence])``."""
+        p = self.problem
+        values = {}
+        if p.tension is None:
+            return values, None
+        sol = p.nominal_linearised(u)[-1]
+        tensions = p.measure(sol, u)["tensions"]
+        raw = self.raw(u, sol, derivatives=False)
+        where, sentences = {}, []
+        scale = tension_scale(sol.parameters, p.chord)
+        floor, ceiling = p.tension.min_tension, p.tension.ceiling(p.fabric)
+        for k, (t, a) in enumerate(zip(tensions, raw["tensions"])):
+            sigma = np.sqrt(np.sum(a * a, axis=1))
+            low, high = float(np.min(t - QUANTILE_Z * sigma)), float(np.max(t + QUANTILE_Z * sigma))
+            values["min_tension_p5"] = min(values.get("min_tension_p5", math.inf), low)
+            values["max_tension_p95"] = max(values.get("max_tension_p95", -math.inf), high)
+            at = "" if len(tensions) == 1 else f" in bay {k}"
+            if floor is not None and low < floor_threshold(floor, scale):
+                where.setdefault("min_tension_p5", {})[k] = floor - low
+                sentences.append(f"min_tension_p5 violated{at}: a cell's fibre tension at its 5th percentile is "
+                                 f"{low:.4g} N/m, {floor - low:.4g} N/m below the floor {floor:.4g} N/m (1 wing in "
+                                 "20 wrinkles there)")
+            if math.isfinite(ceiling) and high - ceiling > VIOLATION_TOLERANCE * scale:
+                where.setdefault("max_tension_p95", {})[k] = high - ceiling
+                sentences.append(f"max_tension_p95 violated{at}: a cell's fibre tension at its 95th percentile is "
+                                 f"{high:.4g} N/m, {high - ceiling:.4g} N/m above the ceiling {ceiling:.4g} N/m")
+        return values, ((where, sentences) if where else None)
