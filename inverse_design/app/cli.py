@@ -71,8 +71,7 @@ from .case import Case
 from .console import describe
 from .interrupts import Terminated
 from .options import PROG, InputError
-from .run import WORKER_MODULES, run_case
-from .workers import ReportWorkers
+from .workers import WORKER_MODULES, ReportWorkers
 
 __all__ = ["CONSOLE_WIDTH", "REFUSAL_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
@@ -300,7 +299,7 @@ def use_compilation_cache(path: Path) -> bool:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    from forward_solver.compilation import use_program_store
+    from forward_solver.compilation import use_program_store  # (worker: this module imports no JAX at the top)
 
     use_program_store(path / "programs")  # the solver's top-level programs, traced and lowered once
     return True
@@ -369,10 +368,13 @@ def _main(argv: list[str] | None, started: float) -> int:
             # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf
             # while the design runs (`workers.ReportWorkers`).
             workers = ReportWorkers.start(WORKER_MODULES)
-            from forward_solver.compilation import enable_fast_compilation  # (imports JAX, unless done already)
+            # (worker: a spawned report worker imports this module again and must not import JAX; these do)
+            from forward_solver import ConvergenceError  # (worker: as above)
+            from forward_solver.compilation import enable_fast_compilation  # (worker: as above)
+
+            from .run import run_case  # (worker: as above)
 
             enable_fast_compilation()  # before the run's first JAX computation
-            from forward_solver import ConvergenceError
         interrupts.check()
         check_platform()
         if not options.no_compilation_cache:

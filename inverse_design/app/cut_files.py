@@ -11,7 +11,7 @@ millimetres (``$INSUNITS`` 4), drawn at scale 1:1, on these layers:
   rib's edge, its first span fibre. Its edges are the design's cut lengths
   (`rib_design.cut_lengths`).
 * ``CUT``: the cut line, the sewing line offset outward by the seam allowance
-  (`flat_panels.offset_outline`).
+  (`flat_layout.offset_outline`).
 * ``MARK``: alignment notches across the seam allowance (from 3 mm inside
   the sewing line out to the cut line) at every `MARK_EVERY`-th grid node
   along both ribs and both seams, and at their ends; a double notch and
@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..flat_panels import bay_panels, offset_outline, panel_outline, rib_template
+from ..flat_layout import offset_outline, panel_outline
 
-__all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "rib_mark_nodes", "write_bay_patterns", "write_panel_dxf",
-           "write_panel_svg", "write_rib_dxf"]
+__all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "MM", "rib_mark_nodes", "write_panel_dxf", "write_panel_svg",
+           "write_rib_dxf"]
 
 #: Layer name -> AutoCAD colour index (red, blue, green, grey).
 LAYERS = {"CUT": 1, "SEW": 5, "MARK": 3, "GRID": 8}
@@ -56,7 +56,8 @@ MARK_EVERY = 4
 _NOTCH_IN = 3.0
 #: Text height of labels, mm.
 _TEXT = 8.0
-_MM = 1000.0
+#: Millimetres per metre (the drawings' unit).
+MM = 1000.0
 
 
 def _document():
@@ -84,7 +85,7 @@ def _outward_normals(points) -> np.ndarray:
 def _panel_drawing(panel, seam_allowance_mm: float) -> dict:
     """The panel's lines in millimetres, by layer: ``{"SEW": [closed], "CUT": [closed], "MARK": [open...],
     "GRID": [open...], "text": [(x, y, height, string)]}``."""
-    flat = panel.flat * _MM
+    flat = panel.flat * MM
     n, m = flat.shape[:2]
     sew, grid = panel_outline(flat)
     cut = offset_outline(sew, seam_allowance_mm)
@@ -143,7 +144,7 @@ def _write_dxf(path, drawing: dict) -> Path:
 
 
 def write_panel_dxf(path, panel, seam_allowance_mm: float = 10.0) -> Path:
-    """Write one flat panel (`flat_panels.Panel`) as DXF, 1:1 in millimetres (module docstring)."""
+    """Write one flat panel (`flat_layout.Panel`) as DXF, 1:1 in millimetres (module docstring)."""
     return _write_dxf(path, _panel_drawing(panel, seam_allowance_mm))
 
 
@@ -194,12 +195,12 @@ def write_rib_dxf(path, outline, nodes, label: str, seam_allowance_mm: float = 1
         label: the rib's name and chord.
         seam_allowance_mm: the allowance, mm (>= 0).
     """
-    sew = np.asarray(outline, np.float64) * _MM
+    sew = np.asarray(outline, np.float64) * MM
     keep = np.r_[True, np.linalg.norm(np.diff(sew, axis=0), axis=1) > 1e-9]
     sew = sew[keep]
     cut = offset_outline(sew, seam_allowance_mm)
     normal = _outward_normals(sew)
-    attach = np.asarray(nodes, np.float64) * _MM
+    attach = np.asarray(nodes, np.float64) * MM
     le = int(np.argmin(attach[:, 0]))
     marks = []
     for j in rib_mark_nodes(attach.shape[0], le):
@@ -213,50 +214,3 @@ def write_rib_dxf(path, outline, nodes, label: str, seam_allowance_mm: float = 1
              f"CUT (red): {seam_allowance_mm:g} mm outside, the seam allowance of a fabric rib, not the part"]
     text = [(x0, y0 - 1.5 * height * k, height, line) for k, line in enumerate(lines)]
     return _write_dxf(path, {"SEW": [sew], "CUT": [cut], "MARK": marks, "text": text})
-
-
-def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
-                       seam_allowance_m: float = 0.01, rib_templates: bool = True, writer=None) -> list[str]:
-    """Write one bay's panels (DXF and SVG) and its two ribs' templates into ``folder``.
-
-    Args:
-        folder: the (staging) folder.
-        scene: the bay's `forward_solver.Scene`.
-        parameters: the bay's design `Parameters`.
-        bay: the bay's index (file names and labels).
-        ribs: the indices of its root and tip ribs.
-        seam_allowance_m: the seam allowance, metres (>= 0).
-        rib_templates: False leaves the ribs out (a wing writes each shared rib once).
-        writer: ``writer(path, function, *args)`` writes each DXF file, as
-            ``function(path, *args)`` does (the default); the report's may hand
-            it to its `workers.ReportWorkers` instead.
-
-    Returns:
-        ``(names, panels)``: the names of the files written and the `flat_panels.Panel` objects.
-    """
-    folder = Path(folder)
-    allowance = seam_allowance_m * _MM
-    if writer is None:
-        def writer(path, function, *args):
-            function(path, *args)
-    names = []
-    panels = bay_panels(scene, parameters, bay=bay)
-    for panel in panels:
-        for suffix, write in (("dxf", write_panel_dxf), ("svg", write_panel_svg)):
-            name = f"pattern_bay_{bay}_{panel.name}.{suffix}"
-            if suffix == "dxf":
-                writer(folder / name, write, panel, allowance)
-            else:
-                write(folder / name, panel, allowance)
-            names.append(name)
-    if rib_templates and scene.bay.periodic and scene.bay.airfoil is not None:
-        for row, rib in zip((0, -1), ribs):
-            if rib is None:
-                continue
-            name = f"rib_{rib}.dxf"
-            chord = (scene.bay.chord_root if row == 0 else scene.bay.chord_tip) * float(parameters.rib_chord_scale)
-            outline, nodes = rib_template(scene, parameters, row)
-            writer(folder / name, write_rib_dxf, outline, nodes, f"rib {rib} template, chord {chord * _MM:.1f} mm",
-                   allowance)
-            names.append(name)
-    return names, panels

@@ -27,6 +27,7 @@ from forward_solver.solvers.bays import check_rib_gaps, default_strategy
 from .. import methods
 from ..aero import AeroUnavailable, aerodynamic_cost, alpha_range, require_neuralfoil
 from ..constraints import Constraints
+from ..flat_panels import bay_panels
 from ..memory import design_tangents
 from ..optimise import evaluate_design, optimise_wing, refine_design
 from ..plausibility import LIMITS, check_plausibility
@@ -145,11 +146,41 @@ def check_wing(case) -> None:
             cut_pattern=grid.cut_pattern, rib_shape=grid.rib_shape), allow_large=o.allow_large_grid)
 
 
+#: Rib spacing over mean chord below which `check_flat_panels` lays a bay's panels out before the
+#: design: the lower end of the validated range (`inverse_design.plausibility.RANGES`). The default case
+#: and the built-in wing lay flat; a tapered bay whose ribs are 1 mm apart (chords 1 and 0.5 m, 9x32)
+#: does not (measured: an edge off by 24% of its length), and its design runs to the end before the
+#: report fails.
+CLOSE_RIBS = 0.05
+
+
 def check_flat_panels(case) -> None:
-    """Refuse, before the design, a bay whose flat panels cannot be laid out (`resources.check_flat_panels`)."""
+    """Refuse a bay whose flat panels cannot be laid out at the start's cut lengths, before the design.
+
+    The report draws each bay's panels (`inverse_design.flat_panels.bay_panels`)
+    after the design; a bay whose panels cannot be laid flat then ends the
+    run with no report. Only bays with ribs closer than `CLOSE_RIBS` of their
+    mean chord are laid out here (about 0.1-1 s each); the cut lengths are
+    the start's (a design moves them by its prestrains, rib scales and
+    fields, which the layout follows unless the ribs are this close).
+
+    Raises:
+        ValueError: naming the bay (and for a case file's ribs, its ribs) and what to change.
+    """
     o = case.options
-    resources.check_flat_panels(case.wing.scenes(case.fabric, n_span=o.n_span, n_contour=o.n_contour), case.start,
-                                wing=case.from_ribs)
+    for k, scene in enumerate(case.wing.scenes(case.fabric, n_span=o.n_span, n_contour=o.n_contour)):
+        bay = scene.bay
+        if not bay.periodic or bay.rib_spacing >= CLOSE_RIBS * bay.chord:
+            continue
+        try:
+            bay_panels(scene, case.start, bay=k)
+        except ValueError as exc:
+            where = (f"bay {k} (ribs {k} and {k + 1}, {bay.rib_spacing:.3g} m apart, chords {bay.chord_root:g} and "
+                     f"{bay.chord_tip:g} m)" if case.from_ribs else
+                     f"the bay (ribs {bay.rib_spacing:.3g} m apart, chord {bay.chord:g} m)")
+            raise ValueError(f"{where}: its flat panels cannot be laid out at its cut lengths ({exc}), so no cut "
+                             "pattern could be drawn after the design; place the ribs further apart or make their "
+                             "chords closer, or give --no-patterns to design without patterns") from None
 
 
 def tolerances(case) -> dict | None:

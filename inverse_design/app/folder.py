@@ -45,7 +45,7 @@ from forward_solver import rib_section
 from ..optimise import DesignResult
 from ..rib_design import cut_lengths
 from .bay_figures import plot_deviation, plot_rib_design, plot_section, plot_tensions
-from .cut_files import write_bay_patterns
+from .patterns import write_bay_patterns
 from .formats import bay_arrays, wing_arrays, write_cut_pattern, write_npz, write_obj, write_selig, write_stl
 from .measures import chords_and_stations, mid_bay_targets, wing_deviation, wing_nodes
 from .output_folder import file_checksums, staged_folder
@@ -292,7 +292,7 @@ def _write_data(staging: Path, bays: _Bays, files: list, skipped: dict) -> None:
 
 
 def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, workers, sent: list) -> tuple:
-    """Every bay's flat panels and rib templates (`cut_files.write_bay_patterns`): ``(names, panels)``.
+    """Every bay's flat panels and rib templates (`patterns.write_bay_patterns`): ``(names, panels)``.
     With workers that took the figures (``sent``, their tasks so far, extended here), each bay's DXF
     files are handed to them at once: they write them while this process lays out the next bays' panels."""
     dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)

@@ -2,9 +2,8 @@
 
 The command refuses a grid whose estimated peak memory exceeds half of the
 memory available, or that has more than `MAX_NODES` nodes (hours per
-design), unless told ``--allow-large-grid``; nothing here imports JAX at
-import time. `check_flat_panels` refuses, before the design, a bay whose flat
-panels cannot be laid out (the report would fail after the whole design).
+design), unless told ``--allow-large-grid``; nothing here imports JAX (the
+command's options read `MAX_NODES` before JAX is imported).
 
 The coefficients are fits to measurements of the command (peak resident set
 size and wall time from ``/usr/bin/time -v``) on the development machine:
@@ -41,6 +40,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..memory import design_memory
+
 __all__ = [
     "MAX_NODES",
     "MEMORY_FIT",
@@ -48,9 +49,7 @@ __all__ = [
     "TIME_FIT",
     "TYPICAL_SOLVES",
     "GridCost",
-    "CLOSE_RIBS",
     "available_memory",
-    "check_flat_panels",
     "check_design_memory",
     "check_grid",
     "estimate_cost",
@@ -214,8 +213,6 @@ def check_design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: in
     Raises:
         ValueError: one line with the estimate, the limit and what to change.
     """
-    from ..memory import design_memory
-
     estimate = design_memory(n_bays, n_span, n_contour, n_tangents)
     free, source = available_memory() if available is None else available
     if not allow_large and free is not None and estimate > MEMORY_FRACTION * free:
@@ -225,46 +222,3 @@ def check_design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: in
                          "fewer bays, a smaller --n-span or --n-contour, fewer --cut-pattern-terms or "
                          "--rib-shape-terms, or --allow-large-grid to run it anyway")
     return estimate
-
-
-#: Rib spacing over mean chord below which `check_flat_panels` lays a bay's panels out before the
-#: design: the lower end of the validated range (`inverse_design.plausibility.RANGES`). The default case
-#: and the built-in wing lay flat; a tapered bay whose ribs are 1 mm apart (chords 1 and 0.5 m, 9x32)
-#: does not (measured: an edge off by 24% of its length), and its design runs to the end before the
-#: report fails.
-CLOSE_RIBS = 0.05
-
-
-def check_flat_panels(scenes, parameters, wing: bool = False) -> None:
-    """Refuse a bay whose flat panels cannot be laid out at the start's cut lengths, before the design.
-
-    The report draws each bay's panels (`inverse_design.flat_panels.bay_panels`)
-    after the design; a bay whose panels cannot be laid flat then ends the
-    run with no report. Only bays with ribs closer than `CLOSE_RIBS` of their
-    mean chord are laid out here (about 0.1-1 s each); the cut lengths are
-    the start's (a design moves them by its prestrains, rib scales and
-    fields, which the layout follows unless the ribs are this close).
-
-    Args:
-        scenes: the `forward_solver.Scene` of each bay, root to tip.
-        parameters: the design's starting `forward_solver.Parameters`.
-        wing: the bays are a wing's (named by their ribs in the message).
-
-    Raises:
-        ValueError: naming the bay, its ribs and what to change.
-    """
-    from ..flat_panels import bay_panels
-
-    for k, scene in enumerate(scenes):
-        bay = scene.bay
-        if not bay.periodic or bay.rib_spacing >= CLOSE_RIBS * bay.chord:
-            continue
-        try:
-            bay_panels(scene, parameters, bay=k)
-        except ValueError as exc:
-            where = (f"bay {k} (ribs {k} and {k + 1}, {bay.rib_spacing:.3g} m apart, chords {bay.chord_root:g} and "
-                     f"{bay.chord_tip:g} m)" if wing else
-                     f"the bay (ribs {bay.rib_spacing:.3g} m apart, chord {bay.chord:g} m)")
-            raise ValueError(f"{where}: its flat panels cannot be laid out at its cut lengths ({exc}), so no cut "
-                             "pattern could be drawn after the design; place the ribs further apart or make their "
-                             "chords closer, or give --no-patterns to design without patterns") from None

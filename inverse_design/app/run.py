@@ -19,20 +19,15 @@ import sys
 import threading
 import time
 
-from . import interrupts
+from . import design, interrupts
 from .case import Case
+from .folder import ReportOptions, write_report
 from .options import PROG
 from .output_folder import changed_files, check_output_folder, output_lock
 from .resources import check_grid
+from .workers import REPORT_MODULES
 
-__all__ = ["REPORT_MODULES", "WORKER_MODULES", "run_case", "safe_point", "warn"]
-
-#: The report's libraries, imported ahead (`_import_report_modules_meanwhile`).
-REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
-#: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
-#: the figures and of the DXF patterns they write, and the modules their tasks name.
-WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
-
+__all__ = ["run_case", "safe_point", "warn"]
 
 def safe_point(entry=None) -> None:
     """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
@@ -62,7 +57,7 @@ def run_case(case: Case, progress: bool = False, started: float | None = None, w
     ``--out`` meanwhile is refused at once (ValueError, exit 2) instead of racing this one. ``started`` (a
     `time.perf_counter` value) dates the ``setup`` timing back, e.g. to the start of `cli.main`, so that it
     includes importing JAX. ``workers`` (a `workers.ReportWorkers`, the command's, which import
-    `WORKER_MODULES`) write figures and DXF patterns (`folder.write_report`).
+    `workers.WORKER_MODULES`) write figures and DXF patterns (`folder.write_report`).
 
     Raises:
         ValueError: bad input (`options.InputError` among them).
@@ -74,10 +69,6 @@ def run_case(case: Case, progress: bool = False, started: float | None = None, w
 
 def _run(case: Case, progress: bool, start: float, workers) -> dict:
     """`run_case`'s work, under the lock."""
-    # (not at the top: a report worker imports this module, through `cli`, and must not import JAX)
-    from . import design
-    from .folder import ReportOptions, write_report
-
     o = case.options
     check_grid(o.n_span, o.n_contour, evaluate=o.evaluate, allow_large=o.allow_large_grid)
     alphas = design.aero_angles(case) if o.aero else None  # (before any solve: a missing package fails fast)
@@ -141,8 +132,6 @@ def warn(case: Case) -> list[str]:
     fields, the Reynolds number (`design.warning_lines`), the options given that the run ignores
     (`case.Case.ignored_options`), and the earlier report's files that changed since and that this run
     keeps (`output_folder.changed_files`)."""
-    from . import design  # (not at the top: a report worker imports this module and must not import JAX)
-
     o = case.options
     lines = design.warning_lines(case) + case.ignored_options()
     lines += [f"{name} in {o.out} changed since the earlier report wrote it: kept as it is (this run "

@@ -46,8 +46,15 @@ import signal
 import time
 from contextlib import contextmanager
 
-__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "WORKER_TIMEOUT_S", "ReportWorkers",
-           "run_task", "save_figure", "saved_after"]
+__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "REPORT_MODULES", "WORKER_MODULES", "WORKER_TIMEOUT_S",
+           "ReportWorkers", "run_task", "save_figure", "saved_after"]
+
+#: The report's libraries, imported ahead by the command's run (`run`) and by the workers.
+REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
+#: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
+#: the figures and of the DXF patterns they write, and the modules their tasks name.
+WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
+
 
 #: Seconds `ReportWorkers.finish` waits for the workers' tasks; then the caller writes what is left. A
 #: figure takes about 0.3 s: only a hang reaches this.

@@ -403,13 +403,14 @@ def test_bad_input_and_help_answer_without_importing_jax(tmp_path):
 def test_the_run_has_blas_on_one_thread_in_a_fresh_process(tmp_path):
     """Every BLAS the run uses (NumPy's, SciPy's) runs on one thread (module docstring of `cli`): the
     limit is taken once they are loaded, which a fresh process does after reading the options."""
-    code = ("import sys, threadpoolctl\nfrom inverse_design.app import cli\nfrom inverse_design.app.options import InputError\n"
+    code = ("import sys, threadpoolctl\nfrom inverse_design.app import cli, run as command_run\n"
+            "from inverse_design.app.options import InputError\n"
             "from support.command import NoWorkers\n"
             "seen = []\n"
             "def run(*args, **kwargs):\n"
             "    seen.extend(i['num_threads'] for i in threadpoolctl.threadpool_info() if i['user_api'] == 'blas')\n"
             "    raise InputError('enough')\n"
-            "cli.run_case, cli.ReportWorkers = run, NoWorkers\n"
+            "command_run.run_case, cli.ReportWorkers = run, NoWorkers\n"
             "print(cli.main(['--out', 'out', '--quiet']), seen)")
     env = environment()
     ran = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,

@@ -148,10 +148,10 @@ def test_a_worker_imports_on_idle_cores_and_runs_its_tasks_at_the_callers_priori
 
 
 def test_a_worker_imports_neither_jax_nor_the_solver():
-    """What a worker imports (`run.WORKER_MODULES`, the workers module for its tasks, and the
+    """What a worker imports (`workers.WORKER_MODULES`, the workers module for its tasks, and the
     command's module, which a spawned worker imports again as its main module) leaves JAX, SciPy and
     the solver out: the report builds the figures and hands them over built."""
-    from inverse_design.app.run import WORKER_MODULES
+    from inverse_design.app.workers import WORKER_MODULES
 
     modules = WORKER_MODULES + ("inverse_design.app.workers", "inverse_design.app.cli")
     code = (f"import importlib, sys\nfor name in {modules!r}:\n"

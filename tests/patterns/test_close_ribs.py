@@ -1,5 +1,5 @@
 """Ribs so close that the flat panels cannot be laid out are refused before the design, not after it
-(`inverse_design.app.resources.check_flat_panels`)."""
+(`inverse_design.app.design.check_flat_panels`)."""
 
 import pytest
 

@@ -30,7 +30,8 @@ from inverse_design.app import cli  # noqa: E402
 from inverse_design.app.folder import ReportOptions, write_report  # noqa: E402
 from inverse_design.app.cut_files import rib_mark_nodes  # noqa: E402
 from support.reports import measured  # noqa: E402
-from inverse_design.flat_panels import RIB_CHORDAL_ERROR, develop, mounted_skin, offset_outline, rib_template  # noqa: E402
+from inverse_design.flat_layout import develop, offset_outline  # noqa: E402
+from inverse_design.flat_panels import RIB_CHORDAL_ERROR, mounted_skin, rib_template  # noqa: E402
 from inverse_design.rib_design import cut_lengths  # noqa: E402
 from targets import naca  # noqa: E402
 

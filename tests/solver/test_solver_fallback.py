@@ -67,8 +67,8 @@ def test_command_options_reach_the_solver(tmp_path, monkeypatch):
     class Stop(Exception):
         pass
 
-    def fake(*args, **kwargs):
-        seen["solver_options"] = {"method": kwargs["solver"].equilibrium_method, "max_steps": kwargs["solver"].max_steps}
+    def fake(wing, fabric, targets, request):
+        seen["solver_options"] = {"method": request.solver.equilibrium_method, "max_steps": request.solver.max_steps}
         raise Stop
 
     monkeypatch.setattr(design, "optimise_wing", fake)
