@@ -57,6 +57,7 @@ from __future__ import annotations
 import gc
 import json
 import os
+import signal
 import sys
 import time
 import warnings
@@ -83,11 +84,19 @@ CONSOLE_WIDTH = 200
 REFUSAL_WIDTH = 600
 
 
-def _say(line: str, stdout: bool = False) -> None:
-    """Print ``line`` on stderr (``stdout``: on stdout), if the process has it (a closed one is None)."""
+def _say(line: str, stdout: bool = False) -> OSError | None:
+    """Print ``line`` on stderr (``stdout``: on stdout, flushed), if the process has it (a closed one is
+    None); returns the error of a stream that cannot take it (a full device, a broken pipe), else None."""
     stream = sys.stdout if stdout else sys.stderr
-    if stream is not None:
+    if stream is None:
+        return None
+    try:
         print(line, file=stream)
+        if stdout:
+            stream.flush()
+    except (OSError, ValueError) as exc:  # (ValueError: a stream closed under us)
+        return exc if isinstance(exc, OSError) else OSError(str(exc))
+    return None
 
 
 def _flush_streams() -> None:
@@ -174,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     collection = gc.get_threshold()
     gc.set_threshold(GC_THRESHOLD)  # (before importing JAX: the import alone ran two full collections)
     previous = interrupts.install()
+    ended = {}  # "out": the folder, once its report is complete (`_main`)
     flags = os.environ.get("XLA_FLAGS")
     store = _program_store()
     config = None
@@ -183,15 +193,18 @@ def main(argv: list[str] | None = None) -> int:
         config = _config_without_home()
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
-            code = _main(argv, started)
-    except Terminated:  # before the run (importing JAX) or after its folder was written
-        _say(f"{PROG}: terminated")
-        code = EXIT_TERMINATED
-    except KeyboardInterrupt:
-        _say(f"{PROG}: interrupted")
-        code = EXIT_INTERRUPTED
+            code = _main(argv, started, ended)
+    except KeyboardInterrupt as exc:  # before the run (importing JAX), or once its report was complete
+        if "out" in ended:
+            code = _stopped_after(exc, ended["out"])
+        else:
+            terminated = isinstance(exc, Terminated)
+            _say(f"{PROG}: {'terminated' if terminated else 'interrupted'}")
+            code = EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     finally:
+        interrupts.hold()  # (a stop from here on is recorded: `_main` may have returned already)
         gc.set_threshold(*collection)
+        late = interrupts.received() if "out" in ended else None
         interrupts.restore(previous)
         if config is not None:
             _HOMELESS = None
@@ -203,6 +216,8 @@ def main(argv: list[str] | None = None) -> int:
             os.environ.pop("XLA_FLAGS", None)
         else:
             os.environ["XLA_FLAGS"] = flags
+    if late is not None and code not in (EXIT_INTERRUPTED, EXIT_TERMINATED):  # a stop once the report was complete
+        code = _stopped_after(late, ended["out"])
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         _exit_now(code)
     return code
@@ -352,7 +367,16 @@ def _error(options, kind: str, text: str, after: str = "") -> None:
         _say(json.dumps({"error": " ".join(str(text).split())}), stdout=True)
 
 
-def _main(argv: list[str] | None, started: float) -> int:
+def _stopped_after(stop: KeyboardInterrupt | int, out) -> int:
+    """The line and exit code of a stop (an exception, or a recorded signal number) that came once the
+    report in ``out`` was complete."""
+    terminated = isinstance(stop, Terminated) or stop == signal.SIGTERM
+    _say(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete in {out}")
+    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+
+
+def _main(argv: list[str] | None, started: float, ended: dict) -> int:
+    """`main`'s work; ``ended["out"]`` is set to the output folder once its report is complete."""
     try:
         case = Case.from_arguments(argv)
     except InputError as exc:
@@ -418,17 +442,23 @@ def _main(argv: list[str] | None, started: float) -> int:
     finally:
         if workers is not None:  # (unused, or left running by an error: stopped)
             workers.close()
+    ended["out"] = summary["out"]  # the report is complete
     try:
         interrupts.check()  # a stop that arrived while the files were put in place
     except KeyboardInterrupt as exc:
-        terminated = isinstance(exc, Terminated)
-        _say(f"{PROG}: {'terminated' if terminated else 'interrupted'} after the report was complete "
-             f"in {summary['out']}")
-        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+        return _stopped_after(exc, summary["out"])
+    # From here on a stop is recorded, not raised (it would cut the output short, or arrive where
+    # nothing checks it and end the run with 0), and said at the end (`main`).
+    interrupts.hold()
+    failed = None
     if options.json:
-        _say(json.dumps(summary, indent=2), stdout=True)
+        failed = _say(json.dumps(summary, indent=2), stdout=True)
     elif not options.quiet:
-        _say("\n".join(describe(summary)), stdout=True)
+        failed = _say("\n".join(describe(summary)), stdout=True)
+    if failed is not None:
+        _say(f"{PROG}: failed: could not print the summary on the standard output ({failed.strerror or failed}); "
+             f"the report is complete in {summary['out']}")
+        return 1
     if not summary["results"]["success"]:
         why = ("the design breaks its tension limits" if summary["constraints"]["violated"]
                else "the optimiser did not converge")

@@ -51,8 +51,8 @@ import sys
 import threading
 from contextlib import contextmanager
 
-__all__ = ["UNWIND_GRACE_S", "Terminated", "abandoned", "check", "deferred", "install", "restore",
-           "run_stoppable", "undo_if_abandoned"]
+__all__ = ["UNWIND_GRACE_S", "Terminated", "abandoned", "check", "deferred", "hold", "install", "received",
+           "restore", "run_stoppable", "undo_if_abandoned"]
 
 #: Seconds a stopped work has to unwind by itself (to its next safe point) before `run_stoppable`
 #: abandons it: a stop must end the command within 2 s.
@@ -120,9 +120,21 @@ def install():
     return previous, hook
 
 
+def hold() -> None:
+    """From now until `restore`, a stop is only recorded (`received`), never raised: the command's end,
+    once its report is complete, where a stop must neither cut the output short nor be lost."""
+    global _deferring
+    _deferring += 1
+
+
+def received() -> int | None:
+    """The first signal recorded since `install` (``signal.SIGINT`` or ``SIGTERM``), or None."""
+    return _received
+
+
 def restore(state) -> None:
     """Put back the handlers (and unraisable hook) that `install` replaced, and clear the record."""
-    global _received, _installed
+    global _received, _installed, _deferring
     if state is None:
         return
     previous, hook = state
@@ -131,6 +143,7 @@ def restore(state) -> None:
     sys.unraisablehook = hook
     _received = None
     _installed = False
+    _deferring = 0
 
 
 def check() -> None:
