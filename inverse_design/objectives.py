@@ -60,6 +60,8 @@ import numpy as np
 
 from targets import Airfoil
 
+from . import defaults
+
 __all__ = [
     "DEFAULT_OBJECTIVE",
     "OBJECTIVES",
@@ -88,11 +90,11 @@ __all__ = [
 BLEND_POINTS = 401
 
 #: Objective names accepted by `objective_residuals` and `optimise_pressure`.
-OBJECTIVES = ("mid_bay", "average", "worst", "robust")
+OBJECTIVES = defaults.OBJECTIVES
 
 #: The objective of `optimise.optimise_wing`, `optimise.optimise_pressure`, `optimise.evaluate_design`
 #: and the ``optimise-pressure`` command when none is given: every row of every bay.
-DEFAULT_OBJECTIVE = "average"
+DEFAULT_OBJECTIVE = defaults.OBJECTIVE
 
 
 class SectionErrors(NamedTuple):

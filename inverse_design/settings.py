@@ -24,6 +24,7 @@ from typing import Callable, Mapping
 from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
 from forward_solver.solvers.chain import EQUILIBRIUM_METHODS
 
+from . import defaults
 from .constraints import Constraints
 from .methods import resolve
 from .objectives import DEFAULT_OBJECTIVE, check_objective
@@ -173,8 +174,8 @@ class Layout:
 
     rib_shape: str = "per_rib"
     cut_pattern: str = "shared"
-    n_span: int = 17
-    n_contour: int = 64
+    n_span: int = defaults.N_SPAN
+    n_contour: int = defaults.N_CONTOUR
 
     def __post_init__(self):
         if self.rib_shape not in RIB_SHAPE_LAYOUTS:

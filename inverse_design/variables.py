@@ -43,14 +43,15 @@ import numpy as np
 from forward_solver import Parameters
 from forward_solver.model.parameters import bay_parameters
 
+from . import defaults
+
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START",
            "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables",
            "concrete_rows", "key_of"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
-VARIABLES = ("pressure", "prestrain_span", "prestrain_chord", "rib_thickness_scale", "rib_chord_scale",
-             "rib_shape", "cut_pattern")
+VARIABLES = defaults.VARIABLES
 
 #: Variables with several components (`Parameters` array fields).
 VECTOR_VARIABLES = ("rib_shape", "cut_pattern")
@@ -69,7 +70,8 @@ DEFAULT_CUT_PATTERN_TERMS = 6
 
 #: Start of every parameter that is neither optimised nor given in ``initial`` (stiffnesses unset: the
 #: scene's fabric): 1e4 Pa and 2% prestrain both ways, the ``optimise-pressure`` command's defaults.
-DEFAULT_START = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
+DEFAULT_START = Parameters(pressure=defaults.PRESSURE, prestrain_span=defaults.PRESTRAIN_SPAN,
+                           prestrain_chord=defaults.PRESTRAIN_CHORD)
 
 #: Bounds used when the caller gives none: pressure in Pa; prestrain from a
 #: fabric cut to its mounted size (0) to 5% short; rib scales within +-50%;

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
+from ..defaults import VARIABLES
 from .case_file import read_config
 from .options import InputError, build_parser
 
@@ -111,10 +112,11 @@ class Case:
             SystemExit: for ``--help``.
         """
         options, sources = _merged_options(sys.argv[1:] if argv is None else list(argv))
-        variables = tuple(v.strip() for v in options.variables.split(",") if v.strip())
+        variables = _variables(options, sources)
         _check_combinations(options, sources, variables)
         _check_values(options)
         ribs = _ribs(options, sources)
+        _check_rib_spacings(options, ribs)
         case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
                    from_ribs=options.wing is not None)
         case._check_fields()
@@ -234,14 +236,10 @@ class Case:
         that a cut field per bay on a bay given by options is the shared one."""
         o = self.options
         if "rib_shape" in self.designed:
-            if o.rib_shape_terms < 1:
-                raise InputError(f"--rib-shape-terms must be at least 1, got {o.rib_shape_terms}")
             if not o.no_rib_limits and o.min_rib_thickness > 1:
                 raise InputError(f"--min-rib-thickness is a fraction of the starting rib's thickness in "
                                  f"(0, 1], got {o.min_rib_thickness}")
         if "cut_pattern" in self.designed:
-            if o.cut_pattern_terms < 1:
-                raise InputError(f"--cut-pattern-terms must be at least 1, got {o.cut_pattern_terms}")
             if o.cut_pattern_terms > o.n_contour:  # (beyond one term per node a term moves nothing)
                 raise InputError(f"a cut pattern of {o.cut_pattern_terms} terms per fibre direction on "
                                  f"{o.n_contour} contour nodes: at most one term per contour node moves the skin; "
@@ -279,6 +277,17 @@ def _given(name: str, sources: Mapping) -> str:
     """How an option was given, for a message: ``--min-tension`` or ``min-tension (case file)``."""
     flag = name.replace("_", "-")
     return f"--{flag}" if sources.get(name) != "config" else f"{flag} (case file)"
+
+
+def _variables(o: Options, sources: Mapping) -> tuple:
+    """``--variables`` as names, each one a design variable (`inverse_design.defaults.VARIABLES`)."""
+    names = tuple(v.strip() for v in o.variables.split(",") if v.strip())
+    unknown = [name for name in names if name not in VARIABLES]
+    if unknown or not names:
+        where = f"{o.config}: variables" if sources.get("variables") == "config" else "--variables"
+        what = f"unknown design variable {unknown[0]!r}" if unknown else "no design variable given"
+        raise InputError(f"{where}: {what}; choose among {', '.join(VARIABLES)}")
+    return names
 
 
 def _check_combinations(o: Options, sources: Mapping, variables: tuple) -> None:
@@ -337,13 +346,33 @@ def _check_combinations(o: Options, sources: Mapping, variables: tuple) -> None:
 
 def _check_values(o: Options) -> None:
     """Refuse the values that the option types leave open (before any solve)."""
-    if o.max_steps < 1:
-        raise InputError(f"--max-steps must be a positive integer, got {o.max_steps}")
     if not o.seam_allowance >= 0:
         raise InputError(f"--seam-allowance must be 0 mm or more (the cut line lies outside the sewing line), "
                          f"got {o.seam_allowance:g}: give 0 or a positive number of mm")
-    if o.samples < 0:
-        raise InputError(f"--samples must be 0 (first order only) or a positive number of wings, got {o.samples}")
+    if o.seam_allowance > MAX_SEAM_ALLOWANCE_MM:
+        raise InputError(f"--seam-allowance {o.seam_allowance:g} mm puts the cut line more than "
+                         f"{MAX_SEAM_ALLOWANCE_MM / 1000:g} m outside the sewing line: give the allowance in "
+                         "millimetres (a seam takes 5-20 mm)")
+
+
+#: Largest rib spacing over the bay's mean chord: ribs further apart no longer shape the skin between them,
+#: which inflates towards a cylinder (the model is validated to 0.5 chords, `inverse_design.plausibility`,
+#: and warns beyond; a bay 1000 m long on a 1 m chord was reported as a design of rms 0.15 chord).
+MAX_SPACING_OVER_CHORD = 5.0
+#: Largest seam allowance, mm (`--seam-allowance`): beyond it a value in metres or micrometres is likelier.
+MAX_SEAM_ALLOWANCE_MM = 1000.0
+
+
+def _check_rib_spacings(o: Options, ribs: tuple) -> None:
+    """Refuse a bay whose ribs lie more than `MAX_SPACING_OVER_CHORD` mean chords apart (before any solve)."""
+    for k in range(len(ribs) - 1):
+        spacing = ribs[k + 1].station - ribs[k].station
+        chord = 0.5 * (ribs[k].chord + ribs[k + 1].chord)
+        if spacing > MAX_SPACING_OVER_CHORD * chord:
+            where = (f"{o.config}: ribs {k} and {k + 1}" if o.wing is not None else f"--rib-spacing {o.rib_spacing:g}")
+            raise InputError(f"{where}: the ribs lie {spacing:g} m apart on a {chord:g} m chord, more than "
+                             f"{MAX_SPACING_OVER_CHORD:g} chords: ribs so far apart no longer shape the skin between "
+                             "them (the model is validated up to 0.5 chords); place the ribs closer, or add ribs")
 
 
 def _ribs(o: Options, sources: Mapping) -> tuple:
@@ -371,6 +400,9 @@ def load_section(spec: str, option: str):
     """
     from targets import load_airfoil, naca  # (worker: imported through cli by every report worker; 0.3 s of SciPy)
 
+    if not str(spec).strip():
+        raise InputError(f"{option}: the section is an empty name (an unset shell variable?); give a NACA code such "
+                         "as naca2412 or a .dat file")
     path = Path(spec)
     if path.is_dir():
         raise InputError(f"{option}: {spec} is a directory; give a NACA code such as naca2412 or a .dat file")

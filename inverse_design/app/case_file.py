@@ -42,9 +42,14 @@ def _toml_value(path: str, key: str, value):
         return value
     convert = spec.get("type", str)
 
+    numeric = getattr(convert, "numeric", False)
+
     def one(item):
+        if numeric and (isinstance(item, (bool, str)) or not isinstance(item, (int, float))):
+            raise InputError(f"{path}: {key} must be a number, got {_toml_text(item)}{_number_hint(item)}, e.g. "
+                             f"{key} = {_example(spec)}")
         if isinstance(item, (bool, dict, list)) or not isinstance(item, (int, float, str)):
-            raise InputError(f"{path}: {key} must be a single value, got {item!r}")
+            raise InputError(f"{path}: {key} must be a single value, got {_toml_text(item)}")
         try:
             converted = convert(str(item))
         except argparse.ArgumentTypeError as exc:
@@ -68,6 +73,30 @@ def _toml_value(path: str, key: str, value):
     return one(value)
 
 
+def _toml_text(value) -> str:
+    """``value`` as a case file writes it (``true``, the string "17", a table, a list)."""
+    if isinstance(value, str):
+        return f'the string "{value}"'
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, dict):
+        return "a table"
+    return repr(value)
+
+
+def _number_hint(item) -> str:
+    """What to change where a case file gives a number as something else."""
+    return ": write it without quotes" if isinstance(item, str) else ": give a number"
+
+
+def _example(spec: dict) -> str:
+    """The default of an option as a TOML number (one of a pair or triple), for a message."""
+    default = spec.get("default")
+    if isinstance(default, (tuple, list)):
+        default = default[0]
+    return "1" if default is None else f"{default:g}"
+
+
 def read_config(path) -> dict:
     """Options of a TOML case file, converted and checked like the command line.
 
@@ -85,7 +114,7 @@ def read_config(path) -> dict:
     else:  # pragma: no cover - exercised on Python 3.10 only
         import tomli as tomllib
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        text = Path(path).read_text(encoding="utf-8-sig")  # (a byte-order mark, as some editors write, is no key)
     except (OSError, UnicodeDecodeError) as exc:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         raise InputError(f"cannot read the case file {path}: {reason}") from None
@@ -99,6 +128,9 @@ def read_config(path) -> dict:
         if key == "rib" and isinstance(value, list) and all(isinstance(v, dict) for v in value):
             values["wing"] = read_ribs(str(path), value)
             continue
+        if key == "rib" and isinstance(value, dict):
+            raise InputError(f"{path}: [rib] is one table; list each rib as a [[rib]] table (two brackets), root "
+                             "to tip, at least two")
         if key == "tolerances" and isinstance(value, dict):
             values["tolerances"] = read_tolerances(str(path), value)
             continue
@@ -180,7 +212,8 @@ def read_ribs(path: str, tables) -> list[dict]:
         for key in ("chord", "station"):
             value = table[key]
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise InputError(f"{where}: {key} must be a finite number in m, got {value!r}")
+                raise InputError(f"{where}: {key} must be a finite number in m, got {_toml_text(value)}"
+                                 f"{_number_hint(value) if isinstance(value, (str, bool)) else ''}")
             rib[key] = float(value)
         if not rib["chord"] > 0:
             raise InputError(f"{where}: chord must be a positive length in m, got {rib['chord']!r}")

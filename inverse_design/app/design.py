@@ -35,6 +35,7 @@ from ..rib_design import RibLimits
 from ..settings import DesignRequest, Layout, Limits, SolverSettings
 from ..tolerance import SOURCE_UNITS, Sampling, connect_scheduler, parse_tolerances, tolerance_analysis
 from . import resources
+from .case_file import read_config
 from .measures import mid_bay_targets
 from .options import PROG, InputError
 
@@ -198,8 +199,16 @@ def tolerances(case) -> dict | None:
         return None
     try:
         parsed = parse_tolerances(o.tolerances)
-    except ValueError as exc:
-        raise InputError(f"--{exc}") from None
+    except ValueError:
+        in_file = (read_config(o.config).get("tolerances") or []) if o.config else []
+        for item in o.tolerances:  # the item at fault, named where it was given
+            try:
+                parse_tolerances([item])
+            except ValueError as exc:
+                if item in in_file:
+                    raise InputError(f"{o.config}: [tolerances] {str(exc).removeprefix('tolerance ')}") from None
+                raise InputError(f"--{exc}") from None
+        raise
     if o.objective == "robust" and not any(t.value > 0 for t in parsed.values()):
         raise InputError("--objective robust designs for the scatter of the tolerances, and every tolerance given "
                          "is 0: give at least one (e.g. --tolerance pressure=2%), or none for the defaults")
@@ -241,6 +250,10 @@ def warning_lines(case) -> list[str]:
 
     least = LIMITS["n_span"]
     lines = list(physical)
+    if o.min_tension < 0 and not o.no_tension_constraints:
+        lines.append(f"--min-tension {o.min_tension:g} N/m lets the skin wrinkle: the fabric carries no compression, "
+                     "so a negative fibre tension is a wrinkle, and a wrinkled skin cures wrinkled; give 0 (the "
+                     "default) for a wrinkle-free skin")
     if not (o.evaluate or o.refine and 2 * o.n_span - 1 >= least) and o.n_span < least:
         lines.append(f"the design grid has {o.n_span} span nodes, fewer than the {least} that the grid study found "
                      "enough (on 9 the default design lands at 6.4 kPa and rib scale 0.945 against 1 kPa and 1.0 on "

@@ -12,13 +12,14 @@ import argparse
 import math
 import re
 
+from .. import defaults
 from .resources import MAX_NODES
 
 __all__ = ["DEFAULT_VARIABLES", "InputError", "OPTIONS", "OPTION_SPECS", "PROG", "build_parser"]
 
 PROG = "optimise-pressure"
 #: ``--variables`` of the default case.
-DEFAULT_VARIABLES = "pressure,rib_thickness_scale"
+DEFAULT_VARIABLES = ",".join(defaults.DESIGN_VARIABLES)
 
 
 class InputError(ValueError):
@@ -56,6 +57,7 @@ def _number(unit: str = "", positive: bool = False):
             raise argparse.ArgumentTypeError(f"must be a positive number{where}, got {text!r}")
         return value
 
+    number.numeric = True  # (a case file gives it as a TOML number, not a string: `case_file`)
     return number
 
 
@@ -87,11 +89,20 @@ class _Tolerance(argparse.Action):
             setattr(namespace, self.dest, value)
 
 
-def _whole(text):
-    try:
-        return int(text)
-    except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+def _whole(least: int, why: str = ""):
+    """A type function for a whole number of at least ``least`` (``why``: the reason, for the message)."""
+
+    def whole(text):
+        try:
+            value = int(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"must be {least} or more{why}, got {text!r}")
+        return value
+
+    whole.numeric = True
+    return whole
 
 
 # One entry per option: (group, flag, argparse keyword arguments). The TOML
@@ -129,12 +140,14 @@ OPTIONS = (
                             help="chord of the ribs, m (default 1.0)")),
     ("bay", "--rib-spacing", dict(type=_number("m", positive=True), default=0.25, metavar="M",
                                   help="distance between the two ribs, m (default 0.25)")),
-    ("bay", "--n-span", dict(type=_whole, default=17, metavar="N",
-                             help="grid nodes along the span, ribs included (default 17: with fewer, "
+    ("bay", "--n-span", dict(type=_whole(3, " (the two ribs and at least one row between)"), default=defaults.N_SPAN,
+                             metavar="N",
+                             help=f"grid nodes along the span, ribs included (default {defaults.N_SPAN}: with fewer, "
                              "the skin's contour strain next to the ribs is under-resolved and shows "
                              "spurious compression, which the wrinkle constraint then obeys)")),
-    ("bay", "--n-contour", dict(type=_whole, default=64, metavar="N",
-                                help="grid nodes around the contour (default 64)")),
+    ("bay", "--n-contour", dict(type=_whole(12, " (nodes around an airfoil)"), default=defaults.N_CONTOUR,
+                                metavar="N",
+                                help=f"grid nodes around the contour (default {defaults.N_CONTOUR})")),
     ("bay", "--allow-large-grid", dict(action="store_true",
                                        help="run a grid that is refused otherwise: one whose estimated peak "
                                        "memory exceeds half of the available memory, or with more than "
@@ -146,18 +159,17 @@ OPTIONS = (
                                          help="tensile stiffness E22 of the contour fibres, N/m (default 2e5)")),
     ("fabric", "--poisson", dict(type=_number(), default=0.25, metavar="NU",
                                  help="Poisson coupling nu12 = nu21, in [0, 1) (default 0.25)")),
-    ("fabric", "--prestrain-span", dict(type=_number("fraction"), default=0.02, metavar="E",
+    ("fabric", "--prestrain-span", dict(type=_number("fraction"), default=defaults.PRESTRAIN_SPAN, metavar="E",
                                         help="span prestrain, fraction: the fabric is cut 1 + E times "
-                                        "shorter (start if optimised, default 0.02)")),
-    ("fabric", "--prestrain-chord", dict(type=_number("fraction"), default=0.02, metavar="E",
-                                         help="contour prestrain, fraction (start if optimised, default 0.02)")),
-    ("design", "--pressure", dict(type=_number("Pa", positive=True), default=1e4, metavar="PA",
+                                        f"shorter (start if optimised, default {defaults.PRESTRAIN_SPAN:g})")),
+    ("fabric", "--prestrain-chord", dict(type=_number("fraction"), default=defaults.PRESTRAIN_CHORD, metavar="E",
+                                         help="contour prestrain, fraction (start if optimised, default "
+                                         f"{defaults.PRESTRAIN_CHORD:g})")),
+    ("design", "--pressure", dict(type=_number("Pa", positive=True), default=defaults.PRESSURE, metavar="PA",
                                   help="internal overpressure, Pa: the start of the optimisation, or the "
-                                  "value evaluated with --evaluate (default 1e4)")),
+                                  f"value evaluated with --evaluate (default {defaults.PRESSURE:g})")),
     ("design", "--variables", dict(default=DEFAULT_VARIABLES, metavar="NAMES",
-                                   help="comma-separated design variables among pressure, prestrain_span, "
-                                   "prestrain_chord, rib_thickness_scale, rib_chord_scale, rib_shape, "
-                                   "cut_pattern "
+                                   help=f"comma-separated design variables among {', '.join(defaults.VARIABLES)} "
                                    f"(default {DEFAULT_VARIABLES})")),
     ("design", "--pressure-bounds", dict(type=_number("Pa", positive=True), nargs=2, default=(1e3, 1e5),
                                          metavar=("LOW", "HIGH"), help="pressure bounds, Pa (default 1e3 1e5)")),
@@ -178,7 +190,7 @@ OPTIONS = (
                                           "N/m (default none)")),
     ("constraints", "--no-tension-constraints", dict(action="store_true",
                                                      help="drop both tension constraints (keep the bounds)")),
-    ("rib", "--rib-shape-terms", dict(type=_whole, default=4, metavar="K",
+    ("rib", "--rib-shape-terms", dict(type=_whole(1), default=4, metavar="K",
                                       help="Bernstein terms per surface of the rib's outward offset (2 K "
                                       "coefficients, started at zero; default 4)")),
     ("rib", "--rib-shape-bounds", dict(type=_number("chord"), nargs=2, default=(-0.05, 0.05),
@@ -193,7 +205,7 @@ OPTIONS = (
                                      "(default: half the starting rib's nose radius)")),
     ("rib", "--no-rib-limits", dict(action="store_true",
                                     help="drop both rib limits (keep the coefficient bounds)")),
-    ("cut", "--cut-pattern-terms", dict(type=_whole, default=6, metavar="K",
+    ("cut", "--cut-pattern-terms", dict(type=_whole(1), default=6, metavar="K",
                                         help="B-spline terms per fibre direction of the prestrain field along "
                                         "the contour (2 K coefficients added to the uniform prestrains, "
                                         "started at zero; default 6)")),
@@ -205,9 +217,9 @@ OPTIONS = (
                                          help="a wing's cut pattern: one field for every bay (shared, the "
                                          "default) or one per bay, each cell's panel cut on its own (per_bay: "
                                          "n_bays x 2 K coefficients)")),
-    ("optimiser", "--objective", dict(default="average", choices=("mid_bay", "average", "worst", "robust"),
+    ("optimiser", "--objective", dict(default=defaults.OBJECTIVE, choices=defaults.OBJECTIVES,
                                       help="sections that must match the target: the mid-bay one, every "
-                                      "row from rib to rib, or the worst row (default average); robust: "
+                                      f"row from rib to rib, or the worst row (default {defaults.OBJECTIVE}); robust: "
                                       "every row's linearised 95th percentile under the tolerances "
                                       "(--tolerance, default every default), the tension limits at their "
                                       "own percentile (docs/tolerances.md)")),
@@ -222,7 +234,7 @@ OPTIONS = (
     ("optimiser", "--root-condition", dict(default="thickness", choices=("thickness", "mean_offset"),
                                            help="scalar condition of --method root at mid-bay "
                                            "(default thickness)")),
-    ("optimiser", "--max-iterations", dict(type=_whole, default=50, metavar="N",
+    ("optimiser", "--max-iterations", dict(type=_whole(1), default=50, metavar="N",
                                            help="cap on the optimiser's iterations (default 50)")),
     ("optimiser", "--tolerance", dict(type=_tolerance_value, action=_Tolerance, default=None, metavar="TOL",
                                       help="a number: the convergence tolerance of the optimiser (default: slsqp "
@@ -237,10 +249,10 @@ OPTIONS = (
                                        help="with tolerances: the shape specification, 95%% of wings within this "
                                        "rms distance from the target, mm; the report gives the tolerance budget "
                                        "that meets it")),
-    ("optimiser", "--samples", dict(type=_whole, default=0, metavar="N",
+    ("optimiser", "--samples", dict(type=_whole(0, " (0: first order only)"), default=0, metavar="N",
                                     help="with tolerances: Monte Carlo wings solved to check the first-order "
                                     "analysis (default 0: first order only); tolerance_samples.csv")),
-    ("optimiser", "--seed", dict(type=_whole, default=0, metavar="N",
+    ("optimiser", "--seed", dict(type=_whole(0), default=0, metavar="N",
                                  help="seed of the Monte Carlo draws (default 0: the same wings every run)")),
     ("optimiser", "--scheduler", dict(default=None, metavar="ADDRESS",
                                       help="with --samples: solve the Monte Carlo wings on the Dask cluster of "
@@ -252,7 +264,7 @@ OPTIONS = (
     ("optimiser", "--evaluate", dict(action="store_true",
                                      help="only solve the equilibrium at the given values and report it "
                                      "(no optimisation, no history plot)")),
-    ("optimiser", "--max-steps", dict(type=_whole, default=200_000, metavar="N",
+    ("optimiser", "--max-steps", dict(type=_whole(1), default=200_000, metavar="N",
                                       help="step cap of each relaxation of every equilibrium solve, in every "
                                       "mode (default 200000)")),
     ("optimiser", "--equilibrium-method", dict(default="auto", choices=("auto", "relax", "newton", "relax+newton"),
@@ -292,7 +304,8 @@ OPTIONS = (
     ("output", "--no-compilation-cache", dict(action="store_true",
                                               help="do not keep JAX's compiled functions between runs "
                                               "(default: kept in $INFLATABLE_WING_CACHE, else "
-                                              "~/.cache/inflatable-wing/jax)")),
+                                              "$JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/inflatable-wing/jax, "
+                                              "else ~/.cache/inflatable-wing/jax)")),
 )
 OPTION_SPECS = {flag[2:].replace("-", "_"): kwargs for _, flag, kwargs in OPTIONS}
 
@@ -360,7 +373,8 @@ Interrupted or terminated, nothing is written.
 environment: JAX's compiled functions are kept between runs in $INFLATABLE_WING_CACHE,
 else $JAX_COMPILATION_CACHE_DIR, else $XDG_CACHE_HOME/inflatable-wing/jax, else
 ~/.cache/inflatable-wing/jax (--no-compilation-cache: not kept; deleting the folder
-clears it); the README lists every variable the command reads.
+clears it). The command also reads JAX_PLATFORMS, XLA_FLAGS, MPLCONFIGDIR and HOME;
+what each does: docs/command.md, "Environment".
 """.format(max_nodes=MAX_NODES)
 
 

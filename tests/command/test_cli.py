@@ -362,7 +362,7 @@ def test_a_bad_case_file_exits_2_with_one_line(tmp_path, monkeypatch, capsys, te
         (["--config", "absent.toml"], "absent.toml"),
         (["--target", "."], "--target: . is a directory; give a NACA code such as naca2412 or a .dat file"),
         (["--rib", ".."], "--rib: .. is a directory"),
-        (["--variables", "pressure,rib_shape", "--rib-shape-terms", "0"], "--rib-shape-terms must be at least 1"),
+        (["--variables", "pressure,rib_shape", "--rib-shape-terms", "0"], "argument --rib-shape-terms: must be 1 or more"),
         (["--variables", "pressure,rib_shape", "--min-rib-thickness", "1.5"], "--min-rib-thickness"),
         (["--variables", "pressure,rib_shape", "--rib-shape-bounds", "0.01", "0.05"], "outside its bounds"),
     ],

@@ -57,7 +57,7 @@ def test_a_wing_with_tolerances_and_samples_writes_its_analysis(tmp_path, capsys
     (["--tolerance", "bogus=1"], "no such source"),
     (["--tolerance", "stiffness_span=120%"], "100% or more"),
     (["--tolerance", "stiffness_chord=2e5"], "100% or more"),
-    (["--tolerance", "pressure=2%", "--samples", "-1"], "--samples must be 0"),
+    (["--tolerance", "pressure=2%", "--samples", "-1"], "argument --samples: must be 0 or more"),
     (["--tolerance", "pressure=2%", "--shape-spec", "0"], "must be a positive number (mm)"),
     (["--objective", "robust", "--tolerance", "pressure=0"], "every tolerance given is 0"),
     (["--objective", "robust", "--evaluate"], "designs nothing"),

@@ -258,7 +258,7 @@ def test_bad_fields_are_refused(scene):
     (["--cut-pattern-bounds", "0.03", "0.05"],
      "error: the starting cut pattern's local prestrain reaches 0.02..0.02 (uniform prestrain plus each "
      "coefficient), outside its bounds (0.03, 0.05): change the bounds or the starting prestrains"),
-    (["--cut-pattern-terms", "0"], "error: --cut-pattern-terms must be at least 1, got 0"),
+    (["--cut-pattern-terms", "0"], "error: argument --cut-pattern-terms: must be 1 or more, got '0' (see optimise-pressure --help)"),
 ], ids=["bounds", "terms"])
 def test_the_command_refuses_a_field_outside_its_bounds(tmp_path, capsys, args, message):
     from inverse_design.app import cli

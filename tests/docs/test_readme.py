@@ -137,6 +137,9 @@ def test_the_block_runs_as_written(index, env, tmp_path):
         (tmp_path / "block.py").write_text(_small_python(text) if small else text)
         done = _run([sys.executable, "block.py"], tmp_path, env)
         assert done.returncode == 0, f"{line}:\n{done.stderr[-3000:]}"
+        if line.startswith("README.md"):  # (a reader runs these from wherever they stand; docs' examples write on purpose)
+            left = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("block.py", "__pycache__"))
+            assert left == [], f"{line}: the example writes into the reader's current folder: {left}"
     elif language == "toml":
         case = tmp_path / "case.toml"
         case.write_text(text)
@@ -161,6 +164,15 @@ def test_the_block_runs_as_written(index, env, tmp_path):
                 assert (tmp_path / out / "summary.json").is_file() and f"wrote {tmp_path / out}" in done.stdout
     else:
         pytest.fail(f"{line}: a ```{language} block marked {marker!r}: nothing knows how to run it")
+
+
+def test_the_folders_the_examples_write_are_ignored_by_git():
+    """Run from a checkout, the README's commands write their output folders in it: git ignores each."""
+    text = README.read_text()
+    folders = sorted({"optimise-pressure-out", *re.findall(r"--out\s+([a-z0-9][\w.]*-out)\b", text)})
+    assert "wing40-out" in folders  # (named in the prose too)
+    ignored = subprocess.run(["git", "check-ignore", *folders], cwd=ROOT, capture_output=True, text=True)
+    assert sorted(ignored.stdout.split()) == folders
 
 
 def test_the_performance_page_is_a_table_of_each_result_file(tmp_path):
