@@ -18,6 +18,7 @@ this module (through `cli`) and must not.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import sys
 import warnings
@@ -93,6 +94,8 @@ class Case:
         variables: the design variables' names (``--variables``).
         from_ribs: the ribs are a case file's ``[[rib]]`` tables (else: a bay given by options, whose
             two ribs take one rib shape and one cut field, as `inverse_design.optimise_pressure`'s).
+        notes: the warnings raised while the case was read (a section renormalised to unit chord, ...):
+            the run shows them with its own and records them in the summary.
     """
 
     options: Options
@@ -100,6 +103,7 @@ class Case:
     ribs: tuple
     variables: tuple
     from_ribs: bool
+    notes: tuple = ()
 
     @classmethod
     def from_arguments(cls, argv: list[str] | None = None) -> "Case":
@@ -115,12 +119,14 @@ class Case:
         variables = _variables(options, sources)
         _check_combinations(options, sources, variables)
         _check_values(options)
-        ribs = _ribs(options, sources)
-        _check_rib_spacings(options, ribs)
-        case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
-                   from_ribs=options.wing is not None)
-        case._check_fields()
-        return case
+        with warnings.catch_warnings(record=True) as caught:  # (a section renormalised, a field per bay on one)
+            warnings.simplefilter("always")
+            ribs = _ribs(options, sources)
+            _check_rib_spacings(options, ribs)
+            case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
+                       from_ribs=options.wing is not None)
+            case._check_fields()
+        return dataclasses.replace(case, notes=tuple(dict.fromkeys(str(w.message) for w in caught)))
 
     # ------------------------------------------------------------------ what the run does
     @property

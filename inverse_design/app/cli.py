@@ -141,7 +141,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     if "persistent compilation cache" in text or "compilation_cache" in text:
         _cache_failed(text)
         return
-    _say(f"{PROG}: warning: {shorten(text)}")
+    _say(f"{PROG}: warning: {' '.join(text.split())}")  # (whole: the summary keeps the same text)
 
 
 _CACHE_WARNED = False

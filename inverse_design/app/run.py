@@ -18,6 +18,8 @@ import os
 import sys
 import threading
 import time
+import warnings
+from contextlib import contextmanager
 
 from . import design, interrupts
 from .case import Case
@@ -27,7 +29,7 @@ from .output_folder import changed_files, check_output_folder, output_lock
 from .resources import check_grid
 from .workers import REPORT_MODULES
 
-__all__ = ["run_case", "safe_point", "warn"]
+__all__ = ["run_case", "safe_point", "warn", "warnings_into"]
 
 def safe_point(entry=None) -> None:
     """The optimiser's per-iterate callback: raise a stop that was recorded but lost (`interrupts.check`)."""
@@ -85,14 +87,15 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
     if progress:  # (a terminal: the progress bar's first line, before the first solve compiles)
         print(f"{PROG}: {_starting_line(case)}", file=sys.stderr, flush=True)
     t = time.perf_counter()
-    if o.evaluate:
-        result = design.evaluate(case)
-        timings["equilibrium"] = time.perf_counter() - t
-    else:
-        result = design.optimise(case, tolerances, progress=progress, callback=safe_point)
-        if o.refine:
-            result = design.refine(case, result)
-        timings["optimisation"] = time.perf_counter() - t
+    with warnings_into(notes, o.quiet):
+        if o.evaluate:
+            result = design.evaluate(case)
+            timings["equilibrium"] = time.perf_counter() - t
+        else:
+            result = design.optimise(case, tolerances, progress=progress, callback=safe_point)
+            if o.refine:
+                result = design.refine(case, result)
+            timings["optimisation"] = time.perf_counter() - t
     aero = None
     if alphas is not None:
         t = time.perf_counter()
@@ -133,7 +136,7 @@ def warn(case: Case) -> list[str]:
     (`case.Case.ignored_options`), and the earlier report's files that changed since and that this run
     keeps (`output_folder.changed_files`)."""
     o = case.options
-    lines = design.warning_lines(case) + case.ignored_options()
+    lines = list(case.notes) + design.warning_lines(case) + case.ignored_options()
     lines += [f"{name} in {o.out} changed since the earlier report wrote it: kept as it is (this run "
               f"writes no {name}), and no longer counted as a report file"
               for name in changed_files(o.out) if not case.may_write(name)]
@@ -141,3 +144,19 @@ def warn(case: Case) -> list[str]:
         for line in lines:
             print(f"{PROG}: warning: {line}", file=sys.stderr)
     return lines
+
+
+@contextmanager
+def warnings_into(notes: list, quiet: bool):
+    """Within: a warning of the library (``warnings.warn``) is one ``warning:`` line on stderr (unless
+    ``quiet``), whole, and is appended to ``notes``, the summary's warnings."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        if text not in notes:
+            notes.append(text)
+            if not quiet:
+                print(f"{PROG}: warning: {text}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
