@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-__all__ = ["describe", "number_text", "refined_line", "start_violation_line", "tolerance_lines"]
+import re
+
+__all__ = ["WROTE_NAMES", "describe", "grouped_names", "number_text", "refined_line", "start_violation_line",
+           "tolerance_lines", "wrote_line"]
 
 #: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
 _VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
@@ -44,12 +47,14 @@ def start_violation_line(summary: dict) -> str | None:
     return f"  note: the start broke {broke}; {verdict}"
 
 #: Below this size a design value is zero to rounding: the optimiser's scaled variables are
-#: ``lower + u (upper - lower)``, and a value at zero inside its bounds comes back as a few 1e-19.
-_ZERO = 1e-15
+#: ``lower + u (upper - lower)``, and a value at a bound of zero comes back as a few 1e-19 to 1e-12 (a
+#: prestrain of 6e-13 at its bound of 0 was printed so); no design value means anything at 1e-9 (a
+#: prestrain or a rib shape coefficient of a billionth; a pressure in Pa, a rib scale near 1).
+_ZERO = 1e-9
 
 
 def number_text(value: float, digits: int = 6) -> str:
-    """``value`` with ``digits`` significant digits; a value that is zero to rounding (below 1e-15 in
+    """``value`` with ``digits`` significant digits; a value that is zero to rounding (below `_ZERO` in
     size, far below any design value's meaning) as ``0``."""
     return "0" if abs(value) < _ZERO else f"{value:.{digits}g}"
 
@@ -77,8 +82,13 @@ def _count(n: int, word: str) -> str:
     return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
+#: What the errors of each objective are: the rows they are measured over.
+_ROWS = {"mid_bay": "the mid-bay section", "average": "every row from rib to rib", "worst": "the worst row",
+         "robust": "every row from rib to rib"}
+
+
 def _case_line(summary: dict) -> str:
-    """The first line: the targets, the bays, the grid and the objective."""
+    """The first line: the targets, the bays, the grid and the objective (one equilibrium: the rows measured)."""
     case, err = summary["case"], summary["errors"]
     ribs, n = case["ribs"], case["n_bays"]
     targets = list(dict.fromkeys(r["target"] for r in ribs))
@@ -87,8 +97,10 @@ def _case_line(summary: dict) -> str:
     span = ribs[-1]["station_m"] - ribs[0]["station_m"]
     bays = "one bay" if n == 1 else f"a wing of {n} bays"
     per_bay = "" if n == 1 else " per bay"
+    objective = (f"errors over {_ROWS[err['objective']]}" if summary["mode"] == "evaluate"
+                 else f"{err['objective']} objective")
     return (f"{' to '.join(targets)}, {bays} ({chord}, {span:g} m span), {case['grid'][0]}x{case['grid'][1]} "
-            f"grid{per_bay}, {err['objective']} objective")
+            f"grid{per_bay}, {objective}")
 
 
 def describe(summary: dict) -> list[str]:
@@ -104,10 +116,11 @@ def describe(summary: dict) -> list[str]:
                      f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
                      f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
     unit = "of the local chord" + (" (area-weighted)" if several else "")
+    rows = _ROWS[err["objective"]]
     if summary["mode"] == "evaluate":
         eq = res["equilibrium"]
         lines.append(f"  equilibrium at {number_text(v['pressure_pa'])} Pa: {eq['result']} in {_count(eq['steps'], 'step')}")
-        lines.append(f"  error rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} {unit} "
+        lines.append(f"  error over {rows}: rms {err['after']['rms']:.3e}, max {err['after']['max']:.3e} {unit} "
                      f"(mid-bay rms {err['mid_bay_after']['rms']:.3e}, max {err['mid_bay_after']['max']:.3e})")
     else:
         per_bay = res.get("cut_patterns") is not None
@@ -121,7 +134,7 @@ def describe(summary: dict) -> list[str]:
             chosen += (f", a cut field per bay (bay_K_cut_pattern.csv; local prestrain span {local['span'][0]:.4f}.."
                        f"{local['span'][1]:.4f}, contour {local['chord'][0]:.4f}..{local['chord'][1]:.4f})")
         lines.append(f"  {res['method']}: {chosen.lstrip(', ')}")
-        lines.append(f"  error rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e}, "
+        lines.append(f"  error over {rows}: rms {err['before']['rms']:.3e} -> {err['after']['rms']:.3e}, "
                      f"max {err['before']['max']:.3e} -> {err['after']['max']:.3e} {unit}")
     if several:
         for bay in summary["bays"]:
@@ -134,8 +147,12 @@ def describe(summary: dict) -> list[str]:
         violated = (constraints["violated_where"] if several else constraints["violated"]) or {}
         shown = ", ".join(f"{name} {_amount_text(name, amount)}" for name, amount in violated.items())
         solves = _count(res["forward_solves"], "wing solve" if several else "forward solve")
-        lines.append(f"  active constraints: {', '.join(constraints['active']) or 'none'}; violated: "
+        lines.append(f"  active constraints: {', '.join(grouped_names(constraints['active'])) or 'none'}; violated: "
                      f"{shown or 'none'}; {_count(res['iterations'], 'iterate')}, {solves}")
+        values = constraints.get("values") or {}
+        if values.get("min_tension_p5") is not None:  # (a robust design: the limit held at each cell's quantile)
+            lines.append(f"  robust tension limit: each cell's tension at its own 5th percentile, least "
+                         f"{values['min_tension_p5']:.4g} N/m (a cell's scatter, not the whole wing's)")
         start_line = start_violation_line(summary)
         if start_line:
             lines.append(start_line)
@@ -159,8 +176,45 @@ def describe(summary: dict) -> list[str]:
     memory = timings.get("peak_memory_mb")
     memory = f", peak memory {memory:.0f} MB" if isinstance(memory, (int, float)) and memory == memory else ""
     lines.append(f"  {timings['total']:.1f} s (report {timings['report']:.1f} s{memory})")
-    lines.append(f"wrote {summary['out']} ({', '.join(summary['files'])})")
+    lines.append(wrote_line(summary))
     return lines
+
+
+#: Most file names the "wrote" line lists; beyond, it gives their count (summary.json lists them all).
+WROTE_NAMES = 20
+
+
+def wrote_line(summary: dict) -> str:
+    """``wrote OUT (the files)``, or for many files (a wing's patterns) how many, with summary.json's list."""
+    files = summary["files"]
+    if len(files) <= WROTE_NAMES:
+        return f"wrote {summary['out']} ({', '.join(files)})"
+    return f"wrote {summary['out']} ({len(files)} files; summary.json lists them under \"files\")"
+
+
+#: An active bound's name: a variable, its component (a rib's or a bay's row and a coefficient), its side.
+_BOUND = re.compile(r"^(?P<name>\w+)(?P<index>(\[\d+\])+)(?P<side><=upper|>=lower)$")
+
+
+def grouped_names(active: list) -> list:
+    """The active constraints, the components of a vector variable at one side of their bounds grouped:
+    ``cut_pattern<=upper (20 coefficients)`` in place of twenty ``cut_pattern[i][j]<=upper``."""
+    groups, out = {}, []
+    for name in active:
+        match = _BOUND.match(name)
+        key = (match["name"], match["side"]) if match else name
+        if key not in groups:
+            groups[key] = []
+            out.append(key)
+        groups[key].append(name)
+    return [key if isinstance(key, str) else
+            (groups[key][0] if len(groups[key]) == 1 else f"{key[0]}{key[1]} ({len(groups[key])} coefficients)")
+            for key in out]
+
+
+#: Fewer Monte Carlo samples than this place their 95th percentile too roughly to quote without saying so
+#: (its standard error is about sqrt(0.05 * 0.95 / n) of the probability: 0.02 at 100).
+FEW_SAMPLES = 100
 
 
 def tolerance_lines(section: dict) -> list[str]:
@@ -172,8 +226,10 @@ def tolerance_lines(section: dict) -> list[str]:
     sampled = section.get("sampled")
     if sampled:
         failed = f", {sampled['failed']} failed" if sampled["failed"] else ""
-        text += f", {sampled['rms']['p95']:.3g} mm ({sampled['count']} samples{failed})"
-    text += f"; least tension p5 {lin['min_tension']['p5']:.4g} N/m"
+        few = (f"; too few to place a 95th percentile, which needs about {FEW_SAMPLES}"
+               if sampled["count"] < FEW_SAMPLES else "")
+        text += f", {sampled['rms']['p95']:.3g} mm ({sampled['count']} samples{failed}{few})"
+    text += f"; the wing's least tension, 5th percentile {lin['min_tension']['p5']:.4g} N/m"
     budget = section.get("budget")
     if budget is None:
         shares = sorted(section["shares"]["rms"].items(), key=lambda item: -item[1])
