@@ -357,7 +357,7 @@ def test_a_bad_case_file_exits_2_with_one_line(tmp_path, monkeypatch, capsys, te
         (["--pressure", "-5"], "pressure"),
         (["--pressure", "abc"], "pressure"),
         (["--pressure-bounds", "1e5", "1e3"], "pressure"),
-        (["--n-span", "2"], "n_span"),
+        (["--n-span", "2"], "argument --n-span: must be 3 or more"),
         (["--variables", "pressure,thickness"], "thickness"),
         (["--config", "absent.toml"], "absent.toml"),
         (["--target", "."], "--target: . is a directory; give a NACA code such as naca2412 or a .dat file"),
