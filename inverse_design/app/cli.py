@@ -383,6 +383,9 @@ def _main(argv: list[str] | None, started: float, ended: dict) -> int:
         _error(None, "error", str(exc))
         return 2
     options = case.options
+    if not options.quiet:  # (the case's warnings, at once: a later refusal must not hide them)
+        for note in case.notes:
+            _say(f"{PROG}: warning: {note}")
     progress = sys.stderr is not None and sys.stderr.isatty() and not (options.quiet or options.json)
     workers = None
     try:

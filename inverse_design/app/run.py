@@ -136,14 +136,14 @@ def warn(case: Case) -> list[str]:
     (`case.Case.ignored_options`), and the earlier report's files that changed since and that this run
     keeps (`output_folder.changed_files`)."""
     o = case.options
-    lines = list(case.notes) + design.warning_lines(case) + case.ignored_options()
+    lines = design.warning_lines(case) + case.ignored_options()
     lines += [f"{name} in {o.out} changed since the earlier report wrote it: kept as it is (this run "
               f"writes no {name}), and no longer counted as a report file"
               for name in changed_files(o.out) if not case.may_write(name)]
     if not o.quiet:
         for line in lines:
             print(f"{PROG}: warning: {line}", file=sys.stderr)
-    return lines
+    return list(case.notes) + lines  # (the case's own, `case.Case.notes`, were shown as it was read)
 
 
 @contextmanager

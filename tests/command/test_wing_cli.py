@@ -81,20 +81,20 @@ def test_the_wing_case_file_runs_end_to_end_and_writes_its_summary(tmp_path, cap
 
 
 def test_a_wing_outside_the_validated_ranges_warns_before_the_design(tmp_path, capsys, monkeypatch):
-    # Bay 1 spans 100 m. The lines come before the optimisation, which is stopped there (as
-    # Ctrl-C would) so that no 100 m bay is solved.
+    # Bay 1 spans 2.25 m (3 chords: outside the validated range, inside what is refused). The lines come
+    # before the optimisation, which is stopped there (as Ctrl-C would) so that no such bay is solved.
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(design, "optimise_wing", stop)
     case = tmp_path / "wing.toml"
-    case.write_text(CASE.replace("station = 0.5", "station = 100.25").replace("station = 0.75", "station = 100.5"))
+    case.write_text(CASE.replace("station = 0.5", "station = 2.5").replace("station = 0.75", "station = 2.75"))
     code = cli.main(["--config", str(case), "--out", str(tmp_path / "out"), "--no-compilation-cache"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == cli.EXIT_INTERRUPTED
-    assert err[:2] == ["optimise-pressure: warning: bay 1: rib spacing 100 m lies outside the range the model is "
+    assert err[:2] == ["optimise-pressure: warning: bay 1: rib spacing 2.25 m lies outside the range the model is "
                        "validated for (0.05 to 0.5 m); check the value, or treat the result as unvalidated",
-                       "optimise-pressure: warning: bay 1: rib spacing / chord 133.3 lies outside the range the "
+                       "optimise-pressure: warning: bay 1: rib spacing / chord 3 lies outside the range the "
                        "model is validated for (0.05 to 0.5); check the value, or treat the result as unvalidated"]
     assert len(err) == 4 and "span nodes, fewer than" in err[2]  # the test grid's, then the interruption
 
