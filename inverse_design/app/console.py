@@ -143,7 +143,7 @@ def describe(summary: dict) -> list[str]:
         refined = refined_line(res)
         if refined:
             lines.append(refined)
-        if res["success"]:
+        if res.get("success"):  # (a failed design's multipliers price nothing it reached)
             lines += sensitivity_lines(summary.get("sensitivity"))
     for bay in summary["bays"]:
         aero = bay.get("aero")
