@@ -26,7 +26,7 @@ are rough).
 constraint's right-hand side at the rate of its multiplier: raising a lower
 bound of ``u_i`` raises ``f*`` by ``mu_i`` per scaled unit, raising an upper
 bound lowers it by ``nu_i``; a tension floor's rows are ``(T - floor) / s``
-(``s`` the design's tension scale, `problem.DesignProblem.tension_scale`), so
+(``s`` the rows' tension scale, `problem.DesignProblem.tension_scale`, ``p c / 2`` at the start), so
 raising the floor by 1 N/m raises ``f*`` by ``sum_j lambda_j / s`` over its
 active cells, and a ceiling the opposite; a rib thickness row is
 ``(t - m t0) / unit``, so raising ``min_thickness`` by one raises ``f*`` by
@@ -40,7 +40,9 @@ Each price is given per `UNITS` of the bound (per kPa of a pressure bound,
 for a lower bound, a floor and a rib limit (raising them costs accuracy),
 negative for an upper bound and a ceiling; ``relaxed_gain = |d_rms|`` is
 what relaxing it by one unit (lowering a lower bound or floor, raising an
-upper bound or ceiling) gains.
+upper bound or ceiling) gains at first: a rate at the design, which flattens
+as the design moves (relaxing a bound alone never gains more than the
+window's ``free_gain``, below).
 
 **Windows.** For each design variable (each component of a vector one), the
 range over which the rms stays within `WINDOW` (1%) of the optimum's, with
@@ -53,7 +55,9 @@ freeing it alone from that bound (the model's minimum beyond it) would lower
 the rms by less than 1%: the objective is flat there and the bound, not the
 physics, picked the value; otherwise the bound *holds it back*.
 
-Not for the objective "robust" (its ``r . r`` majorises a quantile, not the
+For the objective "worst", ``r`` is each bay's worst row (SLSQP minimises a
+smooth maximum of the rows: where two rows tie, ``stationarity`` says how
+rough the prices are). Not for the objective "robust" (its ``r . r`` majorises a quantile, not the
 mean square) nor the method "root" (a root of a condition, not a minimum of
 the rms), nor a single equilibrium: `sensitivity` returns None.
 """
