@@ -47,6 +47,7 @@ from .problem import DesignProblem
 from .progress import notify, progress_bar
 from .result import DesignResult, LimitReport, PerBayResults
 from .rib_design import RibGeometry, rib_crossings, rib_report
+from .sensitivity import sensitivity
 from .settings import MOVED_KEYWORDS, DesignRequest, Layout, Limits, SolverSettings, refuse_moved
 from .variables import DEFAULT_START, VARIABLES, DesignVariables, concrete_rows
 
@@ -261,6 +262,8 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
                 violated = {**violated, **quantile_broken[0]}
                 success = False
                 message = f"{message}; {'; '.join(quantile_broken[1])}{UNMET_ADVICE}"
+        solves = problem.solves  # the design's; the sensitivity's own (none after Gauss-Newton) are its record's
+        prices = _sensitivity(problem, method, sol, after, u, active, parameters, shapes, fields)
     per_bay = PerBayResults(
         scenes=tuple(scenes), targets=tuple(targets), weights=problem.targets.weights,
         rms_error=after["rms"], max_error=after["max"], initial_rms_error=before["rms"],
@@ -273,8 +276,20 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
         parameters=parameters, rms_error=after["wing_rms"], max_error=float(np.max(after["max"])),
         initial_rms_error=before["wing_rms"], initial_max_error=float(np.max(before["max"])), wing_solution=sol,
         request=dataclasses.replace(request, variables=design.names), per_bay=per_bay, history=problem.history.entries,
-        success=bool(success and sol.converged), message=message, limits=limits, solves=problem.solves,
-        wall_time=time.perf_counter() - start, wing=wing)
+        success=bool(success and sol.converged), message=message, limits=limits, solves=solves,
+        wall_time=time.perf_counter() - start, wing=wing, sensitivity=prices)
+
+
+def _sensitivity(problem, method, sol, after, u, active, parameters, shapes, fields) -> dict | None:
+    """`sensitivity.sensitivity` at the design, or None: after the method "root" (a root of a condition, not
+    a minimum of the rms), at a design whose final solve or errors are not finite, or where the one wing
+    solve of its linearisation (methods other than Gauss-Newton) fails (the design stands without it)."""
+    if method.name == "root" or not (sol.converged and np.all(np.isfinite(after["rms"]))):
+        return None
+    try:
+        return sensitivity(problem, u, active, parameters, shapes, fields)
+    except BaysConvergenceError:
+        return None
 
 
 def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = None, *,

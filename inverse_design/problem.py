@@ -115,7 +115,10 @@ class DesignProblem:
         self._previous_key = None
         self.solves = 0
         self.history = History(variables)
-        self._cache: dict = {}  # the last evaluation with its derivatives
+        # The last evaluation with its derivatives, by ``(kind, key_of(u))``: `evaluate`'s, `nominal_linearised`'s
+        # and `residuals_and_jacobian`'s tuples differ, so a design that reads one after another at the same
+        # point (the sensitivity after SLSQP) never takes one for another.
+        self._cache: dict = {}
         self._solved: dict = {}  # every converged solve by `key_of`, without its LU factors
         # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
         self._measured: dict = {}
@@ -247,7 +250,7 @@ class DesignProblem:
 
     def cached(self, key):
         """The cached evaluation at ``key`` (`variables.key_of` a vector), or None."""
-        return self._cache.get(key)
+        return self._cache.get(("evaluate", key))
 
     def _with_rib_rows(self, u, g, jg, recorded):
         """The constraint rows ``g`` with the rib limits' rows appended (their Jacobian to ``jg``), and the
@@ -275,7 +278,7 @@ class DesignProblem:
         Raises:
             BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
-        key = key_of(u)
+        key = ("evaluate", key_of(u))
         if key not in self._cache:
 
             def outputs(v, sol):
@@ -303,8 +306,7 @@ class DesignProblem:
         """`nominal_linearised`, or for the objective "robust" its stacked residual and quantile rows
         (`tolerance.robust.RobustTerms.assemble`: ``r @ r`` the majoriser of the linearised 95th
         percentile of the mean square, less its constant)."""
-        key = key_of(u)
-        new = key not in self._cache
+        new = ("linearised", key_of(u)) not in self._cache
         r, jr, g, jg, sol = self.nominal_linearised(u)
         if self.robust is None:
             return r, jr, g, jg, sol
@@ -335,7 +337,24 @@ class DesignProblem:
         Raises:
             BaysConvergenceError: if a bay does not converge from the mounted shape.
         """
-        key = key_of(u)
+        return self._linearise(u, record=True)
+
+    def linearisation(self, u) -> tuple:
+        """``(r, dr/du, g, dg/du, solves)``: `nominal_linearised` at ``u`` as a design's last look at its
+        optimum (`sensitivity`), and the forward solves it cost: none where the method's last
+        linearisation was at ``u`` (Gauss-Newton's at its accepted iterate), else one wing solve and its
+        Jacobian, neither recorded in the history nor shown by the progress bar (no iterate of the design).
+
+        Raises:
+            BaysConvergenceError: if a bay does not converge from the mounted shape.
+        """
+        before = self.solves
+        r, jr, g, jg, _ = self._linearise(u, record=False)
+        return r, jr, g, jg, self.solves - before
+
+    def _linearise(self, u, record: bool):
+        """`nominal_linearised`, recording the iterate in the history when ``record``."""
+        key = ("linearised", key_of(u))
         if key not in self._cache:
             seeds, columns = self.seeds
             (y, compressed), sol = self._transformed(partial(value_and_jacobian, basis=seeds),
@@ -349,8 +368,10 @@ class DesignProblem:
             recorded = g.reshape(n_limits, -1).min(axis=1) if n_limits and g.size else np.zeros(0)
             g, jg, recorded = self._with_rib_rows(u, g, jg, recorded)
             self._cache = {key: (r, jr, g, jg, sol)}
-            self.history.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol, constraints=recorded,
-                        jacobian=f"{len(self.scenes)} bay blocks x {seeds.shape[0]} tangents")
+            if record:
+                self.history.record(u, r @ r, np.linalg.norm(2.0 * (jr.T @ r)), solution=sol,
+                                    constraints=recorded,
+                                    jacobian=f"{len(self.scenes)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
 
     def _linearised_outputs(self, v, sol):
@@ -384,7 +405,7 @@ class DesignProblem:
 
     def residuals_and_jacobian(self, u):
         """Residuals and their Jacobian in ``u`` (forward mode, one tangent solve per variable)."""
-        key = key_of(u)
+        key = ("residuals", key_of(u))
         if key not in self._cache:
             (r, jac), sol = self._transformed(lambda w, v: value_and_jacobian(w, v), self.residuals, u)
             r, jac = np.asarray(r), np.asarray(jac)

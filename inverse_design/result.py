@@ -141,6 +141,11 @@ class DesignResult(ParameterViews):
             bounds, objective, the method that ran, limits, tolerances, layout
             and solver settings).
         per_bay: the per-bay and per-rib arrays (`PerBayResults`).
+        sensitivity: what held the design where it is (`sensitivity.sensitivity`, JSON-friendly): the
+            shadow price of every active bound and limit (the rms change per unit of it) and each
+            variable's window (the range within 1% of the optimum's rms, the others held), from the
+            linearisation at the design; None for a single equilibrium, the objective "robust" and
+            the method "root". Its ``solves`` are not among ``solves`` (the design's).
     """
 
     parameters: Parameters
@@ -159,6 +164,7 @@ class DesignResult(ParameterViews):
     wall_time: float = 0.0
     grid_change: dict | None = None
     wing: Wing | None = None
+    sensitivity: dict | None = None
 
     @property
     def variables(self) -> tuple:

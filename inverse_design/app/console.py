@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["WROTE_NAMES", "describe", "grouped_names", "number_text", "refined_line", "start_violation_line",
-           "tolerance_lines", "wrote_line"]
+__all__ = ["WROTE_NAMES", "describe", "grouped_names", "number_text", "refined_line", "sensitivity_lines",
+           "start_violation_line", "tolerance_lines", "wrote_line"]
 
 #: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
 _VIOLATION_UNITS = {"rib_min_thickness": " of the starting thickness", "rib_min_radius": " chord"}
@@ -159,6 +159,8 @@ def describe(summary: dict) -> list[str]:
         refined = refined_line(res)
         if refined:
             lines.append(refined)
+        if res.get("success"):  # (a failed design's multipliers price nothing it reached)
+            lines += sensitivity_lines(summary.get("sensitivity"))
     for bay in summary["bays"]:
         aero = bay.get("aero")
         if aero:
@@ -244,3 +246,52 @@ def tolerance_lines(section: dict) -> list[str]:
         second = (f"  budget for 95% within {budget['spec']:g} mm rms: all tolerances {scale}; each alone up to "
                   f"{alone}")
     return [text, second]
+
+
+#: How the console shows a value of each variable: ``(unit shown, factor from the record's unit)``.
+_SHOWN = {"pressure": (" kPa", 1e-3), "prestrain_span": ("%", 100.0), "prestrain_chord": ("%", 100.0),
+          "cut_pattern": ("%", 100.0), "rib_shape": (" chord", 1.0),
+          "min_tension": (" N/m", 1.0), "max_tension": (" N/m", 1.0), "rib_min_radius": (" chord", 1.0)}
+
+
+def _shown(name: str, value: float) -> str:
+    """``value`` of ``name`` as the console shows it (``1 kPa``, ``2%``, ``0.8``)."""
+    unit, factor = _SHOWN.get(name, ("", 1.0))
+    return f"{number_text(value * factor, 3)}{unit}"
+
+
+def sensitivity_lines(section: dict | None) -> list[str]:
+    """What held the design where it is (`inverse_design.sensitivity`, the summary's ``sensitivity``): one
+    line per active bound or limit with its shadow price, then one per scalar variable at a bound or with
+    a wide window, in words."""
+    if not section:
+        return []
+    lines = []
+    for price in section["prices"]:
+        name = price.get("variable") or price["limit"]
+        relation = ">=" if price["side"] == "lower" else "<="
+        count = f" ({price['components']} coefficients)" if price.get("components", 1) > 1 else ""
+        move = "lowering" if price["side"] == "lower" else "raising"
+        lines.append(f"  {name} {relation} {_shown(name, price['value'])}{count}: shadow price "
+                     f"{price['relaxed_gain']:.3g} chord of rms per {price['per']} ({price['percent']:.2g}% of it): "
+                     f"{move} it lowers the rms at that rate at first")
+    for window in section["windows"]:
+        name, side = window["name"], window["at_bound"]
+        if window["variable"] != name or not (side or window["wide"]):
+            continue  # (a vector's components: the record has them)
+        span = (f"any value from {_shown(name, window['low'])} to {_shown(name, window['high'])} keeps the rms "
+                f"within {section['window']:.0%}")
+        limits = [f"{end} ends it {where}" for end, where in ((window["low_end"], "below"), (window["high_end"], "above"))
+                  if end not in ("rms", "lower bound", "upper bound")]  # a linearised limit row
+        if limits:
+            span += f" ({', '.join(limits)})"
+        freed = f"freed from it, the rms would fall by {'only ' if window['decided_by_bound'] else ''}" \
+                f"{100 * window['free_gain']:.2g}%"
+        if side and window["decided_by_bound"]:
+            verdict = f"the {side} bound decides it ({freed})"
+        elif side:
+            verdict = f"the {side} bound holds it back ({freed})"
+        else:
+            verdict = "the optimum is flat"
+        lines.append(f"  {name}: {span}; {verdict}" if window["wide"] else f"  {name}: {verdict}; {span}")
+    return lines

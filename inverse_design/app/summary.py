@@ -4,7 +4,7 @@ One record for any number of bays (a bay given by options and the same bay
 as a two-rib case file have the same keys): ``schema``, ``mode``
 ("optimise", or "evaluate" for a single equilibrium), ``inputs``,
 ``warnings``, ``case``, ``results``, ``errors`` (fractions of the local
-chord), ``constraints``, ``timings_s``, ``history``, ``rib`` (a shaped
+chord), ``constraints``, ``sensitivity`` (`inverse_design.sensitivity`), ``timings_s``, ``history``, ``rib`` (a shaped
 rib) and ``bays``, one entry per bay (docs/command.md lists every key). The
 folder adds ``patterns``, ``files``, ``skipped``, ``checksums`` and ``out``
 (`folder.write_report`); the console prints a few lines of it (`console.describe`).
@@ -146,6 +146,8 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
             "violated_at_start_where": _labelled(result.violated_at_start_where) if design else None,
             "values": dict(result.constraint_values), "unit": "N/m",
         },
+        # what held the design where it is: shadow prices and design windows (docs/design_problem.md)
+        "sensitivity": result.sensitivity if design else None,
         "timings_s": dict(timings or {}),
         "history": list(result.history),
         "bays": _bay_entries(result, solutions, aero),

@@ -90,6 +90,28 @@ def test_the_console_says_one_bay_and_a_wing_of_n_bays(two_reports):
     assert sum(line.startswith("  bay ") for line in lines) == 3
 
 
+def test_the_default_design_says_its_bounds_decided_it_with_their_prices(two_reports):
+    # The default design sits on its pressure floor (1 kPa) and its rib thickness ceiling (1.0): the summary
+    # prices both bounds, and the console says so in one line each, then that the floor, not the physics,
+    # chose the pressure (freed from it the rms would fall by 0.015% on this grid).
+    summary = dict(two_reports["options"], out="out")
+    section = summary["sensitivity"]
+    assert [(p["name"], p["per"]) for p in section["prices"]] == [("pressure>=lower", "1 kPa"),
+                                                                   ("rib_thickness_scale<=upper", "0.01")]
+    assert section["prices"][0]["d_rms"] > 0 > section["prices"][1]["d_rms"]
+    assert [w["name"] for w in section["windows"]] == ["pressure", "rib_thickness_scale"]
+    assert section["rms"] == pytest.approx(summary["errors"]["after"]["rms"], rel=1e-9)
+    lines = describe(summary)
+    priced = [line for line in lines if ": shadow price " in line]
+    assert [line.split(":")[0] for line in priced] == ["  pressure >= 1 kPa", "  rib_thickness_scale <= 1"]
+    assert f"{section['prices'][0]['relaxed_gain']:.3g} chord of rms per 1 kPa" in priced[0]
+    (pressure,) = [line for line in lines if line.startswith("  pressure: ")]
+    high = section["windows"][0]["high"]
+    assert pressure.startswith(f"  pressure: any value from 1 kPa to {number_text(high / 1e3, 3)} kPa keeps the rms "
+                               "within 1%; the lower bound decides it")
+    assert lines.index(pressure) < len(lines) - 2  # before the timing and the files
+
+
 def test_a_value_zero_to_rounding_prints_as_zero():
     # SLSQP returns a variable at an active bound of 0 as a few 1e-15 of its scaled value (e.g.
     # minimize((x + 1)^2, bounds [0, 5]) from 0.3 gives 2.8e-15): a prestrain of 3.9e-19.
