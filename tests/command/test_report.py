@@ -219,21 +219,27 @@ def test_a_bay_s_figures_unpickle_without_jax_or_the_solver(tmp_path):
     assert ran.stdout.strip() == "3 []"
 
 
-def test_the_panel_label_runs_clear_of_the_warp_arrow():
+def test_the_panel_label_runs_clear_of_the_warp_arrow(tmp_path):
+    ezdxf = pytest.importorskip("ezdxf")
+    from ezdxf import bbox
+
     from forward_solver import Bay, Fabric, Parameters, Scene
-    from inverse_design.app.cut_files import _panel_drawing
+    from inverse_design.app.cut_files import write_panel_dxf
     from inverse_design.flat_panels import bay_panels
     from targets import naca
 
     scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())
     for panel in bay_panels(scene, Parameters(pressure=1e3, prestrain_span=0.02, prestrain_chord=0.0)):
-        drawing = _panel_drawing(panel, 10.0)
-        shaft = np.asarray(drawing["MARK"][-3])  # the arrow's shaft, then its two barbs
-        warp = next(t for t in drawing["text"] if t[3] == "WARP")
-        x, y, height, label = drawing["text"][-1]
-        assert label.startswith(f"bay 0 {panel.name} panel")
-        # The label is horizontal, the warp arrow runs along the span (y): clear if their heights part.
-        assert y + height < shaft[:, 1].min() and y > 0.0 and abs(warp[1] - y) > height
+        msp = ezdxf.readfile(write_panel_dxf(tmp_path / f"{panel.name}.dxf", panel, 10.0)).modelspace()
+        (label,) = [t for t in msp.query("TEXT") if t.dxf.text == f"bay 0 {panel.name} panel"]
+        box = bbox.extents([label])
+        # the arrow's shaft: the longest two-point mark (the notches are 13 mm); every point along it clear
+        shaft = max((np.asarray(e.get_points("xy")) for e in msp.query('LWPOLYLINE[layer=="MARK"]')
+                     if len(e) == 2), key=lambda p: np.linalg.norm(p[1] - p[0]))
+        along = shaft[0] + np.linspace(0.0, 1.0, 200)[:, None] * (shaft[1] - shaft[0])
+        inside = ((along[:, 0] >= box.extmin.x) & (along[:, 0] <= box.extmax.x) & (along[:, 1] >= box.extmin.y)
+                  & (along[:, 1] <= box.extmax.y))
+        assert not inside.any() and np.linalg.norm(shaft[1] - shaft[0]) > 50.0, panel.name
 
 
 def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
