@@ -106,13 +106,19 @@ class Layout:
         """Take ``box`` ``(x0, y0, x1, y1)`` as placed (a mark that does not move)."""
         self.boxes = np.vstack([self.boxes, np.asarray(box, np.float64).reshape(-1, 4)])
 
-    def _clash(self, boxes, margin: float) -> np.ndarray:
-        """``(c,)`` how far each of ``boxes`` ``(c, 4)`` is from free, mm^2: 0 where it is free, else
-        the area it overlaps the placed boxes, plus its area for each corner outside or too near the
-        outline."""
-        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
-        corners = boxes[:, [[0, 1], [2, 1], [2, 3], [0, 3]]]  # (c, 4, 2)
-        points = corners.reshape(-1, 2)
+    def _overlap(self, boxes) -> np.ndarray:
+        """``(c,)`` the area each of ``boxes`` ``(c, 4)`` overlaps the placed boxes (with `_CLEAR`), mm^2."""
+        if not self.boxes.size:
+            return np.zeros(len(boxes))
+        p, q = self.boxes[None], boxes[:, None]
+        width = np.minimum(q[..., 2], p[..., 2] + _CLEAR) - np.maximum(q[..., 0], p[..., 0] - _CLEAR)
+        height = np.minimum(q[..., 3], p[..., 3] + _CLEAR) - np.maximum(q[..., 1], p[..., 1] - _CLEAR)
+        return np.sum(np.clip(width, 0.0, None) * np.clip(height, 0.0, None), axis=1)
+
+    def _outside(self, boxes, margin: float) -> np.ndarray:
+        """``(c,)`` how many corners of each of ``boxes`` ``(c, 4)`` lie outside the outline or nearer it
+        than ``margin`` (mm)."""
+        points = boxes[:, [[0, 1], [2, 1], [2, 3], [0, 3]]].reshape(-1, 2)
         a, b = self.start, self.end
         # inside: an odd number of the outline's edges crossed by a ray along +x
         straddle = (a[None, :, 1] > points[:, None, 1]) != (b[None, :, 1] > points[:, None, 1])
@@ -123,31 +129,35 @@ class Layout:
         ab = b - a
         t = np.clip(np.einsum("pkd,kd->pk", points[:, None] - a, ab) / np.sum(ab * ab, axis=1), 0.0, 1.0)
         distance = np.min(np.linalg.norm(points[:, None] - (a + t[..., None] * ab), axis=-1), axis=1)
-        out = np.sum(~(inside & (distance >= margin)).reshape(-1, 4), axis=1)
-        clash = out * (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-        if self.boxes.size:
-            p, q = self.boxes[None], boxes[:, None]
-            width = np.minimum(q[..., 2], p[..., 2] + _CLEAR) - np.maximum(q[..., 0], p[..., 0] - _CLEAR)
-            height = np.minimum(q[..., 3], p[..., 3] + _CLEAR) - np.maximum(q[..., 1], p[..., 1] - _CLEAR)
-            clash = clash + np.sum(np.clip(width, 0.0, None) * np.clip(height, 0.0, None), axis=1)
-        return clash
+        return np.sum(~(inside & (distance >= margin)).reshape(-1, 4), axis=1)
 
-    def free(self, boxes) -> np.ndarray:
-        """``(c,)`` whether each of ``boxes`` ``(c, 4)`` is free (module docstring)."""
-        return self._clash(boxes, self.margin) == 0.0
+    def free(self, boxes, margin: float | None = None) -> np.ndarray:
+        """``(c,)`` whether each of ``boxes`` ``(c, 4)`` is free (module docstring; ``margin``, mm: None,
+        the layout's). The overlaps first: only the boxes clear of the others are tested against the
+        outline."""
+        boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+        ok = self._overlap(boxes) == 0.0
+        ok[ok] = self._outside(boxes[ok], self.margin if margin is None else margin) == 0
+        return ok
 
     def place(self, boxes, margin: float | None = None) -> int:
         """The index of the first of ``boxes`` ``(c, 4)``, in order of preference, that is free (where
-        none is, the one that overlaps least); that box is placed. ``margin``: this box's least distance
-        from the outline, mm (None: the layout's)."""
+        none is, the one that clashes least: its overlap with the placed boxes plus its area for each
+        corner outside or too near the outline); that box is placed. ``margin``: this box's least
+        distance from the outline, mm (None: the layout's)."""
         boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
         margin = self.margin if margin is None else margin
-        clash = np.empty(len(boxes))
-        for first in range(0, len(boxes), _CHUNK):  # (in order: the first free one ends the search)
-            clash[first:first + _CHUNK] = self._clash(boxes[first:first + _CHUNK], margin)
-            if np.any(clash[first:first + _CHUNK] == 0.0):
-                clash = clash[:first + _CHUNK]
+        first, size = 0, 1
+        while first < len(boxes):  # in order, the preferred first: the first free one ends the search
+            ok = self.free(boxes[first:first + size], margin)
+            if ok.any():
+                k = first + int(np.argmax(ok))
                 break
-        k = int(np.argmin(clash))  # (the first of the least)
+            first, size = first + size, min(16 * size, _CHUNK)
+        else:
+            clash = np.concatenate([
+                self._overlap(chunk) + self._outside(chunk, margin) * (chunk[:, 2] - chunk[:, 0]) * (
+                    chunk[:, 3] - chunk[:, 1]) for chunk in np.split(boxes, range(_CHUNK, len(boxes), _CHUNK))])
+            k = int(np.argmin(clash))  # (the first of the least)
         self.add(boxes[k])
         return k
