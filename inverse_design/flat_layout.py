@@ -32,7 +32,9 @@ class Panel:
         bay: the bay's index.
         name: "upper", "lower" or "panel".
         columns: ``(m,)`` contour node index ``j`` of each panel column (left to right).
-        flat: ``(n_span, m, 2)`` the developed grid, metres (x across, y along the span).
+        flat: ``(n_span, m, 2)`` the developed grid, metres (x across, y along the span from the root
+            rib), as its outside face is seen (`flat_panels.bay_panels`: the contour along -x). A
+            wing's bay ``k`` lies between ribs ``k`` (root, row 0) and ``k + 1`` (tip, the last row).
         contour_cut: ``(n_span, m - 1)`` the cut length of each contour edge, m.
         span_cut: ``(n_span - 1, m)`` the cut length of each span edge, m.
         leading_edge: the panel column of the leading edge, or None.
@@ -231,9 +233,10 @@ def _normal_step(normal, rhs, damping: float):
 def panel_outline(flat) -> tuple[np.ndarray, np.ndarray]:
     """The sewing outline of a flat panel: ``(points (p, 2), grid (p, 2) [i, k] of each point)``.
 
-    Counter-clockwise from the root rib's first node: along the root rib row
-    (``i = 0``), up the last column, back along the tip rib row, down the
-    first column (the closing edge back to the start is implied).
+    From the root rib's first node: along the root rib row (``i = 0``), up
+    the last column, back along the tip rib row, down the first column (the
+    closing edge back to the start is implied); clockwise on a panel seen
+    from outside (`Panel.flat`), counter-clockwise on one laid by `develop`.
     """
     n, m = flat.shape[:2]
     grid = ([(0, k) for k in range(m)] + [(i, m - 1) for i in range(1, n)]

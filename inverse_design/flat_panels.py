@@ -30,9 +30,14 @@ contour node of least x) into an ``upper`` panel (trailing edge to leading
 edge, Selig order) and a ``lower`` panel (leading edge round to the trailing
 edge, the base edge of a blunt trailing edge included), so that both panels
 are nearly flat strips and the seams are at the trailing and leading edges;
-a flat test panel is one ``panel``. In the drawing a panel's contour runs
-along ``+x`` and the span (the warp, from the root rib ``i = 0``) along
-``+y``.
+a flat test panel is one ``panel``. A panel is laid as its outside face is
+seen (the face the pressure pushes out): the span (the warp, from the root
+rib ``i = 0``) along ``+y`` and the contour (Selig order) along ``-x``, so
+the upper panel has its leading edge on the left, as the wing is seen from
+above with its root at the bottom, and the lower panel its leading edge on
+the right, as seen from below. (`flat_layout.develop` lays the contour along
+``+x``: that is the inside face seen, mirrored.) A shop lays the fabric
+outside face up under the drawing.
 
 `flat_layout.offset_outline` gives the cut line: the sewing outline offset outward by
 the seam allowance (a miter offset of the closed polygon, sharp convex
@@ -115,6 +120,7 @@ def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:
         edges = columns[:-1]  # contour edge e joins nodes e and e + 1 (mod n_contour)
         contour_cut, span_cut = contour[:, edges], span[:, columns]
         flat = develop(contour_cut, span_cut, _cell_cosines(nodes, columns))
+        flat[..., 0] = flat[0, -1, 0] - flat[..., 0]  # seen from outside: the contour along -x (docstring)
         c, s = edge_lengths(flat)
         error = float(max(np.max(np.abs(c - contour_cut)), np.max(np.abs(s - span_cut))))
         panels.append(Panel(bay=bay, name=name, columns=columns, flat=flat, contour_cut=contour_cut,

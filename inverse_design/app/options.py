@@ -343,7 +343,9 @@ left by a killed run are removed by the next run to DIR:
                         bay), tensions.png (wrinkled cells marked), rib_design.png
   pattern_bay_K_upper.dxf, pattern_bay_K_lower.dxf   the flat panels, cut-ready, 1:1 in mm:
                         layers SEW (sewing line at the cut lengths), CUT (at the seam
-                        allowance), MARK (alignment marks, LE, warp, label), GRID (the
+                        allowance), MARK (alignment marks numbered as the ribs' ticks,
+                        each edge's rib or seam, warp, label, outside face, 100 mm
+                        scale bar), GRID (the
                         developed span fibres; a layer off when opened); .svg of each for
                         a quick look; rib_K.dxf the rib templates (SEW the rib itself, CUT
                         its seam allowance; a successful design only; not with

@@ -58,6 +58,6 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
             chord = (scene.bay.chord_root if row == 0 else scene.bay.chord_tip) * float(parameters.rib_chord_scale)
             outline, nodes = rib_template(scene, parameters, row)
             writer(folder / name, write_rib_dxf, outline, nodes, f"rib {rib} template, chord {chord * MM:.1f} mm",
-                   allowance)
+                   allowance, f"rib {rib}")
             names.append(name)
     return names, panels

@@ -156,6 +156,11 @@ def _symlog_limits(values, linthresh: float, margin: float = 0.15) -> tuple[floa
     return float(inverse(low - spare)), float(inverse(high + spare))
 
 
+def _per_bay(stations, values) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y)`` of a per-bay value as a line level across each bay, from rib to rib (a staircase)."""
+    return np.repeat(np.asarray(stations, np.float64), 2)[1:-1], np.repeat(np.asarray(values, np.float64), 2)
+
+
 def plot_wing_overview(result, deviation: np.ndarray):
     """One figure of every bay of a wing design: the deviation over the whole skin and the per-bay figures.
 
@@ -163,9 +168,11 @@ def plot_wing_overview(result, deviation: np.ndarray):
     (fractions of the local chord, ``deviation`` of `measures.wing_deviation`)
     over the span (rows of all bays joined, y from the root rib) and around
     the contour (node index: trailing edge, upper surface, leading edge,
-    lower surface). Middle: each bay's RMS and largest distance, before and
-    after, at its mid-span station. Bottom: each bay's smallest and largest
-    fibre tension at the design, with the tension floor.
+    lower surface), its colour bar beside it. Middle: each bay's RMS and
+    largest distance, before and after; bottom: each bay's smallest and
+    largest fibre tension at the design, with the tension floor: a bay's value
+    is drawn as a level line from its root rib to its tip rib (one bay: one
+    line across the bay, not a dot).
 
     Args:
         result: the wing's `optimise.DesignResult`.
@@ -179,25 +186,26 @@ def plot_wing_overview(result, deviation: np.ndarray):
     rows = [stations[k] + np.linspace(0.0, stations[k + 1] - stations[k], n_span) for k in range(n_bays)]
     y = np.concatenate([r if k == 0 else r[1:] for k, r in enumerate(rows)])
     joined = np.concatenate([deviation[k] if k == 0 else deviation[k][1:] for k in range(n_bays)])
-    middle = 0.5 * (stations[:-1] + stations[1:])
     fig = new_figure(10.0, 9.0)
     ax_map, ax_err, ax_ten = fig.subplots(3, 1, sharex=True, height_ratios=(1.4, 1.0, 1.0))
     limit = float(np.max(np.abs(joined))) or 1.0
     mesh = ax_map.pcolormesh(y, np.arange(n_contour), joined.T, cmap="RdBu_r", vmin=-limit, vmax=limit,
                              shading="nearest")
-    fig.colorbar(mesh, ax=ax_map, label="distance / local chord (+ outside)")
+    # beside the map, in the column of the other panels' legends (a colour bar given the map's axes
+    # went to the figure's far edge, past those legends)
+    fig.colorbar(mesh, cax=ax_map.inset_axes([1.01, 0.0, 0.025, 1.0]), label="distance / local chord\n(+ outside)")
     for s in stations:
         ax_map.axvline(s, color="0.4", lw=0.3)
     ax_map.set_ylabel("contour node\n(TE, upper, LE, lower)")
-    ax_err.plot(middle, result.initial_bay_rms_error, "o--", color="0.5", ms=3, label="rms, start")
-    ax_err.plot(middle, result.bay_rms_error, "o-", color="C0", ms=3, label="rms, design")
-    ax_err.plot(middle, result.bay_max_error, "s-", color="C3", ms=3, label="max, design")
+    ax_err.plot(*_per_bay(stations, result.initial_bay_rms_error), "--", color="0.5", label="rms, start")
+    ax_err.plot(*_per_bay(stations, result.bay_rms_error), "-", color="C0", lw=1.6, label="rms, design")
+    ax_err.plot(*_per_bay(stations, result.bay_max_error), "-.", color="C3", lw=1.6, label="max, design")
     ax_err.set_yscale("log")
     ax_err.set_ylabel("distance / local chord")
     ax_err.grid(alpha=0.3, which="both")
     ax_err.legend(**_OUTSIDE)
-    ax_ten.plot(middle, result.bay_min_tension, "o-", color="C2", ms=3, label="min fibre tension")
-    ax_ten.plot(middle, result.bay_max_tension, "s-", color="C1", ms=3, label="max fibre tension")
+    ax_ten.plot(*_per_bay(stations, result.bay_min_tension), "-", color="C2", lw=1.6, label="min fibre tension")
+    ax_ten.plot(*_per_bay(stations, result.bay_max_tension), "-.", color="C1", lw=1.6, label="max fibre tension")
     floor = result.constraint_values.get("min_tension_floor")
     if floor is not None:
         ax_ten.axhline(floor, color="0.3", ls="--", lw=1.0, label=f"floor {floor:g} N/m")
@@ -218,15 +226,65 @@ def plot_wing_overview(result, deviation: np.ndarray):
     return fig
 
 
+def _cannot_meet(ax, budget: dict) -> None:
+    """The budget's panel where the nominal design already misses the spec: a statement, no bars."""
+    ax.set_axis_off()
+    ax.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms", fontsize="medium")
+    ax.text(0.5, 0.5, f"The spec cannot be met by any tolerance.\n\nThe design itself, built exactly,\n"
+            f"is {budget['nominal_rms']:.3g} mm rms from its target:\nalready above the {budget['spec']:g} mm "
+            "spec.\nNo tolerance, however tight, brings\n95% of wings within it.\n\n"
+            f"Loosen --shape-spec to more than {budget['nominal_rms']:.3g} mm,\nor improve the design.",
+            ha="center", va="center", transform=ax.transAxes, fontsize="medium", wrap=True,
+            bbox={"boxstyle": "round", "facecolor": "#fdecea", "edgecolor": "C3"})
+
+
+def _budget_bars(ax, budget: dict) -> None:
+    """The budget's bars: for each source alone, and all together, how far the given tolerance may be
+    scaled with 95% of wings within the spec (a log axis), each bar with the scatter it allows."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    sources = budget["sources"]
+    names = list(sources) + ["all together"]
+    scales = [sources[n]["scale"] for n in sources] + [budget["common_scale"]]
+    known = [v for v in scales if v is not None and v > 0] + [1.0]
+    cap, base = max(known) * 2.0, min(known) / 3.0  # (a log axis: the bars start at base)
+    shown = [cap if v is None else max(v, base) for v in scales]
+    colours = ["C2" if v is None or v >= 1 else "C3" for v in scales]
+    bars = ax.barh(names, [v - base for v in shown], left=base, color=colours)
+    ax.set_xscale("log")
+    for bar, name, scale in zip(bars, names, scales):
+        if scale is None:
+            text = "no limit: x1000 still meets the spec"
+        elif name in sources:
+            entry = sources[name]
+            unit = "" if entry["unit"] == "%" else f" {entry['unit']}"
+            text = f"x{scale:.3g}: {entry['text']}{unit} allowed (given {entry['given']}{unit})"
+        else:
+            text = f"x{scale:.3g} of every tolerance at once"
+        ax.text(bar.get_x() + bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {text}", va="center",
+                fontsize="small")
+    ax.axvline(1.0, color="black", lw=1.0, ls="--", label="x1: as given")
+    ax.set_xlim(base, cap * 30.0)  # (room for the bars' words)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"x{value:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("allowed scatter, times the given tolerance (green: room to spare; red: tighten to it)")
+    ax.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms", fontsize="medium")
+    ax.legend(fontsize="small", loc="lower right")
+    ax.invert_yaxis()
+
+
 def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
     """The tolerance analysis: the budget (or each source's share) and the distribution of the rms.
 
-    Left: with a shape spec, the largest multiple of each given tolerance that
-    alone keeps 95% of wings within the spec, and the common multiple of all
-    (1 is the tolerance as given; a bar past 1 has room to spare); without
-    one, each source's share of the rms's variance. Right: the linearised
-    model's distribution of the wing's rms distance (mm), the Monte Carlo
-    samples' histogram beside it, the spec and the nominal.
+    Left: with a shape spec, how far each given tolerance may be scaled,
+    alone, with 95% of wings still within the spec, and all of them together
+    (x1: as given; above 1 there is room to spare, below 1 the tolerance must
+    be tightened to that multiple; each bar says the allowed scatter in the
+    tolerance's unit). Where the nominal design already misses the spec, no
+    tolerance meets it however tight: the panel says so instead of drawing
+    bars. Without a spec: each source's share of the rms's variance. Right:
+    the linearised model's distribution of the wing's rms distance (mm), the
+    Monte Carlo samples' histogram beside it, the spec and the nominal.
 
     Args:
         section: ``summary["tolerance"]`` (`inverse_design.tolerance.ToleranceAnalysis.summary`).
@@ -239,30 +297,10 @@ def plot_tolerance(section: dict, linear_rms, sampled_rms=None):
     fig = new_figure(11.0, 4.2)
     left, right = fig.subplots(1, 2)
     budget = section.get("budget")
-    if budget is not None:
-        names = list(budget["sources"]) + ["all together"]
-        scales = [budget["sources"][n]["scale"] for n in budget["sources"]] + [budget["common_scale"]]
-        known = [s for s in scales if s is not None and s > 0] + [1.0]
-        cap, base = max(known) * 2.0, min(known) / 3.0  # (a log axis: the bars start at base)
-        shown = [cap if s is None else max(s, base) for s in scales]
-        colours = ["C2" if s is None or s >= 1 else "C3" for s in scales]
-        bars = left.barh(names, [v - base for v in shown], left=base, color=colours)
-        left.set_xscale("log")
-        for bar, scale in zip(bars, scales):
-            text = "no limit" if scale is None else "none" if scale == 0 else f"x{scale:.3g}"
-            left.text(bar.get_x() + bar.get_width(), bar.get_y() + bar.get_height() / 2, f" {text}", va="center",
-                      fontsize="small")
-        left.axvline(1.0, color="black", lw=1.0, ls="--", label="as given")
-        left.set_xlim(base, cap * 3.0)
-        from matplotlib.ticker import FuncFormatter, NullFormatter
-
-        left.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
-        left.xaxis.set_minor_formatter(NullFormatter())
-        left.set_xlabel("largest multiple of the given tolerance (red: tighten)")
-        missed = "" if budget["met_at_nominal"] else " (the nominal design misses it)"
-        left.set_title(f"budget: 95% of wings within {budget['spec']:g} mm rms{missed}", fontsize="medium")
-        left.legend(fontsize="small", loc="lower right")
-        left.invert_yaxis()
+    if budget is not None and not budget["met_at_nominal"]:
+        _cannot_meet(left, budget)
+    elif budget is not None:
+        _budget_bars(left, budget)
     else:
         shares = section["shares"]["rms"]
         left.barh(list(shares), [100 * v for v in shares.values()], color="C0")

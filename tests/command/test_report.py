@@ -241,21 +241,79 @@ def test_a_bay_s_figures_unpickle_without_jax_or_the_solver(tmp_path):
     assert ran.stdout.strip() == "3 []"
 
 
-def test_the_panel_label_runs_clear_of_the_warp_arrow():
+def test_the_panel_label_runs_clear_of_the_warp_arrow(tmp_path):
+    ezdxf = pytest.importorskip("ezdxf")
+    from ezdxf import bbox
+
     from forward_solver import Bay, Fabric, Parameters, Scene
-    from inverse_design.app.cut_files import _panel_drawing
+    from inverse_design.app.cut_files import write_panel_dxf
     from inverse_design.flat_panels import bay_panels
     from targets import naca
 
     scene = Scene(Bay.from_airfoil(naca("2412"), chord=1.0, rib_spacing=0.25, n_span=9, n_contour=32), Fabric())
     for panel in bay_panels(scene, Parameters(pressure=1e3, prestrain_span=0.02, prestrain_chord=0.0)):
-        drawing = _panel_drawing(panel, 10.0)
-        shaft = np.asarray(drawing["MARK"][-3])  # the arrow's shaft, then its two barbs
-        warp = next(t for t in drawing["text"] if t[3] == "WARP")
-        x, y, height, label = drawing["text"][-1]
-        assert label.startswith(f"bay 0 {panel.name} panel")
-        # The label is horizontal, the warp arrow runs along the span (y): clear if their heights part.
-        assert y + height < shaft[:, 1].min() and y > 0.0 and abs(warp[1] - y) > height
+        msp = ezdxf.readfile(write_panel_dxf(tmp_path / f"{panel.name}.dxf", panel, 10.0)).modelspace()
+        (label,) = [t for t in msp.query("TEXT") if t.dxf.text == f"bay 0 {panel.name} panel"]
+        box = bbox.extents([label])
+        # the arrow's shaft: the longest two-point mark (the notches are 13 mm); every point along it clear
+        shaft = max((np.asarray(e.get_points("xy")) for e in msp.query('LWPOLYLINE[layer=="MARK"]')
+                     if len(e) == 2), key=lambda p: np.linalg.norm(p[1] - p[0]))
+        along = shaft[0] + np.linspace(0.0, 1.0, 200)[:, None] * (shaft[1] - shaft[0])
+        inside = ((along[:, 0] >= box.extmin.x) & (along[:, 0] <= box.extmax.x) & (along[:, 1] >= box.extmin.y)
+                  & (along[:, 1] <= box.extmax.y))
+        assert not inside.any() and np.linalg.norm(shaft[1] - shaft[0]) > 50.0, panel.name
+
+
+def test_the_one_bay_overview_draws_each_bay_from_rib_to_rib_and_its_colour_bar_beside_its_map():
+    from inverse_design.app.wing_figures import plot_wing_overview
+
+    result = SimpleNamespace(
+        wing=SimpleNamespace(stations=np.array([0.0, 0.25])), initial_bay_rms_error=np.array([6e-3]),
+        bay_rms_error=np.array([2.5e-3]), bay_max_error=np.array([1.4e-2]), bay_min_tension=np.array([43.0]),
+        bay_max_tension=np.array([6500.0]), constraint_values={"min_tension_floor": 0.0},
+        parameters=SimpleNamespace(pressure=1e3), success=True, variables=("pressure",), initial_rms_error=6e-3,
+        rms_error=2.5e-3, method="gauss_newton", solves=3)
+    deviation = np.sin(np.arange(5 * 8)).reshape(1, 5, 8) * 1e-3
+    fig = plot_wing_overview(result, deviation)
+    fig.canvas.draw()
+    per_bay = {"rms, start", "rms, design", "max, design", "min fibre tension", "max fibre tension"}
+    drawn = {line.get_label(): line.get_xdata() for ax in fig.axes[1:3] for line in ax.get_lines()}
+    assert per_bay <= set(drawn)
+    for label in per_bay:  # a line across the bay, not a dot at its middle
+        assert (min(drawn[label]), max(drawn[label])) == (0.0, 0.25), label
+    ax_map = fig.axes[0]
+    colour_bar = ax_map.collections[0].colorbar.ax
+    gap = colour_bar.get_window_extent().x0 - ax_map.get_window_extent().x1
+    assert 0.0 <= gap < 0.02 * fig.bbox.width  # (it stood a fifth of the figure's width away, past the legends)
+
+
+def _budget(**change):
+    sources = {"pressure": {"scale": 15.5, "value": 31.0, "text": "31%", "unit": "%", "given": "2%"},
+               "cut_span": {"scale": 0.78, "value": 0.39, "text": "0.39", "unit": "mm", "given": "0.5"}}
+    return {"budget": dict({"spec": 2.6, "nominal_rms": 2.56, "met_at_nominal": True, "sources": sources,
+                            "common_scale": 0.66, "common": {}, "meets_given": False}, **change),
+            "linear": {"rms": {"p95": 2.61}}, "samples": 0}
+
+
+def test_the_tolerance_budget_says_what_scatter_it_allows_and_when_no_tolerance_can_meet_the_spec():
+    from matplotlib.text import Text
+
+    from inverse_design.app.wing_figures import plot_tolerance
+
+    draws = np.random.default_rng(0).normal(2.56, 0.03, 500)
+    left = plot_tolerance(_budget(), draws).axes[0]
+    assert "times the given tolerance" in left.get_xlabel() and "largest multiple" not in left.get_xlabel()
+    words = [t.get_text() for t in left.texts]
+    assert any("31% allowed (given 2%)" in w for w in words)
+    assert any("0.39 mm allowed (given 0.5 mm)" in w for w in words)
+    # the nominal design misses a 0.1 mm spec: no bar says "none"; one statement says why and what to do
+    nothing = {name: {"scale": 0.0, "value": 0.0, "text": "0", "unit": "mm", "given": "0.5"}
+               for name in ("pressure", "cut_span")}
+    fig = plot_tolerance(_budget(spec=0.1, met_at_nominal=False, sources=nothing, common_scale=0.0), draws)
+    texts = [t.get_text() for t in fig.findobj(Text)]
+    assert not any(t.strip() == "none" for t in texts)
+    (statement,) = [t for t in texts if "cannot be met" in t]
+    assert "2.56 mm" in statement and "0.1 mm" in statement and "--shape-spec" in statement
 
 
 def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
