@@ -378,7 +378,8 @@ def _stopped_after(stop: KeyboardInterrupt | int, out) -> int:
 def _main(argv: list[str] | None, started: float, ended: dict) -> int:
     """`main`'s work; ``ended["out"]`` is set to the output folder once its report is complete."""
     try:
-        case = Case.from_arguments(argv)
+        with interrupts.deferred():  # (reading the case imports NumPy and SciPy: a stop inside an import breaks it)
+            case = Case.from_arguments(argv)
     except InputError as exc:
         _error(None, "error", str(exc))
         return 2
