@@ -292,24 +292,14 @@ def make_solution(out, forces, nodes, steps, wall_time, method: str, parameters:
             ``detail`` and ``factor``.
     """
     if isinstance(out.result, jax.core.Tracer):
-        return Solution(nodes=nodes, tension_span=forces.tension_span, tension_chord=forces.tension_chord,
-                        wrinkled=forces.wrinkled, result=out.result, steps=steps, residual=out.residual,
-                        wall_time=wall_time, method=method, parameters=parameters, rib_spacing=bay.rib_spacing,
-                        **fields)
-    return Solution(
-        nodes=np.asarray(nodes, dtype=np.float64),
-        tension_span=np.asarray(forces.tension_span, dtype=np.float64),
-        tension_chord=np.asarray(forces.tension_chord, dtype=np.float64),
-        wrinkled=np.asarray(forces.wrinkled),
-        result=Result(int(out.result)),
-        steps=int(steps),
-        residual=float(out.residual),
-        wall_time=wall_time,
-        method=method,
-        parameters=parameters.as_floats(),
-        rib_spacing=bay.rib_spacing,
-        **fields,
-    )
+        arrays = (nodes, forces.tension_span, forces.tension_chord, forces.wrinkled)
+        status = dict(result=out.result, steps=steps, residual=out.residual, parameters=parameters)
+    else:
+        arrays = (*(np.asarray(a, dtype=np.float64) for a in (nodes, forces.tension_span, forces.tension_chord)),
+                  np.asarray(forces.wrinkled))
+        status = dict(result=Result(int(out.result)), steps=int(steps), residual=float(out.residual),
+                      parameters=parameters.as_floats())
+    return Solution(*arrays, **status, wall_time=wall_time, method=method, rib_spacing=bay.rib_spacing, **fields)
 
 
 def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jnp.ndarray:

@@ -9,14 +9,11 @@ import jax.numpy as jnp
 
 from .bay import Bay
 from .fabric import Fabric
-from ..precision import device_arrays, float64_scope
+from ..precision import device_arrays
 from ..forces import KernelInputs, Physics
 from .parameters import Parameters
 
-__all__ = ["Scene", "float64_scope"]
-
-#: dtype of each precision mode.
-PRECISIONS = {"float64": jnp.float64, "float32": jnp.float32}
+__all__ = ["Scene"]
 
 
 @dataclass(frozen=True, eq=False)
