@@ -27,13 +27,5 @@ from .naca import naca as naca
 from .naca import parse_naca as parse_naca
 from .trailing_edge import common_trailing_edge as common_trailing_edge
 
-__all__ = [
-    "Airfoil",
-    "AirfoilWarning",
-    "NacaSection",
-    "Projection",
-    "common_trailing_edge",
-    "load_airfoil",
-    "naca",
-    "parse_naca",
-]
+__all__ = ["Airfoil", "AirfoilWarning", "NacaSection", "Projection", "common_trailing_edge", "load_airfoil", "naca",
+           "parse_naca"]

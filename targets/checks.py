@@ -28,9 +28,6 @@ CHORD_TOLERANCE = 1e-6
 LEADING_EDGE_BOUND = 0.1
 """Largest distance (chord) of the minimum-x node from x = 0."""
 
-SURFACE_TOLERANCE = 1e-6
-"""Largest distance (chord) of the nodes from an explicitly given surface."""
-
 ZERO_AREA = 1e-9
 """Enclosed area (chord^2) at or below which a contour has zero thickness: a 0.01%-thick
 section encloses about 7e-5."""

@@ -201,19 +201,14 @@ def _renormalised(
 
 
 def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
-    """Reads a Selig or Lednicer ``.dat`` file (format detected, see the module docstring).
+    """Reads a Selig or Lednicer ``.dat`` file (format and skipped text: the module docstring).
 
-    Text lines before the first point (beyond the name line) and after the
-    last point are skipped; consecutive repeated points (a quirk of some
-    database files) are read once. The coordinates must be chord-normalised
-    (leading edge at x = 0, trailing edge at x = 1) up to
-    :data:`RENORMALISE_LIMIT`: a file whose trailing edge (mid-point of the
-    first and last points) is off x = 1 by more than
-    :data:`~targets.checks.CHORD_TOLERANCE`, but by no more than that limit,
-    with its minimum x as close to 0, is mapped onto unit chord (x from the
-    minimum-x point to the trailing edge becomes 0 to 1, z scaled alike, so
-    thickness and camber ratios are kept) and an :class:`AirfoilWarning` says
-    by how much.
+    Consecutive repeated points (a quirk of some database files) are read
+    once. A chord off unit length by no more than :data:`RENORMALISE_LIMIT`
+    is mapped onto unit chord (x from the minimum-x point to the trailing
+    edge becomes 0 to 1, z scaled alike, so thickness and camber ratios are
+    kept; :func:`_renormalised`) and an :class:`AirfoilWarning` says by how
+    much.
 
     Args:
         path: The file.

@@ -140,11 +140,6 @@ class FiveDigitMeanLine:
         """Station of maximum camber p (chord units)."""
         return self.constants.position
 
-    @property
-    def reflexed(self) -> bool:
-        """Whether this is a reflexed mean line (third digit 1)."""
-        return self.constants.k2_over_k1 != 0.0
-
     def __call__(self, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Ordinate y_c (chord units) and slope dy_c/dx at stations x in [0, 1]."""
         x = _stations(x)

@@ -23,12 +23,9 @@ BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend i
 def common_trailing_edge(
     airfoils, mode: str = "close", labels=None, blend: float = TRAILING_EDGE_BLEND
 ) -> tuple[list, list[dict]]:
-    """Sections brought to one trailing-edge form, open or closed, and what was changed.
+    """Sections brought to one trailing-edge form, open or closed (module docstring), and what was changed.
 
-    A skin between two ribs, and a wing of bays, runs one grid whose
-    trailing-edge seam is either one line (closed) or two with a base
-    between them (open), so its sections must share the form. NACA codes are
-    closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
+    NACA codes are closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
 
     Modes:
 

@@ -21,17 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-__all__ = [
-    "arc_sag",
-    "circle_contour",
-    "cylinder_radius",
-    "fabric_tensions",
-    "flat_panel_pressure_force",
-    "hoop_tension",
-    "strip_arc_radius",
-    "strip_elongation",
-    "strip_sag",
-]
+__all__ = ["arc_sag", "circle_contour", "cylinder_radius", "fabric_tensions", "flat_panel_pressure_force",
+           "hoop_tension", "strip_arc_radius", "strip_elongation", "strip_sag"]
 
 
 def fabric_tensions(stiffness_span, stiffness_chord, poisson, elongation_span, elongation_chord):
