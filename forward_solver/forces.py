@@ -324,14 +324,8 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     )
 
 
-def forces(
-    x: jnp.ndarray,
-    ref: Reference,
-    params: KernelInputs,
-    physics: Physics,
-    pressure: jnp.ndarray | None = None,
-    v: jnp.ndarray | None = None,
-) -> Forces:
+def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics,
+           pressure: jnp.ndarray | None = None, v: jnp.ndarray | None = None) -> Forces:
     """Net nodal force of fabric tension, pressure and gravity (eq. 10-15).
 
     Args:

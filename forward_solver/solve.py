@@ -49,16 +49,9 @@ def refuse_moved(function: str, keywords: dict, moved: dict = MOVED) -> None:
 
 
 def as_method(method, **knobs):
-    """The method value of ``method``, with ``knobs`` set where it has them.
-
-    Args:
-        method: a method value (`methods.Relax`, `methods.Newton`,
-            `methods.RelaxNewton`, `methods.Explicit`, `chain.Auto`) or a
-            shortcut name of `METHODS`.
-        **knobs: fields to set on it, where the method has them: a caller
-            that lets the user pick the method may ask, say, for no grid
-            sequencing (``sequencing=False``), which Newton, having none,
-            leaves aside.
+    """The method value of ``method`` (a value, or a shortcut name of `METHODS`), with ``knobs`` set where
+    it has them: a caller that lets the user pick the method may ask, say, for no grid sequencing
+    (``sequencing=False``), which Newton, having none, leaves aside.
 
     Raises:
         ValueError: for an unknown name.

@@ -1,10 +1,9 @@
 """Airfoil sections: a closed contour in Selig order and its smooth representation.
 
 An :class:`Airfoil` holds the nodes of a section (``x``, ``z``, chord-normalised)
-and a smooth representation of the same contour, a cubic spline of (x, z)
-against the cumulative chord length of its points. Every geometric query
-(thickness, camber, leading-edge radius, resampling, signed distance) is
-answered on the spline, never on the polyline.
+and answers every geometric query (thickness, camber, leading-edge radius,
+resampling, signed distance) on their smooth representation
+(:class:`~targets.contour.SmoothContour`), never on the polyline.
 
 Conventions (docs/architecture.md, "Conventions"):
 
@@ -77,14 +76,8 @@ class Airfoil:
         name: The section's label.
     """
 
-    def __init__(
-        self,
-        x: ArrayLike,
-        z: ArrayLike,
-        name: str = "airfoil",
-        *,
-        surface: tuple[ArrayLike, ArrayLike] | None = None,
-    ):
+    def __init__(self, x: ArrayLike, z: ArrayLike, name: str = "airfoil", *,
+                 surface: tuple[ArrayLike, ArrayLike] | None = None):
         if not isinstance(name, str):
             raise ValueError(f"name must be a string, got {type(name).__name__}")
         x, z = validated_contour(x, z, f"airfoil {name!r}")
@@ -209,20 +202,11 @@ class Airfoil:
         return (upper - lower)[()]
 
     def camber(self, x: ArrayLike) -> np.ndarray:
-        """Camber distribution: mid-point of the surfaces at chordwise stations.
+        """Camber distribution: the mean of upper and lower surface z (chord units) at the stations ``x``
+        of :meth:`thickness` (same shape and refusals).
 
         For a NACA section this differs slightly from its mean line, whose
         thickness is laid perpendicular to it rather than vertically.
-
-        Args:
-            x: Stations (chord units), any shape, between the leading edge and
-                the trailing edge.
-
-        Returns:
-            Mean of upper and lower surface z (chord units), same shape as ``x``.
-
-        Raises:
-            ValueError: As for :meth:`thickness`.
         """
         upper, lower = self._contour.surfaces_at(x, f"airfoil {self.name!r}")
         return (0.5 * (upper + lower))[()]
@@ -430,16 +414,7 @@ class Airfoil:
         return self._contour.project(points)
 
     def distance(self, points: ArrayLike) -> np.ndarray:
-        """Signed normal distance from points to the contour, positive outside.
-
-        Args:
-            points: Query points (x, z), chord units, shape ``(..., 2)``.
-
-        Returns:
-            Distances (chord units), shape ``(...)``.
-
-        Raises:
-            ValueError: As for :meth:`project`.
-        """
+        """Signed normal distance (chord units, shape ``(...)``) from the points of :meth:`project` to the
+        contour, positive outside."""
         return self.project(points).distance
 

@@ -103,12 +103,8 @@ def _read_points(
     return [block for block in blocks if block]
 
 
-def _lednicer(
-    where: str,
-    header_line: int,
-    counts: tuple[int, int],
-    blocks: list[list[tuple[int, float, float]]],
-) -> list[tuple[int, float, float]]:
+def _lednicer(where: str, header_line: int, counts: tuple[int, int],
+              blocks: list[list[tuple[int, float, float]]]) -> list[tuple[int, float, float]]:
     """Selig-ordered points of a Lednicer file."""
     n_upper, n_lower = counts
     points = [point for block in blocks for point in block]

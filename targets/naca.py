@@ -315,13 +315,11 @@ def naca(code: str, n_points: int = 257, closed_te: bool = True) -> Airfoil:
     """A NACA 4- or 5-digit section as an :class:`~targets.Airfoil`.
 
     Args:
-        code: The designation, e.g. "2412", "NACA2412", "naca 2412", "23012".
+        code, closed_te: as :func:`parse_naca`'s.
         n_points: Number of points, both trailing-edge points included (for a
             closed trailing edge the first and last coincide exactly); at
             least 7. Points sit at cosine-spaced camber-line stations, see
             the module docstring.
-        closed_te: Close the trailing edge (x^4 coefficient -0.1036) or keep
-            the report's open one (-0.1015).
 
     Returns:
         The section in Selig order, chord-normalised, named "NACA <digits>".

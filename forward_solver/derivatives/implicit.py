@@ -70,8 +70,6 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
                                                                     jnp.result_type(a)), params)
     key = ("tangents", signature(x, geometry, params), physics, n_tangents)
     compile_rhs = compiling(batched_rhs, x, geometry, params, dparams, physics)
-    # `HostLU.direct_tangent`'s custom_vmap traces its one-tangent function (`_callback_tangent`)
-    # before it batches it: trace it here, so that the call finds its trace in JAX's cache.
     n_free = 3 * int(np.count_nonzero(np.asarray(geometry.free) > 0.5))
     one = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape[1:], a.dtype), dparams)
     free = jax.ShapeDtypeStruct((n_free,), jax.dtypes.canonicalize_dtype(np.int64))  # as HostLU's
@@ -79,7 +77,7 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
 
     def task():
         compile_rhs()
-        _callback_tangent.trace(x, geometry, params, one, free, token, physics)
+        _callback_tangent.trace(x, geometry, params, one, free, token, physics)  # found then in JAX's cache
 
     return key, task
 

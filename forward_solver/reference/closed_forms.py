@@ -6,14 +6,10 @@ check the solver against one set of formulas and the two cannot drift apart.
 Every function states the model it solves and the assumption that makes it
 exact; the solver's discretisation error against it is what the tests bound.
 
-The fabric law is eq. (10) of the paper without its viscous term (rest
-states), with zero shear stiffness and ``nu12 = nu21 = poisson``::
-
-    T11 = (E11 e11 + nu E22 e22) / (1 - nu^2),   T22 = (E22 e22 + nu E11 e11) / (1 - nu^2),
-
-``e`` the engineering elongation against the cut length (nominal length /
-(1 + prestrain)), and Laplace's law ``T = p R`` for a membrane curved in one
-direction only.
+The fabric law is eq. (10) of the paper at rest (no viscous term), as
+`Fabric` writes it, ``e`` the engineering elongation against the cut length
+(nominal length / (1 + prestrain)); and Laplace's law ``T = p R`` for a
+membrane curved in one direction only.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import numpy as np
 from ..model.parameters import Parameters
 from ..model.scene import Scene
 from ..solution import Result, Solution
-from .methods import NEWTON_SWITCH_RTOL, HostOnly, Newton, RelaxNewton
+from .methods import RelaxNewton
 
 __all__ = ["Auto", "EQUILIBRIUM_METHODS"]
 
@@ -43,18 +43,10 @@ _WHAT_TO_CHANGE = (
 
 
 @dataclass(frozen=True)
-class Auto(HostOnly):
-    """The methods in turn until one converges (module docstring).
+class Auto(RelaxNewton):
+    """The methods in turn until one converges (module docstring); its knobs are `methods.RelaxNewton`'s (the
+    first try's; ``newton`` is every Newton try's)."""
 
-    Args:
-        switch_rtol, sequencing, symmetry: the first try's (`methods.RelaxNewton`).
-        newton: the Newton tries' knobs (`methods.Newton`).
-    """
-
-    switch_rtol: float = NEWTON_SWITCH_RTOL
-    sequencing: bool = True
-    symmetry: bool = True
-    newton: Newton = Newton()
     name: ClassVar[str] = "auto"
 
     def _tries(self, initial, failures: list):

@@ -228,19 +228,9 @@ def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
     return ""
 
 
-def simulate(
-    scene: Scene,
-    pressure_history,
-    prestrain=None,
-    *,
-    courant: float = DEFAULT_COURANT,
-    rtol: float = 1e-6,
-    max_steps: int = 200_000,
-    record_every: int = 200,
-    initial=None,
-    precision: str = "float64",
-    throw: bool = True,
-) -> Solution:
+def simulate(scene: Scene, pressure_history, prestrain=None, *, courant: float = DEFAULT_COURANT, rtol: float = 1e-6,
+             max_steps: int = 200_000, record_every: int = 200, initial=None, precision: str = "float64",
+             throw: bool = True) -> Solution:
     """Pressurise the bay with the paper's explicit scheme until it comes to rest.
 
     Args:
