@@ -56,11 +56,9 @@ def float64_scope(*traced_inputs):
     """
     if any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(traced_inputs)):
         if not jax.config.jax_enable_x64:
-            raise RuntimeError(
-                "forward_solver computes in float64 but is being transformed by JAX in float32 "
-                "mode: call jax.config.update('jax_enable_x64', True) first, or wrap the "
-                "transformation in `with jax.enable_x64(True):`"
-            )
+            raise RuntimeError("forward_solver computes in float64 but is being transformed by JAX in float32 "
+                               "mode: call jax.config.update('jax_enable_x64', True) first, or wrap the "
+                               "transformation in `with jax.enable_x64(True):`")
         yield
         return
     with jax.enable_x64(True):
@@ -95,12 +93,10 @@ def precision_extra(precision: str, rtol: float, geometry, params, physics) -> d
     if precision == "float32":
         floor = float32_floor(geometry, params, physics)
         if rtol < floor:
-            raise ValueError(
-                f"precision='float32' cannot reach rtol={rtol:.2e} on this scene: rounding the "
-                f"coordinates to float32 alone leaves a relative residual of up to {floor:.2e} "
-                "(short edges on a fine grid and a stiff fabric under low pressure raise it); use "
-                f"precision='float64', or rtol >= {floor:.2e}"
-            )
+            raise ValueError(f"precision='float32' cannot reach rtol={rtol:.2e} on this scene: rounding the "
+                             f"coordinates to float32 alone leaves a relative residual of up to {floor:.2e} "
+                             "(short edges on a fine grid and a stiff fabric under low pressure raise it); use "
+                             f"precision='float64', or rtol >= {floor:.2e}")
         extra["float32_floor"] = floor
     return extra
 

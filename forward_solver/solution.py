@@ -308,10 +308,8 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jn
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
     expected = geometry.free.shape + (3,)
     if nodes.shape != expected:
-        raise ValueError(
-            f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
-            "interpolate it to the grid or start from the mounted shape (initial=None)"
-        )
+        raise ValueError(f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
+                         "interpolate it to the grid or start from the mounted shape (initial=None)")
     if solution is None:
         return _remounted(nodes, geometry, params)
     own = solution.parameters

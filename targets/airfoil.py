@@ -88,18 +88,14 @@ class Airfoil:
             contour = SmoothContour(sx, sz)
             ends = np.array([[x[0], z[0]], [x[-1], z[-1]]])
             if not np.array_equal(ends, np.array([contour.start, contour.end])):
-                raise ValueError(
-                    f"airfoil {name!r}: the surface must start and end at the same trailing-edge "
-                    f"points as the nodes, got {contour.start} and {contour.end} for {ends[0]} and "
-                    f"{ends[1]}"
-                )
+                raise ValueError(f"airfoil {name!r}: the surface must start and end at the same trailing-edge "
+                                 f"points as the nodes, got {contour.start} and {contour.end} for {ends[0]} and "
+                                 f"{ends[1]}")
             off = np.abs(contour.project(np.column_stack([x, z])).distance)
             if off.max() > SURFACE_TOLERANCE:
                 i = int(np.argmax(off))
-                raise ValueError(
-                    f"airfoil {name!r}: node {i} lies {off[i]:.3g} chord off the given surface "
-                    f"(tolerance {SURFACE_TOLERANCE:g}); pass nodes sampled from that surface"
-                )
+                raise ValueError(f"airfoil {name!r}: node {i} lies {off[i]:.3g} chord off the given surface "
+                                 f"(tolerance {SURFACE_TOLERANCE:g}); pass nodes sampled from that surface")
         self._set(x, z, name, contour)
 
     @classmethod
@@ -146,7 +142,7 @@ class Airfoil:
     @property
     def leading_edge(self) -> np.ndarray:
         """The leading edge, the minimum-x point of the smooth contour, as (x, z)."""
-        return self._contour.points(np.array(self._contour.le_parameter))
+        return self._contour.spline(np.array(self._contour.le_parameter))
 
     @property
     def leading_edge_parameter(self) -> float:
@@ -172,7 +168,7 @@ class Airfoil:
         t = np.asarray(t, dtype=np.float64)
         if not np.all(np.isfinite(t) & (t >= 0.0) & (t <= 1.0)):
             raise ValueError("contour fractions t must lie in [0, 1]")
-        return self._contour.points(t * self._contour.length)
+        return self._contour.spline(t * self._contour.length)
 
     @cached_property
     def leading_edge_radius(self) -> float:
@@ -298,7 +294,7 @@ class Airfoil:
         x_le = contour.x_le
         s[upper] = contour.parameter_at_x(x_le + (contour.start[0] - x_le) * station[upper], True)
         s[lower] = contour.parameter_at_x(x_le + (contour.end[0] - x_le) * station[lower], False)
-        points = contour.points(s)
+        points = contour.spline(s)
         points[0], points[-1] = contour.start, contour.end
         return Airfoil._on_contour(points[:, 0], points[:, 1], self.name, contour)
 

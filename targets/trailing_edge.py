@@ -66,12 +66,10 @@ def common_trailing_edge(
         return airfoils, []
     if mode == "as-given":
         i, j = closed.index(True), closed.index(False)
-        raise ValueError(
-            f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
-            f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
-            f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
-            f"(open the closed ones to the largest gap)"
-        )
+        raise ValueError(f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
+                         f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
+                         f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
+                         f"(open the closed ones to the largest gap)")
     gap = 0.0 if mode == "close" else max(a.trailing_edge_gap for a in airfoils)
     sections, changes = [], []
     for k, airfoil in enumerate(airfoils):

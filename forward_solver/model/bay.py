@@ -264,12 +264,8 @@ class Bay:
 
 def _check_grid(n_span: int, n_contour: int, min_contour: int, what: str) -> None:
     if not isinstance(n_span, (int, np.integer)) or n_span < _MIN_SPAN:
-        raise ValueError(
-            f"n_span must be an integer >= {_MIN_SPAN} (the two ribs and at least one free row), "
-            f"got {n_span!r}; use a finer grid"
-        )
+        raise ValueError(f"n_span must be an integer >= {_MIN_SPAN} (the two ribs and at least one free row), "
+                         f"got {n_span!r}; use a finer grid")
     if not isinstance(n_contour, (int, np.integer)) or n_contour < min_contour:
-        raise ValueError(
-            f"n_contour must be an integer >= {min_contour} for a {what}, got {n_contour!r}; "
-            "use a finer grid"
-        )
+        raise ValueError(f"n_contour must be an integer >= {min_contour} for a {what}, got {n_contour!r}; "
+                         "use a finer grid")

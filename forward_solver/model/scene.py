@@ -48,9 +48,7 @@ class Scene:
         if not isinstance(self.fabric, Fabric):
             raise TypeError(f"fabric must be a forward_solver.Fabric, got {type(self.fabric).__name__}")
         if not (math.isfinite(self.aerodynamic_damping) and self.aerodynamic_damping >= 0):
-            raise ValueError(
-                f"aerodynamic_damping must be zero or positive in s/m, got {self.aerodynamic_damping!r}"
-            )
+            raise ValueError(f"aerodynamic_damping must be zero or positive in s/m, got {self.aerodynamic_damping!r}")
         if not (math.isfinite(self.gravity_acceleration) and self.gravity_acceleration >= 0):
             raise ValueError(
                 f"gravity_acceleration must be zero or positive in m/s^2, got {self.gravity_acceleration!r}"

@@ -80,10 +80,8 @@ def cylinder_radius(nominal_radius, pressure, stiffness_span, stiffness_chord, p
     """
     denominator = stiffness_chord * (1.0 + prestrain_chord) / nominal_radius - pressure * (1.0 - poisson**2)
     if denominator <= 0:
-        raise ValueError(
-            f"a pressure of {pressure!r} Pa inflates this cylinder without bound "
-            "(p R (1 - nu^2) >= E22 (1 + pc)): there is no equilibrium radius"
-        )
+        raise ValueError(f"a pressure of {pressure!r} Pa inflates this cylinder without bound "
+                         "(p R (1 - nu^2) >= E22 (1 + pc)): there is no equilibrium radius")
     return (stiffness_chord - poisson * stiffness_span * axial_elongation) / denominator
 
 

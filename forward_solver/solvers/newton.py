@@ -309,10 +309,8 @@ class NewtonOptions:
         check_stop(max_iterations=self.max_iterations, max_load_steps=self.max_load_steps,
                    max_line_search=self.max_line_search)
         if not 0.0 < self.initial_load_fraction <= 1.0:
-            raise ValueError(
-                f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
-                f"got {self.initial_load_fraction!r}"
-            )
+            raise ValueError(f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
+                             f"got {self.initial_load_fraction!r}")
 
 
 def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, rtol: float,
