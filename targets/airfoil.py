@@ -99,9 +99,7 @@ class Airfoil:
         self._set(x, z, name, contour)
 
     @classmethod
-    def _on_contour(
-        cls, x: np.ndarray, z: np.ndarray, name: str, contour: SmoothContour
-    ) -> Airfoil:
+    def _on_contour(cls, x: np.ndarray, z: np.ndarray, name: str, contour: SmoothContour) -> Airfoil:
         """An airfoil whose nodes were sampled from an existing smooth contour."""
         airfoil = cls.__new__(cls)
         x, z = validated_contour(x, z, f"airfoil {name!r}", crossing=False)

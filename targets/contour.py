@@ -83,11 +83,10 @@ def is_smooth_join(x: np.ndarray, z: np.ndarray) -> bool:
 
 
 class SmoothContour:
-    """Cubic spline of (x, z) against cumulative chord length, with its queries.
+    """Cubic spline of (x, z) against cumulative chord length, with its queries (module docstring).
 
-    The spline is periodic when the contour is closed and smooth through its
-    trailing edge, otherwise it has not-a-knot ends (the trailing edge is a
-    corner, or open). Where its x(s) turns back between nodes whose x is
+    Not periodic, it has not-a-knot ends (the trailing edge is a corner, or
+    open). Where its x(s) turns back between nodes whose x is
     monotonic (beside a sharp nose, or beside the trailing-edge node of a
     periodic contour), the x part is repaired by
     :func:`~targets.monotone_spline.limit_x_reversals` and is C1 there.

@@ -78,9 +78,7 @@ def _is_point(line: str) -> bool:
     return values is not None and len(values) == 2
 
 
-def _read_points(
-    where: str, lines: list[tuple[int, str]]
-) -> list[list[tuple[int, float, float]]]:
+def _read_points(where: str, lines: list[tuple[int, str]]) -> list[list[tuple[int, float, float]]]:
     """Point lines, as blocks separated by blank lines, each point with its line number."""
     blocks: list[list[tuple[int, float, float]]] = [[]]
     for number, line in lines:
@@ -137,9 +135,7 @@ def _check_order(where: str, points: list[tuple[int, float, float]]) -> None:
         raise ValueError(f"{where}: {disorder}")
 
 
-def _renormalised(
-    where: str, label: str, x: np.ndarray, z: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, str | None]:
+def _renormalised(where: str, label: str, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
     """The points mapped to unit chord when the trailing edge is slightly off x = 1.
 
     The trailing edge is the mid-point of the first and last points and the

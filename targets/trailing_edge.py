@@ -20,9 +20,8 @@ edges to one form."""
 BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend is applied to
 
 
-def common_trailing_edge(
-    airfoils, mode: str = "close", labels=None, blend: float = TRAILING_EDGE_BLEND
-) -> tuple[list, list[dict]]:
+def common_trailing_edge(airfoils, mode: str = "close", labels=None,
+                         blend: float = TRAILING_EDGE_BLEND) -> tuple[list, list[dict]]:
     """Sections brought to one trailing-edge form, open or closed (module docstring), and what was changed.
 
     NACA codes are closed; most real ``.dat`` files are open by 0.1-0.5% of chord.

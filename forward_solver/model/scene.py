@@ -56,13 +56,9 @@ class Scene:
 
     def physics(self, dynamic: bool) -> Physics:
         """Static switches; the equilibrium (``dynamic=False``) drops the velocity terms."""
-        return Physics(
-            periodic=self.bay.periodic,
-            tension_only=self.tension_only,
-            viscous=dynamic and self.fabric.viscosity > 0,
-            aerodynamic=dynamic and self.aerodynamic_damping > 0,
-            gravity=self.gravity,
-        )
+        return Physics(periodic=self.bay.periodic, tension_only=self.tension_only,
+                       viscous=dynamic and self.fabric.viscosity > 0,
+                       aerodynamic=dynamic and self.aerodynamic_damping > 0, gravity=self.gravity)
 
     def params(self, parameters: Parameters, dtype=jnp.float64) -> KernelInputs:
         """The force kernel's traced parameters: ``parameters`` merged with the fabric's constants.

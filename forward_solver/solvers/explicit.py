@@ -81,21 +81,13 @@ def kinetic_rest_threshold(rtol, load, stiffness):
 
 
 def plane_strain_modulus(material):
-    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)``, N/m.
-
-    Args:
-        material: a `Fabric` or the kernel's `forces.KernelInputs` (anything with
-            ``stiffness_span``, ``stiffness_chord`` and ``poisson``).
-    """
+    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)`` of ``material`` (a `Fabric` or the kernel's
+    `forces.KernelInputs`), N/m."""
     return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
 
 
 def wave_speed(material):
-    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s.
-
-    Args:
-        material: a `Fabric` or `forces.KernelInputs` (also ``areal_density``, kg/m^2).
-    """
+    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16) in ``material``, m/s."""
     return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
 
 

@@ -396,20 +396,10 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
                 pass
         current = (factor is not None and shift == 0.0 and factor_x is not None
                    and np.array_equal(factor_x, stage.x))
-        return NewtonResult(
-            x=jnp.asarray(stage.x.reshape(shape), dtype),
-            result=Result(stage.code),
-            iterations=int(iterations),
-            residual=float(stage.residual),
-            factor=factor,
-            jacobian=jac,
-            factor_current=bool(current),
-            shift=float(shift),
-            free_dofs=problem.pattern.free_dofs,
-            load_steps=int(levels),
-            message=stage.message,
-            history=log.arrays(),
-        )
+        return NewtonResult(x=jnp.asarray(stage.x.reshape(shape), dtype), result=Result(stage.code),
+                            iterations=int(iterations), residual=float(stage.residual), factor=factor, jacobian=jac,
+                            factor_current=bool(current), shift=float(shift), free_dofs=problem.pattern.free_dofs,
+                            load_steps=int(levels), message=stage.message, history=log.arrays())
 
 
 def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rtol: float,

@@ -82,7 +82,7 @@ try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
 except ImportError:  # pragma: no cover - older JAX
     from jax.core import concrete_or_error
 
-__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows", "half_rows",
+__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows",
            "has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
@@ -139,11 +139,6 @@ def kinetic_damping_step(x, v, kinetic, mass, force):
     return x + v, v, jnp.where(peaked, 0.0, new_kinetic)
 
 
-def half_rows(n_span: int) -> int:
-    """Rows solved under half-bay symmetry: ``0 .. (n_span - 1) / 2``."""
-    return (n_span - 1) // 2 + 1
-
-
 def mirror_rows(rows: jnp.ndarray, mid_y) -> jnp.ndarray:
     """Reflect grid rows through the plane ``y = mid_y``."""
     return rows.at[..., 1].set(2.0 * mid_y - rows[..., 1])
@@ -160,21 +155,13 @@ class _Grid(NamedTuple):
 
 
 def _full_grid(ref, params, physics) -> _Grid:
-    def relative_residual(x):
-        return fk.relative_residual(x, ref, params, physics)
-
-    return _Grid(
-        lambda x: fk.residual(x, ref, params, physics),
-        lambda x: fk.node_stiffness(x, ref, params, physics),
-        relative_residual,
-        lambda x: x,
-        ref.nodes,
-    )
+    return _Grid(lambda x: fk.residual(x, ref, params, physics), lambda x: fk.node_stiffness(x, ref, params, physics),
+                 lambda x: fk.relative_residual(x, ref, params, physics), lambda x: x, ref.nodes)
 
 
 def _half_grid(ref, params, physics) -> _Grid:
     ns = ref.nodes.shape[0]
-    m = half_rows(ns) - 1  # mid row
+    m = (ns - 1) // 2  # the mid row: rows 0 .. m are solved
     mid_y = ref.nodes[m, 0, 1]
     free = jnp.broadcast_to(ref.free[: m + 2], (m + 2,) + ref.free.shape[1:-1] + (3,))
     free = free.at[m + 1].set(0.0).at[m, :, 1].set(0.0)
@@ -191,13 +178,9 @@ def _half_grid(ref, params, physics) -> _Grid:
         r = fk.residual(extend(x), half, params, physics)[: m + 1]
         return jnp.sqrt(jnp.sum(weight * r * r)) / (params.pressure * ref.skin_area)
 
-    return _Grid(
-        lambda x: fk.residual(extend(x), half, params, physics)[: m + 1],
-        lambda x: fk.node_stiffness(extend(x), half, params, physics)[: m + 1],
-        relative_residual,
-        lambda x: jnp.concatenate([x, mirror_rows(x[:m][::-1], mid_y)], axis=0),
-        ref.nodes[: m + 1],
-    )
+    return _Grid(lambda x: fk.residual(extend(x), half, params, physics)[: m + 1],
+                 lambda x: fk.node_stiffness(extend(x), half, params, physics)[: m + 1], relative_residual,
+                 lambda x: jnp.concatenate([x, mirror_rows(x[:m][::-1], mid_y)], axis=0), ref.nodes[: m + 1])
 
 
 def _cast(tree, dtype):
