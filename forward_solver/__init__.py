@@ -1,35 +1,21 @@
 """Forward solver: the pressurised fabric bay between two ribs (paper eq. 1-17).
 
-Public names::
-
-    Fabric, Bay, Scene, Parameters, Solution, BaysSolution, Result,
-    ConvergenceError, PressureRamp, solve_equilibrium, simulate, Wing,
-    solve_wing, solve_bays, rib_section
-
-and the choices as values (the shortcut strings name their defaults)::
+The public names are ``__all__``'s. The choices are values, their shortcut
+strings naming the defaults::
 
     Relax, Newton, RelaxNewton, Explicit, Auto        # solve_equilibrium(method=...)
     ImplicitAdjoint, UnrolledAdjoint                  # solve_equilibrium(adjoint=...)
     SparseLU, BiCGStab                                # ImplicitAdjoint(linear_solver=...)
     Loop, Batch                                       # solve_bays(strategy=...)
 
-``Parameters.rib_shape`` offsets the rib contours (`model.rib_shape`:
-Bernstein coefficients of a class-shape offset); `rib_section` is the
-designed rib as an airfoil.
-
 ``solve_equilibrium`` is differentiable in its `Parameters` (``jax.grad``,
-``jax.jacfwd``; implicit adjoint by default, see `derivatives`).
-
-The layers are folders: `model` (bay, fabric, scene, parameters, wing, cut
-field, rib shape), `forces` (the kernel), `solvers`, `derivatives`,
-`reference` (closed forms and an independent residual for validation) and
-`compilation` (the compile machinery, which the physics never imports).
-
-Importing this package changes no JAX configuration: solvers run in float64
-inside a thread-local ``jax.enable_x64`` scope (`precision.float64_scope`).
-The explicit solvers iterate in float32 on request
-(``method=Relax(precision="float32")``), only for tolerances float32 can
-meet (the rule is in `precision`).
+``jax.jacfwd``; `derivatives`); ``Parameters.rib_shape`` offsets the rib
+contours (`model.rib_shape`) and `rib_section` is the designed rib as an
+airfoil. The layers are folders (docs/architecture.md): `model`, `forces`
+(the kernel), `solvers`, `derivatives`, `reference` (independent checks)
+and `compilation` (which the physics never imports). Importing this package
+changes no JAX configuration: solvers run in float64 inside a thread-local
+``jax.enable_x64`` scope (`precision`).
 """
 
 from .derivatives.implicit import ImplicitAdjoint as ImplicitAdjoint

@@ -35,27 +35,9 @@ import jax.numpy as jnp
 from .model.cut_field import local_prestrain
 from .model.rib_shape import rib_offsets
 
-__all__ = [
-    "Geometry",
-    "KernelInputs",
-    "Physics",
-    "Reference",
-    "Forces",
-    "nominal_nodes",
-    "mounted_nodes",
-    "prepare",
-    "forces",
-    "residual",
-    "relative_residual",
-    "static_physics",
-    "node_area_vectors",
-    "surface_area",
-    "node_stiffness",
-    "fibres",
-    "Fibres",
-    "safe_norm",
-    "rounding_residual_floor",
-]
+__all__ = ["Geometry", "KernelInputs", "Physics", "Reference", "Forces", "nominal_nodes", "mounted_nodes", "prepare",
+           "forces", "residual", "relative_residual", "static_physics", "node_area_vectors", "surface_area",
+           "node_stiffness", "fibres", "Fibres", "safe_norm", "rounding_residual_floor"]
 
 
 class Geometry(NamedTuple):
@@ -342,14 +324,8 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     )
 
 
-def forces(
-    x: jnp.ndarray,
-    ref: Reference,
-    params: KernelInputs,
-    physics: Physics,
-    pressure: jnp.ndarray | None = None,
-    v: jnp.ndarray | None = None,
-) -> Forces:
+def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics,
+           pressure: jnp.ndarray | None = None, v: jnp.ndarray | None = None) -> Forces:
     """Net nodal force of fabric tension, pressure and gravity (eq. 10-15).
 
     Args:

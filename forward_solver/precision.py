@@ -12,13 +12,9 @@ The package computes in float64 (`float64_scope`). The explicit solvers
   coordinates to float32 alone leaves a residual of up to
   `forces.rounding_residual_floor` (with float32's machine epsilon), so
   ``rtol`` below that raises a ValueError that says to use float64 or a
-  looser tolerance (`check_float32_tolerance`). Measured on the default bay
-  (NACA 2412, 2e5 N/m, 0.5% prestrain, 20 kPa; `docs/validation.md`): the
-  floor is 1.6e-4 at 9x64, 4.3e-4 at 17x128 and 1.2e-3 at 33x256; run on
-  until it stalls, the float32 relaxation reaches 0.25-0.3 of it with nodes
-  2e-7 to 2e-6 chord from the float64 equilibrium (so its shapes are better
-  than its residual can certify); a step costs 1.3-1.4 times less than in
-  float64 (x86_64, 2 cores, no GPU).
+  looser tolerance (`precision_extra`). The floors measured on the default
+  bay, how close float32 shapes come to float64 ones and what a float32 step
+  saves: docs/design_problem.md, "Precision and failures".
 
 Newton's method and the implicit derivatives stay in float64 (sparse LU,
 quadratic convergence, finite-difference checks).
@@ -35,15 +31,14 @@ import numpy as np
 
 from . import forces as fk
 
-__all__ = ["FLOAT32_EPS", "check_float32_tolerance", "device_arrays", "float32_floor", "float64_scope"]
+__all__ = ["FLOAT32_EPS", "PRECISIONS", "check_precision", "device_arrays", "float32_floor", "float64_scope",
+           "precision_extra"]
+
+#: The floating-point types an explicit solver's iteration may run in.
+PRECISIONS = ("float64", "float32")
 
 #: Relative rounding precision of a float32 coordinate (its machine epsilon).
 FLOAT32_EPS = float(np.finfo(np.float32).eps)
-
-
-def _any_tracer(*values) -> bool:
-    leaves = jax.tree_util.tree_leaves(values)
-    return any(isinstance(v, jax.core.Tracer) for v in leaves)
 
 
 @contextmanager
@@ -59,13 +54,11 @@ def float64_scope(*traced_inputs):
     Raises:
         RuntimeError: when traced by a caller whose JAX runs in float32 mode.
     """
-    if _any_tracer(*traced_inputs):
+    if any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(traced_inputs)):
         if not jax.config.jax_enable_x64:
-            raise RuntimeError(
-                "forward_solver computes in float64 but is being transformed by JAX in float32 "
-                "mode: call jax.config.update('jax_enable_x64', True) first, or wrap the "
-                "transformation in `with jax.enable_x64(True):`"
-            )
+            raise RuntimeError("forward_solver computes in float64 but is being transformed by JAX in float32 "
+                               "mode: call jax.config.update('jax_enable_x64', True) first, or wrap the "
+                               "transformation in `with jax.enable_x64(True):`")
         yield
         return
     with jax.enable_x64(True):
@@ -83,34 +76,27 @@ def float32_floor(geometry, params, physics) -> float:
     return float(rounding_floor(geometry, params, physics, FLOAT32_EPS))
 
 
-def check_float32_tolerance(rtol: float, floor: float) -> None:
-    """Refuse a float32 solve asked for a tolerance below float32's floor.
-
-    Raises:
-        ValueError: if ``rtol < floor``, saying what to change.
-    """
-    if rtol < floor:
-        raise ValueError(
-            f"precision='float32' cannot reach rtol={rtol:.2e} on this scene: rounding the "
-            f"coordinates to float32 alone leaves a relative residual of up to {floor:.2e} "
-            "(short edges on a fine grid and a stiff fabric under low pressure raise it); use "
-            f"precision='float64', or rtol >= {floor:.2e}"
-        )
+def check_precision(precision: str) -> None:
+    """Refuse a precision not in `PRECISIONS`."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
 
 
 def precision_extra(precision: str, rtol: float, geometry, params, physics) -> dict:
-    """The `Solution.extra` entries of a solve in ``precision``; a float32 one is checked.
-
-    Returns ``{"precision": ...}``, plus ``"float32_floor"`` (`float32_floor`)
-    for float32.
+    """The `Solution.extra` entries of a solve in ``precision``: ``{"precision": ...}``, plus
+    ``"float32_floor"`` (`float32_floor`) for float32.
 
     Raises:
-        ValueError: float32 with ``rtol`` below its floor (`check_float32_tolerance`).
+        ValueError: float32 with ``rtol`` below its floor, saying what to change.
     """
     extra = {"precision": precision}
     if precision == "float32":
         floor = float32_floor(geometry, params, physics)
-        check_float32_tolerance(rtol, floor)
+        if rtol < floor:
+            raise ValueError(f"precision='float32' cannot reach rtol={rtol:.2e} on this scene: rounding the "
+                             f"coordinates to float32 alone leaves a relative residual of up to {floor:.2e} "
+                             "(short edges on a fine grid and a stiff fabric under low pressure raise it); use "
+                             f"precision='float64', or rtol >= {floor:.2e}")
         extra["float32_floor"] = floor
     return extra
 

@@ -37,21 +37,13 @@ class Result(enum.IntEnum):
 #: What each result code means.
 RESULT_MESSAGES = {
     Result.converged: "converged: the relative residual is below the tolerance",
-    Result.max_steps_reached: (
-        "max_steps_reached: the step cap was hit before the residual fell below the tolerance"
-    ),
-    Result.nonfinite: (
-        "nonfinite: the state became NaN or infinite (the nodes returned are the last finite "
-        "state before it)"
-    ),
-    Result.diverged: (
-        "diverged: a node moved further than the divergence bound (by default chord + rib "
-        "spacing) from its mounted shape; the run was stopped there, before it could overflow"
-    ),
-    Result.stalled: (
-        "stalled: the relaxation's residual stopped falling, or falls so slowly that it would need "
-        "more than 30,000 further steps, so it was stopped early"
-    ),
+    Result.max_steps_reached: "max_steps_reached: the step cap was hit before the residual fell below the tolerance",
+    Result.nonfinite: ("nonfinite: the state became NaN or infinite (the nodes returned are the last finite "
+                       "state before it)"),
+    Result.diverged: ("diverged: a node moved further than the divergence bound (by default chord + rib "
+                      "spacing) from its mounted shape; the run was stopped there, before it could overflow"),
+    Result.stalled: ("stalled: the relaxation's residual stopped falling, or falls so slowly that it would need "
+                     "more than 30,000 further steps, so it was stopped early"),
 }
 
 #: What to change, when the solver has nothing more specific to say (`Solution.detail`).
@@ -59,15 +51,10 @@ RESULT_ADVICE = {
     Result.converged: "",
     Result.max_steps_reached: "raise max_steps, loosen rtol, or warm-start from a nearby solution",
     Result.nonfinite: "the iteration is unstable or the input is non-physical",
-    Result.diverged: (
-        "the pressure is beyond what the fabric can hold at this prestrain, or the iteration "
-        "is unstable"
-    ),
-    Result.stalled: (
-        "use method='auto', which hands over to Newton's method: it does not cycle; slack fabric "
-        "(negative prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
-        "stiffnesses make the relaxation cycle"
-    ),
+    Result.diverged: "the pressure is beyond what the fabric can hold at this prestrain, or the iteration is unstable",
+    Result.stalled: ("use method='auto', which hands over to Newton's method: it does not cycle; slack fabric "
+                     "(negative prestrain) and a fabric whose Poisson coupling is large against the ratio of its "
+                     "stiffnesses make the relaxation cycle"),
 }
 
 
@@ -114,25 +101,20 @@ class Solution(ParameterViews):
             it in place of the result code's general advice
             (`RESULT_ADVICE`). Empty when there is nothing specific to say.
         factor: the sparse LU of the Jacobian (`jacobian.JacobianFactor`)
-            when a Newton method made one, else None. A warm start from this
-            solution reuses it (chord Newton) and, when it is current, the
-            implicit derivative's adjoint solves do too. A live object of this
-            process: `without_factor` drops it, and so does pickling.
-
-    Every `Solution` is built by `make_solution`.
+            when a Newton method made one, else None: a warm start from this
+            solution reuses it (chord Newton), and so do the implicit
+            derivative's adjoint solves when it is current. A live object of
+            this process, which `without_factor` and pickling drop.
 
     A `Solution` is a JAX pytree whose leaves are ``nodes``, the tensions and
-    ``wrinkled`` (everything else is static), so it may be returned as the
-    auxiliary output of ``jax.value_and_grad(..., has_aux=True)``. Under an
-    eager ``jax.grad`` / ``jax.jacfwd`` of `solve_equilibrium` those leaves
-    are traced and differentiable; the other fields are the concrete solve's.
-
-    Under ``jax.jit`` or ``jax.vmap`` of the parameters (the pure-JAX path,
-    `relax.traced_solution`), ``result``, ``steps``, ``residual`` and ``parameters`` are
-    arrays and leaves of the pytree too (a batch has a leading axis on every
-    leaf): ``result`` is then an int32 array of `Result` codes, `converged`
-    an array, ``wall_time`` None (not measured inside a compiled call), and
-    ``jax.tree_util.tree_map(lambda a: a[i], batch)`` is member ``i``.
+    ``wrinkled`` (everything else is static), so it may be the auxiliary
+    output of ``jax.value_and_grad(..., has_aux=True)``; under an eager
+    ``jax.grad`` / ``jax.jacfwd`` of `solve_equilibrium` they are traced and
+    differentiable. Under ``jax.jit`` or ``jax.vmap`` of the parameters
+    (`relax.traced_solution`) ``result`` (int32 `Result` codes), ``steps``,
+    ``residual`` and ``parameters`` are arrays and leaves too, a batch with
+    a leading axis on every leaf (``jax.tree_util.tree_map(lambda a: a[i],
+    batch)`` is member ``i``), and ``wall_time`` is None.
 
     Arrays are float64 numpy arrays whatever precision the iteration ran in,
     and ``residual`` is always evaluated in float64 at the returned ``nodes``:
@@ -160,11 +142,8 @@ class Solution(ParameterViews):
         return dataclasses.replace(self, **changes)
 
     def without_factor(self) -> "Solution":
-        """This solution without its LU factor: what is kept beside others, pickled or saved.
-
-        The factor is a live host object of this process (scipy's SuperLU, megabytes on a fine grid,
-        and it does not pickle); a pickled `Solution` drops it by itself (`__getstate__`).
-        """
+        """This solution without its LU factor (scipy's SuperLU, megabytes on a fine grid, which does not
+        pickle): what is kept beside others, pickled or saved (pickling drops it by itself)."""
         return self if self.factor is None else self.replace(factor=None)
 
     def __getstate__(self) -> dict:
@@ -272,10 +251,9 @@ def make_solution(out, forces, nodes, steps, wall_time, method: str, parameters:
                   **fields) -> Solution:
     """A `Solution` from where a solver stopped and the forces at its nodes: every `Solution` is built here.
 
-    Concrete (``out.result`` not a JAX tracer): float64 numpy arrays, a
-    `Result`, an int and floats, the parameters as floats. Under ``jax.jit``
-    or ``jax.vmap`` (an abstract ``out.result``): the arrays as they are, the
-    status fields leaves of the pytree too (see `Solution`).
+    Concrete: float64 numpy arrays, a `Result`, an int and floats, the
+    parameters as floats; under ``jax.jit`` or ``jax.vmap`` (an abstract
+    ``out.result``) the values as they are (`Solution`).
 
     Args:
         out: where the solver stopped: anything with ``result`` (a `Result`
@@ -292,24 +270,14 @@ def make_solution(out, forces, nodes, steps, wall_time, method: str, parameters:
             ``detail`` and ``factor``.
     """
     if isinstance(out.result, jax.core.Tracer):
-        return Solution(nodes=nodes, tension_span=forces.tension_span, tension_chord=forces.tension_chord,
-                        wrinkled=forces.wrinkled, result=out.result, steps=steps, residual=out.residual,
-                        wall_time=wall_time, method=method, parameters=parameters, rib_spacing=bay.rib_spacing,
-                        **fields)
-    return Solution(
-        nodes=np.asarray(nodes, dtype=np.float64),
-        tension_span=np.asarray(forces.tension_span, dtype=np.float64),
-        tension_chord=np.asarray(forces.tension_chord, dtype=np.float64),
-        wrinkled=np.asarray(forces.wrinkled),
-        result=Result(int(out.result)),
-        steps=int(steps),
-        residual=float(out.residual),
-        wall_time=wall_time,
-        method=method,
-        parameters=parameters.as_floats(),
-        rib_spacing=bay.rib_spacing,
-        **fields,
-    )
+        arrays = (nodes, forces.tension_span, forces.tension_chord, forces.wrinkled)
+        status = dict(result=out.result, steps=steps, residual=out.residual, parameters=parameters)
+    else:
+        arrays = (*(np.asarray(a, dtype=np.float64) for a in (nodes, forces.tension_span, forces.tension_chord)),
+                  np.asarray(forces.wrinkled))
+        status = dict(result=Result(int(out.result)), steps=int(steps), residual=float(out.residual),
+                      parameters=parameters.as_floats())
+    return Solution(*arrays, **status, wall_time=wall_time, method=method, rib_spacing=bay.rib_spacing, **fields)
 
 
 def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jnp.ndarray:
@@ -340,10 +308,8 @@ def initial_nodes(initial, geometry: fk.Geometry, params: fk.KernelInputs) -> jn
     nodes = jnp.asarray(nodes, dtype=geometry.contour_root.dtype)
     expected = geometry.free.shape + (3,)
     if nodes.shape != expected:
-        raise ValueError(
-            f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
-            "interpolate it to the grid or start from the mounted shape (initial=None)"
-        )
+        raise ValueError(f"initial shape has shape {nodes.shape} but this bay's grid needs {expected}; "
+                         "interpolate it to the grid or start from the mounted shape (initial=None)")
     if solution is None:
         return _remounted(nodes, geometry, params)
     own = solution.parameters

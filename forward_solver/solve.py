@@ -7,10 +7,11 @@ from functools import partial
 
 from .derivatives.custom_jvp import as_adjoint, differentiable_solution
 from .model.parameters import as_parameters
-from .model.scene import Scene, float64_scope
-from .precision import float32_floor
+from .model.scene import Scene
+from .precision import float32_floor, float64_scope
 from .solution import Solution
 from .solvers.chain import Auto
+from .solvers.loop import check_stop
 from .solvers.methods import Explicit, Newton, Relax, RelaxNewton
 from .solvers.relax import has_abstract_values
 
@@ -48,16 +49,9 @@ def refuse_moved(function: str, keywords: dict, moved: dict = MOVED) -> None:
 
 
 def as_method(method, **knobs):
-    """The method value of ``method``, with ``knobs`` set where it has them.
-
-    Args:
-        method: a method value (`methods.Relax`, `methods.Newton`,
-            `methods.RelaxNewton`, `methods.Explicit`, `chain.Auto`) or a
-            shortcut name of `METHODS`.
-        **knobs: fields to set on it, where the method has them: a caller
-            that lets the user pick the method may ask, say, for no grid
-            sequencing (``sequencing=False``), which Newton, having none,
-            leaves aside.
+    """The method value of ``method`` (a value, or a shortcut name of `METHODS`), with ``knobs`` set where
+    it has them: a caller that lets the user pick the method may ask, say, for no grid sequencing
+    (``sequencing=False``), which Newton, having none, leaves aside.
 
     Raises:
         ValueError: for an unknown name.
@@ -80,39 +74,26 @@ def solve_equilibrium(scene: Scene, parameters=None, prestrain=None, *, pressure
     vanishes on the free nodes; it does not depend on the fabric's mass,
     viscosity or the aerodynamic damping.
 
-    Methods. ``method`` is a value with its own knobs (`solvers.methods`:
-    `Relax`, `Newton`, `RelaxNewton`, `Explicit`; `solvers.chain.Auto`), or
-    the shortcut name of its default (`METHODS`: "relax", "newton",
-    "relax+newton", "explicit", "auto").
+    ``method`` and ``adjoint`` are values with their own knobs, or the
+    shortcut names of their defaults: the methods `Relax` ("relax"), `Newton`,
+    `RelaxNewton` ("relax+newton"), `Explicit` and `Auto` (`METHODS`,
+    `solvers.methods`); the adjoints `ImplicitAdjoint` ("implicit": the
+    implicit function theorem, one linear solve per tangent or gradient
+    whatever the number of parameters, by its ``linear_solver``;
+    `derivatives.implicit`) and `UnrolledAdjoint` ("unrolled": AD through
+    ``max_steps`` relaxation steps, a slow check for small grids). Under
+    ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` or ``jax.vjp`` of the
+    parameters the nodes and tensions are differentiable: ``jax.grad(lambda
+    q: f(solve_equilibrium(scene, q).nodes))(parameters)`` returns a
+    `Parameters` of derivatives, whose error is of the order of the relative
+    residual (solve to `custom_jvp.GRADIENT_RTOL` where it must be accurate).
 
-    Derivatives. Under ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` or
-    ``jax.vjp`` of the parameters, the returned `Solution`'s nodes and
-    tensions are differentiable: ``jax.grad(lambda q: f(solve_equilibrium(
-    scene, q).nodes))(parameters)`` returns a `Parameters` of derivatives.
-    ``adjoint`` is a value too (`derivatives`): `ImplicitAdjoint`
-    ("implicit", default) differentiates the equilibrium by the implicit
-    function theorem, one linear solve with the Jacobian per tangent or
-    gradient whatever the number of parameters, by its ``linear_solver``
-    (`SparseLU`, "lu", on the host; `BiCGStab`, "iterative", matrix-free in
-    JAX; None: the LU on a CPU backend, else BiCGStab). The derivative's
-    error is of the order of the relative residual, so solve to a tight
-    ``rtol`` (`custom_jvp.GRADIENT_RTOL`) where it must be accurate.
-    `UnrolledAdjoint` ("unrolled") differentiates through ``max_steps``
-    steps of a pure-JAX relaxation instead (slow; for checks on small grids).
-
-    Under ``jax.jit`` and ``jax.vmap``. When the parameters are abstract
-    (traced by ``jax.jit``, or batched by ``jax.vmap``), the solve cannot
-    run on the host: `methods.Relax` then runs as one pure-JAX program
-    (`relax.traced_solution`): the relaxation from the mounted shape or
-    ``initial``, no grid sequencing, at most ``max_steps`` steps, the result
-    code, steps and residual returned as arrays in the `Solution`;
-    derivatives by the implicit function theorem with BiCGStab. A failure
-    cannot raise inside a compiled call, so ``throw=False`` is required
-    there: check ``solution.converged`` (or call ``raise_if_failed()`` on the
-    result outside the transformation). The other methods (Newton's sparse
-    LU, the paper's scheme with its history) are host code and raise a
-    TypeError naming "relax". A `jax.vmap` batch runs until its slowest
-    member stops. Both ways need float64 on (``jax.enable_x64``).
+    Under ``jax.jit`` or ``jax.vmap`` of the parameters `Relax` runs as one
+    pure-JAX program (`relax.traced_solution`; what it does and does not do:
+    `relax`'s module docstring), its result code, steps and residual arrays
+    in the `Solution`: pass ``throw=False`` and check ``solution.converged``.
+    The host methods raise a TypeError naming "relax". Both ways need float64
+    on (``jax.enable_x64``).
 
     Args:
         scene: the bay, fabric and physics switches.
@@ -148,10 +129,7 @@ def solve_equilibrium(scene: Scene, parameters=None, prestrain=None, *, pressure
     parameters = as_parameters(parameters, prestrain, pressure=pressure).resolved(scene.fabric)
     scene.check_parameters(parameters)
     method, adjoint = as_method(method), as_adjoint(adjoint)
-    if not (isinstance(rtol, float | int) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
-    if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    check_stop(rtol, max_steps=max_steps)
     if has_abstract_values(parameters):
         where = "under jax.jit or jax.vmap of the parameters"
         method.check_traceable(where)

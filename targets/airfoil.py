@@ -1,10 +1,9 @@
 """Airfoil sections: a closed contour in Selig order and its smooth representation.
 
 An :class:`Airfoil` holds the nodes of a section (``x``, ``z``, chord-normalised)
-and a smooth representation of the same contour, a cubic spline of (x, z)
-against the cumulative chord length of its points. Every geometric query
-(thickness, camber, leading-edge radius, resampling, signed distance) is
-answered on the spline, never on the polyline.
+and answers every geometric query (thickness, camber, leading-edge radius,
+resampling, signed distance) on their smooth representation
+(:class:`~targets.contour.SmoothContour`), never on the polyline.
 
 Conventions (docs/architecture.md, "Conventions"):
 
@@ -77,14 +76,8 @@ class Airfoil:
         name: The section's label.
     """
 
-    def __init__(
-        self,
-        x: ArrayLike,
-        z: ArrayLike,
-        name: str = "airfoil",
-        *,
-        surface: tuple[ArrayLike, ArrayLike] | None = None,
-    ):
+    def __init__(self, x: ArrayLike, z: ArrayLike, name: str = "airfoil", *,
+                 surface: tuple[ArrayLike, ArrayLike] | None = None):
         if not isinstance(name, str):
             raise ValueError(f"name must be a string, got {type(name).__name__}")
         x, z = validated_contour(x, z, f"airfoil {name!r}")
@@ -95,24 +88,18 @@ class Airfoil:
             contour = SmoothContour(sx, sz)
             ends = np.array([[x[0], z[0]], [x[-1], z[-1]]])
             if not np.array_equal(ends, np.array([contour.start, contour.end])):
-                raise ValueError(
-                    f"airfoil {name!r}: the surface must start and end at the same trailing-edge "
-                    f"points as the nodes, got {contour.start} and {contour.end} for {ends[0]} and "
-                    f"{ends[1]}"
-                )
+                raise ValueError(f"airfoil {name!r}: the surface must start and end at the same trailing-edge "
+                                 f"points as the nodes, got {contour.start} and {contour.end} for {ends[0]} and "
+                                 f"{ends[1]}")
             off = np.abs(contour.project(np.column_stack([x, z])).distance)
             if off.max() > SURFACE_TOLERANCE:
                 i = int(np.argmax(off))
-                raise ValueError(
-                    f"airfoil {name!r}: node {i} lies {off[i]:.3g} chord off the given surface "
-                    f"(tolerance {SURFACE_TOLERANCE:g}); pass nodes sampled from that surface"
-                )
+                raise ValueError(f"airfoil {name!r}: node {i} lies {off[i]:.3g} chord off the given surface "
+                                 f"(tolerance {SURFACE_TOLERANCE:g}); pass nodes sampled from that surface")
         self._set(x, z, name, contour)
 
     @classmethod
-    def _on_contour(
-        cls, x: np.ndarray, z: np.ndarray, name: str, contour: SmoothContour
-    ) -> Airfoil:
+    def _on_contour(cls, x: np.ndarray, z: np.ndarray, name: str, contour: SmoothContour) -> Airfoil:
         """An airfoil whose nodes were sampled from an existing smooth contour."""
         airfoil = cls.__new__(cls)
         x, z = validated_contour(x, z, f"airfoil {name!r}", crossing=False)
@@ -153,7 +140,7 @@ class Airfoil:
     @property
     def leading_edge(self) -> np.ndarray:
         """The leading edge, the minimum-x point of the smooth contour, as (x, z)."""
-        return self._contour.points(np.array(self._contour.le_parameter))
+        return self._contour.spline(np.array(self._contour.le_parameter))
 
     @property
     def leading_edge_parameter(self) -> float:
@@ -179,7 +166,7 @@ class Airfoil:
         t = np.asarray(t, dtype=np.float64)
         if not np.all(np.isfinite(t) & (t >= 0.0) & (t <= 1.0)):
             raise ValueError("contour fractions t must lie in [0, 1]")
-        return self._contour.points(t * self._contour.length)
+        return self._contour.spline(t * self._contour.length)
 
     @cached_property
     def leading_edge_radius(self) -> float:
@@ -209,20 +196,11 @@ class Airfoil:
         return (upper - lower)[()]
 
     def camber(self, x: ArrayLike) -> np.ndarray:
-        """Camber distribution: mid-point of the surfaces at chordwise stations.
+        """Camber distribution: the mean of upper and lower surface z (chord units) at the stations ``x``
+        of :meth:`thickness` (same shape and refusals).
 
         For a NACA section this differs slightly from its mean line, whose
         thickness is laid perpendicular to it rather than vertically.
-
-        Args:
-            x: Stations (chord units), any shape, between the leading edge and
-                the trailing edge.
-
-        Returns:
-            Mean of upper and lower surface z (chord units), same shape as ``x``.
-
-        Raises:
-            ValueError: As for :meth:`thickness`.
         """
         upper, lower = self._contour.surfaces_at(x, f"airfoil {self.name!r}")
         return (0.5 * (upper + lower))[()]
@@ -314,7 +292,7 @@ class Airfoil:
         x_le = contour.x_le
         s[upper] = contour.parameter_at_x(x_le + (contour.start[0] - x_le) * station[upper], True)
         s[lower] = contour.parameter_at_x(x_le + (contour.end[0] - x_le) * station[lower], False)
-        points = contour.points(s)
+        points = contour.spline(s)
         points[0], points[-1] = contour.start, contour.end
         return Airfoil._on_contour(points[:, 0], points[:, 1], self.name, contour)
 
@@ -430,16 +408,7 @@ class Airfoil:
         return self._contour.project(points)
 
     def distance(self, points: ArrayLike) -> np.ndarray:
-        """Signed normal distance from points to the contour, positive outside.
-
-        Args:
-            points: Query points (x, z), chord units, shape ``(..., 2)``.
-
-        Returns:
-            Distances (chord units), shape ``(...)``.
-
-        Raises:
-            ValueError: As for :meth:`project`.
-        """
+        """Signed normal distance (chord units, shape ``(...)``) from the points of :meth:`project` to the
+        contour, positive outside."""
         return self.project(points).distance
 

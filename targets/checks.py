@@ -28,9 +28,6 @@ CHORD_TOLERANCE = 1e-6
 LEADING_EDGE_BOUND = 0.1
 """Largest distance (chord) of the minimum-x node from x = 0."""
 
-SURFACE_TOLERANCE = 1e-6
-"""Largest distance (chord) of the nodes from an explicitly given surface."""
-
 ZERO_AREA = 1e-9
 """Enclosed area (chord^2) at or below which a contour has zero thickness: a 0.01%-thick
 section encloses about 7e-5."""
@@ -245,16 +242,12 @@ def validated_contour(x: ArrayLike, z: ArrayLike, what: str, crossing: bool = Tr
     except (TypeError, ValueError) as err:
         raise ValueError(f"{what}: x and z must be arrays of numbers ({err})") from err
     if x.ndim != 1 or z.ndim != 1 or x.shape != z.shape:
-        raise ValueError(
-            f"{what}: x and z must be 1-D arrays of equal length, got shapes {x.shape} and "
-            f"{z.shape}"
-        )
+        raise ValueError(f"{what}: x and z must be 1-D arrays of equal length, got shapes {x.shape} and "
+                         f"{z.shape}")
     n = x.size
     if n < MIN_POINTS:
-        raise ValueError(
-            f"{what} has {n} points; at least {MIN_POINTS} are needed (trailing edge, two points "
-            f"on each surface, leading edge, trailing edge): pass more points"
-        )
+        raise ValueError(f"{what} has {n} points; at least {MIN_POINTS} are needed (trailing edge, two points "
+                         f"on each surface, leading edge, trailing edge): pass more points")
     not_finite = ~(np.isfinite(x) & np.isfinite(z))
     if not_finite.any():
         i = int(np.argmax(not_finite))
@@ -265,45 +258,33 @@ def validated_contour(x: ArrayLike, z: ArrayLike, what: str, crossing: bool = Tr
     segment = np.hypot(np.diff(x), np.diff(z))
     if (segment == 0.0).any():
         i = int(np.argmax(segment == 0.0))
-        raise ValueError(
-            f"{what}: points {i} and {i + 1} coincide at ({x[i]}, {z[i]}); remove the duplicate"
-        )
+        raise ValueError(f"{what}: points {i} and {i + 1} coincide at ({x[i]}, {z[i]}); remove the duplicate")
     i_le = int(np.argmin(x))
     if i_le in (0, n - 1):
         end = "first" if i_le == 0 else "last"
-        raise ValueError(
-            f"{what}: the {end} point is the leading edge (minimum x); Selig order starts and ends "
-            f"at the trailing edge (trailing edge, upper surface, leading edge, lower surface, "
-            f"trailing edge): reorder the points or add the missing surface"
-        )
+        raise ValueError(f"{what}: the {end} point is the leading edge (minimum x); Selig order starts and ends "
+                         f"at the trailing edge (trailing edge, upper surface, leading edge, lower surface, "
+                         f"trailing edge): reorder the points or add the missing surface")
     x_te = 0.5 * (x[0] + x[-1])
     if abs(x_te - 1.0) > CHORD_TOLERANCE:
-        raise ValueError(
-            f"{what} is not chord-normalised: its trailing edge (mid-point of the first and last "
-            f"points) is at x = {x_te:.9g}, expected 1 within {CHORD_TOLERANCE:g}; divide the "
-            f"coordinates by the chord and put the leading edge at x = 0"
-        )
+        raise ValueError(f"{what} is not chord-normalised: its trailing edge (mid-point of the first and last "
+                         f"points) is at x = {x_te:.9g}, expected 1 within {CHORD_TOLERANCE:g}; divide the "
+                         f"coordinates by the chord and put the leading edge at x = 0")
     if abs(x[i_le]) > LEADING_EDGE_BOUND:
-        raise ValueError(
-            f"{what} is not chord-normalised: its leading edge is at x = {x[i_le]:.6g}, expected 0 "
-            f"within {LEADING_EDGE_BOUND:g}; shift the coordinates so the leading edge is at x = 0"
-        )
+        raise ValueError(f"{what} is not chord-normalised: its leading edge is at x = {x[i_le]:.6g}, expected 0 "
+                         f"within {LEADING_EDGE_BOUND:g}; shift the coordinates so the leading edge is at x = 0")
     crossed = crossing_error(x, z) if crossing else None
     if crossed is not None:
         raise ValueError(f"{what}: {crossed}")
     # Shoelace area of the polygon closed by the trailing-edge base.
     area = 0.5 * float(np.sum(x * np.roll(z, -1) - np.roll(x, -1) * z))
     if abs(area) <= ZERO_AREA:
-        raise ValueError(
-            f"{what} has zero thickness: its contour encloses no area (signed area {area:.3g}), as a flat "
-            f"plate or a camber line alone does; a bay's rib needs a section with thickness: give both "
-            f"surfaces"
-        )
+        raise ValueError(f"{what} has zero thickness: its contour encloses no area (signed area {area:.3g}), as a flat "
+                         f"plate or a camber line alone does; a bay's rib needs a section with thickness: give both "
+                         f"surfaces")
     if area < 0.0:
-        raise ValueError(
-            f"{what} runs clockwise (signed area {area:.3g}); Selig order runs counter-clockwise "
-            f"(trailing edge, upper surface, leading edge, lower surface): reverse the points"
-        )
+        raise ValueError(f"{what} runs clockwise (signed area {area:.3g}); Selig order runs counter-clockwise "
+                         f"(trailing edge, upper surface, leading edge, lower surface): reverse the points")
     return x, z
 
 def checked_n_points(n_points: int) -> int:

@@ -83,11 +83,10 @@ def is_smooth_join(x: np.ndarray, z: np.ndarray) -> bool:
 
 
 class SmoothContour:
-    """Cubic spline of (x, z) against cumulative chord length, with its queries.
+    """Cubic spline of (x, z) against cumulative chord length, with its queries (module docstring).
 
-    The spline is periodic when the contour is closed and smooth through its
-    trailing edge, otherwise it has not-a-knot ends (the trailing edge is a
-    corner, or open). Where its x(s) turns back between nodes whose x is
+    Not periodic, it has not-a-knot ends (the trailing edge is a corner, or
+    open). Where its x(s) turns back between nodes whose x is
     monotonic (beside a sharp nose, or beside the trailing-edge node of a
     periodic contour), the x part is repaired by
     :func:`~targets.monotone_spline.limit_x_reversals` and is C1 there.
@@ -103,7 +102,7 @@ class SmoothContour:
             knots, points, axis=0, bc_type="periodic" if self.periodic else "not-a-knot"
         )
         self.spline = limit_x_reversals(spline, x, self.periodic)
-        self._tangent = self.spline.derivative(1)
+        self.tangent = self.spline.derivative(1)  # and `spline(s)`: the points
         self._second = self.spline.derivative(2)
         self._x_poly = PPoly(self.spline.c[..., 0], knots, extrapolate=False)
         self.start = points[0].copy()
@@ -125,19 +124,13 @@ class SmoothContour:
         self._tree = cKDTree(self.spline(dense))
         self._max_step = 2.0 * float(np.max(np.diff(dense)))
 
-    def points(self, s: np.ndarray) -> np.ndarray:
-        return self.spline(s)
-
-    def tangent(self, s: np.ndarray) -> np.ndarray:
-        return self._tangent(s)
-
     def outward_normal(self, s: np.ndarray) -> np.ndarray:
-        t = self._tangent(s)
+        t = self.tangent(s)
         return _unit(np.stack([t[..., 1], -t[..., 0]], axis=-1))
 
     def curvature(self, s: np.ndarray) -> np.ndarray:
         """Signed curvature (1/chord), positive where the contour turns counter-clockwise."""
-        t, k = self._tangent(s), self._second(s)
+        t, k = self.tangent(s), self._second(s)
         cross = t[..., 0] * k[..., 1] - t[..., 1] * k[..., 0]
         return cross / np.hypot(t[..., 0], t[..., 1]) ** 3
 
@@ -145,7 +138,7 @@ class SmoothContour:
     def monotonic_error(self) -> str | None:
         """Why x is not single-valued along a surface, or None when it is."""
         s = self._dense_parameter
-        slope = self._tangent(s)
+        slope = self.tangent(s)
         speed = np.hypot(slope[:, 0], slope[:, 1])
         for surface, part, wrong_sign in (
             ("upper", s < self.le_parameter, slope[:, 0] > REVERSAL_TOLERANCE * speed),
@@ -154,11 +147,9 @@ class SmoothContour:
             bad = part & wrong_sign
             if bad.any():
                 x_bad = float(self._x_poly(s[np.argmax(bad)]))
-                return (
-                    f"x turns back along the {surface} surface near x = {x_bad:.4f}; thickness, "
-                    f"camber and resampling need each surface to run monotonically in x from the "
-                    f"leading edge to the trailing edge"
-                )
+                return (f"x turns back along the {surface} surface near x = {x_bad:.4f}; thickness, "
+                        f"camber and resampling need each surface to run monotonically in x from the "
+                        f"leading edge to the trailing edge")
         return None
 
     def parameter_at_x(self, stations: np.ndarray, upper: bool) -> np.ndarray:
@@ -189,7 +180,7 @@ class SmoothContour:
         """z of one surface at chordwise ``stations`` (inside its x-range, or beyond its trailing-edge end)."""
         end = self.start if upper else self.end
         inside = np.clip(stations, self.x_le, end[0])
-        z = self.points(self.parameter_at_x(inside, upper))[:, 1]
+        z = self.spline(self.parameter_at_x(inside, upper))[:, 1]
         beyond = stations > end[0]
         if beyond.any():
             # An open, cambered trailing edge ends its surfaces a little before or after
@@ -213,10 +204,8 @@ class SmoothContour:
         low, high = self.x_le - STATION_TOLERANCE, x_te + STATION_TOLERANCE
         outside = ~((flat >= low) & (flat <= high))
         if outside.any():
-            raise ValueError(
-                f"{what}: station x = {flat[np.argmax(outside)]!r} lies outside the "
-                f"section, which runs from x = {self.x_le:.6g} to x = {x_te:.6g}"
-            )
+            raise ValueError(f"{what}: station x = {flat[np.argmax(outside)]!r} lies outside the "
+                             f"section, which runs from x = {self.x_le:.6g} to x = {x_te:.6g}")
         flat = np.clip(flat, self.x_le, x_te)
         upper = self.surface_z(flat, upper=True).reshape(stations.shape)
         lower = self.surface_z(flat, upper=False).reshape(stations.shape)
@@ -252,7 +241,7 @@ class SmoothContour:
         target = points[:, None, :]
         for _ in range(_NEWTON_STEPS):
             offset = self.spline(s) - target
-            tangent = self._tangent(s)
+            tangent = self.tangent(s)
             slope = np.sum(offset * tangent, axis=-1)  # half the derivative of the squared distance
             speed2 = np.sum(tangent * tangent, axis=-1)
             hessian = speed2 + np.sum(offset * self._second(s), axis=-1)

@@ -78,9 +78,7 @@ def _is_point(line: str) -> bool:
     return values is not None and len(values) == 2
 
 
-def _read_points(
-    where: str, lines: list[tuple[int, str]]
-) -> list[list[tuple[int, float, float]]]:
+def _read_points(where: str, lines: list[tuple[int, str]]) -> list[list[tuple[int, float, float]]]:
     """Point lines, as blocks separated by blank lines, each point with its line number."""
     blocks: list[list[tuple[int, float, float]]] = [[]]
     for number, line in lines:
@@ -90,25 +88,17 @@ def _read_points(
             continue
         values = _numbers(line)
         if values is None or len(values) != 2:
-            raise ValueError(
-                f"{where}, line {number}: expected two numbers 'x z', got {line.strip()!r}; "
-                f"fix or delete the line"
-            )
+            raise ValueError(f"{where}, line {number}: expected two numbers 'x z', got {line.strip()!r}; "
+                             f"fix or delete the line")
         if not all(np.isfinite(values)):
-            raise ValueError(
-                f"{where}, line {number}: coordinate is not finite ({line.strip()!r}); "
-                f"replace it with the point's value"
-            )
+            raise ValueError(f"{where}, line {number}: coordinate is not finite ({line.strip()!r}); "
+                             f"replace it with the point's value")
         blocks[-1].append((number, values[0], values[1]))
     return [block for block in blocks if block]
 
 
-def _lednicer(
-    where: str,
-    header_line: int,
-    counts: tuple[int, int],
-    blocks: list[list[tuple[int, float, float]]],
-) -> list[tuple[int, float, float]]:
+def _lednicer(where: str, header_line: int, counts: tuple[int, int],
+              blocks: list[list[tuple[int, float, float]]]) -> list[tuple[int, float, float]]:
     """Selig-ordered points of a Lednicer file."""
     n_upper, n_lower = counts
     points = [point for block in blocks for point in block]
@@ -118,29 +108,21 @@ def _lednicer(
         upper, lower = points[:n_upper], points[n_upper:]
     elif len(blocks) <= 1:
         last = points[-1][0] if points else header_line
-        raise ValueError(
-            f"{where}: line {header_line} declares {n_upper} upper and {n_lower} lower surface "
-            f"points, but the file holds {len(points)} point(s) in one block ending at line "
-            f"{last}; a surface is missing: add it after a blank line"
-        )
+        raise ValueError(f"{where}: line {header_line} declares {n_upper} upper and {n_lower} lower surface "
+                         f"points, but the file holds {len(points)} point(s) in one block ending at line "
+                         f"{last}; a surface is missing: add it after a blank line")
     else:
-        raise ValueError(
-            f"{where}: a Lednicer file holds two blocks of points (upper, then lower surface) "
-            f"separated by a blank line, but this one has {len(blocks)} blocks (the third "
-            f"starts at line {blocks[2][0][0]}); remove the extra blank lines or points"
-        )
+        raise ValueError(f"{where}: a Lednicer file holds two blocks of points (upper, then lower surface) "
+                         f"separated by a blank line, but this one has {len(blocks)} blocks (the third "
+                         f"starts at line {blocks[2][0][0]}); remove the extra blank lines or points")
     for surface, block, declared in (("upper", upper, n_upper), ("lower", lower, n_lower)):
         if len(block) != declared:
-            raise ValueError(
-                f"{where}: line {header_line} declares {declared} {surface} surface points, but "
-                f"the {surface} surface (lines {block[0][0]}-{block[-1][0]}) has {len(block)}; "
-                f"correct the count or the points"
-            )
+            raise ValueError(f"{where}: line {header_line} declares {declared} {surface} surface points, but "
+                             f"the {surface} surface (lines {block[0][0]}-{block[-1][0]}) has {len(block)}; "
+                             f"correct the count or the points")
         if not block[0][1] < block[-1][1]:
-            raise ValueError(
-                f"{where}: the {surface} surface (lines {block[0][0]}-{block[-1][0]}) must run "
-                f"from the leading edge to the trailing edge (x increasing) in a Lednicer file"
-            )
+            raise ValueError(f"{where}: the {surface} surface (lines {block[0][0]}-{block[-1][0]}) must run "
+                             f"from the leading edge to the trailing edge (x increasing) in a Lednicer file")
     if (upper[0][1], upper[0][2]) == (lower[0][1], lower[0][2]):
         lower = lower[1:]  # the shared leading-edge point appears once in Selig order
     return upper[::-1] + lower
@@ -153,9 +135,7 @@ def _check_order(where: str, points: list[tuple[int, float, float]]) -> None:
         raise ValueError(f"{where}: {disorder}")
 
 
-def _renormalised(
-    where: str, label: str, x: np.ndarray, z: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, str | None]:
+def _renormalised(where: str, label: str, x: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, str | None]:
     """The points mapped to unit chord when the trailing edge is slightly off x = 1.
 
     The trailing edge is the mid-point of the first and last points and the
@@ -192,28 +172,21 @@ def _renormalised(
             )
         )
     chord = x_te - x_le
-    note = (
-        f"{where}: airfoil {label!r} renormalised to unit chord: its trailing edge was at "
-        f"x = {x_te:.9g} and its leading edge at x = {x_le:.9g} (chord {chord:.9g}); x shifted by "
-        f"{0.0 - x_le:.3g}, x and z scaled by {1.0 / chord:.9g}"
-    )
+    note = (f"{where}: airfoil {label!r} renormalised to unit chord: its trailing edge was at "
+            f"x = {x_te:.9g} and its leading edge at x = {x_le:.9g} (chord {chord:.9g}); x shifted by "
+            f"{0.0 - x_le:.3g}, x and z scaled by {1.0 / chord:.9g}")
     return (x - x_le) / chord, z / chord, note
 
 
 def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
-    """Reads a Selig or Lednicer ``.dat`` file (format detected, see the module docstring).
+    """Reads a Selig or Lednicer ``.dat`` file (format and skipped text: the module docstring).
 
-    Text lines before the first point (beyond the name line) and after the
-    last point are skipped; consecutive repeated points (a quirk of some
-    database files) are read once. The coordinates must be chord-normalised
-    (leading edge at x = 0, trailing edge at x = 1) up to
-    :data:`RENORMALISE_LIMIT`: a file whose trailing edge (mid-point of the
-    first and last points) is off x = 1 by more than
-    :data:`~targets.checks.CHORD_TOLERANCE`, but by no more than that limit,
-    with its minimum x as close to 0, is mapped onto unit chord (x from the
-    minimum-x point to the trailing edge becomes 0 to 1, z scaled alike, so
-    thickness and camber ratios are kept) and an :class:`AirfoilWarning` says
-    by how much.
+    Consecutive repeated points (a quirk of some database files) are read
+    once. A chord off unit length by no more than :data:`RENORMALISE_LIMIT`
+    is mapped onto unit chord (x from the minimum-x point to the trailing
+    edge becomes 0 to 1, z scaled alike, so thickness and camber ratios are
+    kept; :func:`_renormalised`) and an :class:`AirfoilWarning` says by how
+    much.
 
     Args:
         path: The file.
@@ -293,26 +266,20 @@ def load_airfoil(path: str | os.PathLike, name: str | None = None) -> Airfoil:
     else:
         points = [point for block in blocks for point in block]
         if len(points) < MIN_POINTS:
-            raise ValueError(
-                f"{where}: found {len(points)} point(s), at least {MIN_POINTS} are needed; "
-                f"is the file complete?"
-            )
+            raise ValueError(f"{where}: found {len(points)} point(s), at least {MIN_POINTS} are needed; "
+                             f"is the file complete?")
         x = np.array([p[1] for p in points])
         _check_order(where, points)
         i_le = int(np.argmin(x))
         if i_le == len(points) - 1:
-            raise ValueError(
-                f"{where}: the points end at the leading edge (line {points[-1][0]}), so the "
-                f"lower surface is missing; a Selig file runs trailing edge, upper surface, "
-                f"leading edge, lower surface, trailing edge"
-            )
+            raise ValueError(f"{where}: the points end at the leading edge (line {points[-1][0]}), so the "
+                             f"lower surface is missing; a Selig file runs trailing edge, upper surface, "
+                             f"leading edge, lower surface, trailing edge")
         if i_le == 0:
-            raise ValueError(
-                f"{where}: the points start at the leading edge (line {points[0][0]}); a Selig "
-                f"file starts at the trailing edge and runs over the upper surface first, so "
-                f"either the upper surface is missing or this is a Lednicer file without its "
-                f"count line"
-            )
+            raise ValueError(f"{where}: the points start at the leading edge (line {points[0][0]}); a Selig "
+                             f"file starts at the trailing edge and runs over the upper surface first, so "
+                             f"either the upper surface is missing or this is a Lednicer file without its "
+                             f"count line")
 
     kept = [points[0]]
     kept += [q for p, q in zip(points[:-1], points[1:]) if (p[1], p[2]) != (q[1], q[2])]

@@ -36,9 +36,7 @@ REVERSAL_TOLERANCE = 1e-9
 length, so |d(x, z)/ds| is about 1 and this is a relative slope."""
 
 
-def _hermite_coefficients(
-    knots: np.ndarray, values: np.ndarray, slopes: np.ndarray
-) -> np.ndarray:
+def _hermite_coefficients(knots: np.ndarray, values: np.ndarray, slopes: np.ndarray) -> np.ndarray:
     """PPoly coefficients, shape (4, m), of the cubic Hermite interpolant of values and slopes."""
     step = np.diff(knots)
     secant = np.diff(values) / step
@@ -78,9 +76,7 @@ def _rises_then_falls(coefficients: np.ndarray, knots: np.ndarray) -> bool:
     return bool(rising.size and (signs[rising[0] :] < 0).any())
 
 
-def _reversing_nodes(
-    coefficients: np.ndarray, knots: np.ndarray, secant: np.ndarray, nose: int
-) -> np.ndarray:
+def _reversing_nodes(coefficients: np.ndarray, knots: np.ndarray, secant: np.ndarray, nose: int) -> np.ndarray:
     """Nodes bounding the pieces whose x(s) turns back against the points."""
     low, high = _slope_range(coefficients, np.diff(knots))
     moves = np.maximum(-low, high) > REVERSAL_TOLERANCE  # where the nodes' x are equal

@@ -140,11 +140,6 @@ class FiveDigitMeanLine:
         """Station of maximum camber p (chord units)."""
         return self.constants.position
 
-    @property
-    def reflexed(self) -> bool:
-        """Whether this is a reflexed mean line (third digit 1)."""
-        return self.constants.k2_over_k1 != 0.0
-
     def __call__(self, x: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Ordinate y_c (chord units) and slope dy_c/dx at stations x in [0, 1]."""
         x = _stations(x)
@@ -285,9 +280,7 @@ def parse_naca(code: str, closed_te: bool = True) -> NacaSection:
         raise invalid(f"it has {len(digits)} digits; use 4 (e.g. '2412') or 5 (e.g. '23012')")
     thickness = int(digits[-2:]) / 100.0
     if thickness == 0.0:
-        raise invalid(
-            "the last two digits give the thickness in percent of chord and must not be 00"
-        )
+        raise invalid("the last two digits give the thickness in percent of chord and must not be 00")
     if len(digits) == 4:
         m, p = int(digits[0]) / 100.0, int(digits[1]) / 10.0
         if m > 0.0 and p == 0.0:
@@ -298,20 +291,14 @@ def parse_naca(code: str, closed_te: bool = True) -> NacaSection:
     else:
         lift_digit, line = int(digits[0]), "2" + digits[1:3]
         if lift_digit == 0:
-            raise invalid(
-                f"the first digit sets the design lift coefficient 0.15 L and must be 1-9; "
-                f"for a symmetric section use the 4-digit code '00{digits[3:]}'"
-            )
+            raise invalid(f"the first digit sets the design lift coefficient 0.15 L and must be 1-9; "
+                          f"for a symmetric section use the 4-digit code '00{digits[3:]}'")
         if digits[2] not in "01":
-            raise invalid(
-                "the third digit must be 0 (standard mean line) or 1 (reflexed mean line)"
-            )
+            raise invalid("the third digit must be 0 (standard mean line) or 1 (reflexed mean line)")
         if line not in FIVE_DIGIT_MEAN_LINES:
-            raise invalid(
-                f"mean line digits {digits[1:3]!r} (position {digits[1]}, reflex {digits[2]}) are "
-                f"not tabulated; use position digit 1-5 for a standard line (210-250) or 2-5 "
-                f"for a reflexed one (221-251)"
-            )
+            raise invalid(f"mean line digits {digits[1:3]!r} (position {digits[1]}, reflex {digits[2]}) are "
+                          f"not tabulated; use position digit 1-5 for a standard line (210-250) or 2-5 "
+                          f"for a reflexed one (221-251)")
         mean_line = FiveDigitMeanLine(line, 0.15 * lift_digit, FIVE_DIGIT_MEAN_LINES[line])
     return NacaSection(digits, thickness, mean_line, bool(closed_te))
 
@@ -320,13 +307,11 @@ def naca(code: str, n_points: int = 257, closed_te: bool = True) -> Airfoil:
     """A NACA 4- or 5-digit section as an :class:`~targets.Airfoil`.
 
     Args:
-        code: The designation, e.g. "2412", "NACA2412", "naca 2412", "23012".
+        code, closed_te: as :func:`parse_naca`'s.
         n_points: Number of points, both trailing-edge points included (for a
             closed trailing edge the first and last coincide exactly); at
             least 7. Points sit at cosine-spaced camber-line stations, see
             the module docstring.
-        closed_te: Close the trailing edge (x^4 coefficient -0.1036) or keep
-            the report's open one (-0.1015).
 
     Returns:
         The section in Selig order, chord-normalised, named "NACA <digits>".

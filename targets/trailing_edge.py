@@ -20,15 +20,11 @@ edges to one form."""
 BLEND_NODES = 401  # nodes of the resampled contour that a trailing-edge blend is applied to
 
 
-def common_trailing_edge(
-    airfoils, mode: str = "close", labels=None, blend: float = TRAILING_EDGE_BLEND
-) -> tuple[list, list[dict]]:
-    """Sections brought to one trailing-edge form, open or closed, and what was changed.
+def common_trailing_edge(airfoils, mode: str = "close", labels=None,
+                         blend: float = TRAILING_EDGE_BLEND) -> tuple[list, list[dict]]:
+    """Sections brought to one trailing-edge form, open or closed (module docstring), and what was changed.
 
-    A skin between two ribs, and a wing of bays, runs one grid whose
-    trailing-edge seam is either one line (closed) or two with a base
-    between them (open), so its sections must share the form. NACA codes are
-    closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
+    NACA codes are closed; most real ``.dat`` files are open by 0.1-0.5% of chord.
 
     Modes:
 
@@ -69,12 +65,10 @@ def common_trailing_edge(
         return airfoils, []
     if mode == "as-given":
         i, j = closed.index(True), closed.index(False)
-        raise ValueError(
-            f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
-            f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
-            f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
-            f"(open the closed ones to the largest gap)"
-        )
+        raise ValueError(f"{labels[i]} has a closed trailing edge and {labels[j]} an open one (gap "
+                         f"{airfoils[j].trailing_edge_gap:.3g} chord), and one skin cannot join the two: set "
+                         f"trailing_edge (--trailing-edge) to close (close the open ones, the default) or open "
+                         f"(open the closed ones to the largest gap)")
     gap = 0.0 if mode == "close" else max(a.trailing_edge_gap for a in airfoils)
     sections, changes = [], []
     for k, airfoil in enumerate(airfoils):

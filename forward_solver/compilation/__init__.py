@@ -1,18 +1,13 @@
 """The compile machinery, behind one boundary: what makes the solver's programs compile and load faster.
 
 Nothing here changes a computed number; it decides when and how the
-solver's JAX programs are traced, compiled and kept:
-
-* `stored_jit`, `use_program_store`, `program_store`: top-level programs
-  kept between processes as exported StableHLO (`stored`);
-* `Ahead`, `compiling`, `signature`, `set_compile_ahead`: the programs a
-  cold solve needs next, compiled on a second thread meanwhile (`ahead`);
-* `enable_fast_compilation`, `FAST_COMPILATION_FLAGS`: XLA's faster-compiling
-  CPU loop emitters (`xla`).
-
-Code outside this folder imports these names from ``forward_solver.compilation``
-only; the physics (`forward_solver.forces`, `forward_solver.model`) does not
-import it at all. docs/compilation.md describes the whole.
+solver's JAX programs are traced, compiled and kept: `stored` (top-level
+programs kept between processes, `stored_jit`), `ahead` (the programs a cold
+solve needs next, compiled on a second thread meanwhile, `Ahead`) and `xla`
+(XLA's faster-compiling CPU loop emitters). Code outside this folder imports
+these names from ``forward_solver.compilation`` only; the physics
+(`forward_solver.forces`, `forward_solver.model`) does not import it at all
+(docs/compilation.md).
 """
 
 from .ahead import Ahead as Ahead

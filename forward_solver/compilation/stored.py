@@ -1,36 +1,25 @@
-"""Top-level programs kept between processes as exported StableHLO (`jax.export`).
+"""Top-level programs kept between processes as exported StableHLO (`jax.export`); docs/compilation.md.
 
-JAX's persistent compilation cache keeps XLA's work, but it keys a program
-on its lowered module, so every process still traces and lowers each
-program before it can look it up: profiled in a cached run of the default
-case on the 2-core development machine, 1.4 s of tracing and 0.9 s of
-lowering, most of it the solver's few large top-level programs (the
-relaxation, Newton's Jacobian and residual, the tangents' right-hand sides).
-With them stored, a cached run takes 3.8-4.1 s instead of 4.2-4.4 s, and the
-first run on a grid about 1 s more (it exports them and compiles the exported
-form; docs/compilation.md).
+JAX's persistent compilation cache keys a program on its lowered module, so
+every process still traces and lowers each program before it can look it
+up: profiled in a cached run of the default case on the 2-core development
+machine, 1.4 s of tracing and 0.9 s of lowering, most of it the solver's few
+large top-level programs. `stored_jit` is ``jax.jit`` for such a program:
+while a store is in use (`use_program_store`), a call with concrete
+arguments runs the program exported for that call's signature, loaded from
+the store or exported now and written there (docs/compilation.md gives what
+it saves and costs). Called with tracers, or with no store in use (the
+library's default), it is the jitted function itself; a program that cannot
+be exported (a host callback) runs as jitted. The exported module is the
+jitted program's own StableHLO, so the results are the same.
 
-`stored_jit` is ``jax.jit`` for such a program. While a store is in use
-(`use_program_store`: the command turns it on beside the persistent cache,
-in its ``programs`` sub-folder) a call with concrete arguments runs the
-program exported by ``jax.export`` for that call's signature: loaded from
-the store when an earlier process exported it, else exported now and
-written there. Loading skips tracing and lowering the program; its
-compilation still goes through the persistent cache. Called with tracers
-(under ``jax.jit``, ``jax.vmap``, ``jax.jvp``), or with no store in use
-(the library's default), it is the jitted function itself. The exported
-module is the jitted program's own StableHLO, so the results are the same.
-
-An entry's file name is a digest of the function, its static arguments,
-the structure, shapes, dtypes and weak types of its array arguments, the
-float64 setting, and the version of everything else that shapes the
-program: this package's source and its siblings', JAX and jaxlib,
-``XLA_FLAGS`` and the platform. Loading an entry unpickles its output
-structure: keep the store in a folder only you write, as JAX's own cache.
-A change of the code gives every program a new name; an entry that fails
-to load is exported again and replaced (written to a temporary file, then
-renamed, so a concurrent run never reads half a file).
-A program that cannot be exported (a host callback) runs as jitted.
+An entry's file name is a digest of the function, its static arguments, the
+avals of its array arguments, the float64 setting, this package's source and
+its siblings', JAX and jaxlib, ``XLA_FLAGS`` and the platform. Loading an
+entry unpickles its output structure: keep the store in a folder only you
+write. An entry that fails to load is exported again and replaced (written
+to a temporary file, then renamed, so a concurrent run never reads half a
+file).
 """
 
 from __future__ import annotations

@@ -1,27 +1,20 @@
-"""XLA options that compile the solver's programs faster on a CPU: `enable_fast_compilation`.
+"""XLA options that compile the solver's programs faster on a CPU: `enable_fast_compilation` (docs/compilation.md).
 
-XLA's CPU backend emits each fused loop either through its newer MLIR
-fusion emitters (the default of JAX 0.10) or through its older LLVM loop
-emitters (``--xla_cpu_use_fusion_emitters=false``). The solver's programs
-are elementwise stencil loops over the grid, which both run equally fast,
-and the older emitters compile them in 55-65% of the time. Measured on the
-2-core development machine (2026-11-25, JAX 0.10.2, no persistent cache):
+XLA's CPU backend emits each fused loop through its newer MLIR fusion
+emitters (the default of JAX 0.10) or its older LLVM loop emitters
+(``--xla_cpu_use_fusion_emitters=false``). The solver's stencil loops run
+equally fast either way, and the older emitters compile them in 55-65% of
+the time. Measured on the 2-core development machine (2026-11-25, JAX
+0.10.2, no persistent cache): the default bay's relaxation program (17x64)
+1.9 s -> 1.1-1.2 s of compiling, its runtime the same within the spread at
+17x64 to 65x512; the command's default case 11.9 s -> 7.3 s of compiling
+(172 programs), 18.9 s -> 14.5 s end to end, the same design to the last
+digit.
 
-* the relaxation program of the default bay (17x64): 1.9 s -> 1.1-1.2 s of
-  compiling; relaxation runtime the same within the run-to-run spread at
-  17x64, 17x128, 17x256, 33x256 and 65x512;
-* the default case of the command, in process: 11.9 s -> 7.3 s of compiling
-  (172 programs), 18.9 s -> 14.5 s end to end, the same design to the last
-  digit (1000 Pa, rms 2.5478e-3).
-
-XLA reads ``XLA_FLAGS`` once, when JAX starts its backend (the first
-computation of the process), so the option is an environment setting, not
-a per-program one: JAX refuses ``jax.jit(..., compiler_options=...)`` on a
-function nested in another's trace, and a top-level copy next to the nested
-one compiled the same program twice. The ``optimise-pressure`` command and
-the test suite call `enable_fast_compilation` before their first
-computation; a library caller may do the same (or set ``XLA_FLAGS``). Other
-backends (GPU) ignore the option.
+XLA reads ``XLA_FLAGS`` once, when JAX starts its backend, so the option is
+an environment setting, not a per-program one (JAX refuses
+``compiler_options`` on a function nested in another's trace, and a
+top-level copy compiled the same program twice). Other backends ignore it.
 """
 
 from __future__ import annotations

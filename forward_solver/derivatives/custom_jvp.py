@@ -1,30 +1,18 @@
-"""Derivatives of the equilibrium shape: the custom JVP of `solve_equilibrium`.
-
-Implicit differentiation. At equilibrium the static residual of eq. (10)-(15)
-vanishes on the free degrees of freedom, ``R(x*(theta), theta) = 0``, so
-(implicit function theorem)::
-
-    dx*/dtheta = -J^-1 dR/dtheta,   J = dR/dx on the free dofs (N/m).
+"""The custom JVP of `solve_equilibrium`: its host solve made differentiable (`differentiable_solution`).
 
 `solve_equilibrium` calls `differentiable_solution` when any of its
-`Parameters` is a JAX tracer. That wraps the solve in a ``jax.custom_jvp``
-over the whole `Parameters` pytree:
-
-* primal: the concrete host solve (relaxation, Newton, warm starts) at the
-  concrete parameter values;
-* tangent (forward mode, ``jax.jvp`` / ``jax.jacfwd``) and cotangent
-  (reverse mode, ``jax.grad`` / ``jax.vjp``): `implicit.ImplicitAdjoint` at
-  the solved state, the one implicit rule of the package (its right-hand
-  side ``-dR/dtheta . dtheta`` through `forces.prepare` and the mounted rib
-  nodes, `rhs`; one ``jax.lax.custom_linear_solve``, whose transpose is the
-  adjoint solve ``J^T lambda = xbar``) with its linear solver:
-  `implicit.SparseLU` ("lu"), the sparse LU of J on the host (the
-  solution's own factor, `Solution.factor`, when it was factorised at the
-  returned state), or `krylov.BiCGStab` ("iterative"), matrix-free.
-  `implicit.default_linear_solver` picks the LU on a CPU backend and
-  BiCGStab elsewhere, since a host callback fails where JAX sees only a GPU
-  (``JAX_PLATFORMS=cuda``). One adjoint solve per gradient, whatever the
-  number of parameters; the two modes cannot disagree.
+`Parameters` is a JAX tracer whose value is concrete (an eager ``jax.grad``,
+``jax.jacfwd``, ``jax.jvp`` or ``jax.vjp``). It wraps the solve in a
+``jax.custom_jvp`` over the whole `Parameters` pytree, whose primal is the
+concrete host solve (relaxation, Newton, warm starts) and whose tangent and
+cotangent come from the adjoint value (``adjoint=``): ``adjoint.primal``
+solves, ``adjoint.jvp`` differentiates, `implicit.ImplicitAdjoint` by the
+implicit rule at the solved state (the one rule of the package, `implicit`)
+or `unrolled.UnrolledAdjoint` through the unrolled relaxation (the check).
+Under ``jax.jit`` or ``jax.vmap`` the parameters are abstract and
+`solve_equilibrium` takes the pure-JAX path of `relax.traced_solution`
+instead; the two agree to 1e-10 relative on the 9x32 bay
+(tests/derivatives/test_transforms.py).
 
 Tolerance under differentiation. The derivative is exact only at an exact
 equilibrium; at a state with residual ``r`` the tangent is wrong by about
@@ -34,27 +22,8 @@ several orders below the 1e-5 agreement with finite differences that the
 tests demand; with ``method="relax+newton"`` Newton reaches it in one or two
 extra iterations and leaves the factor the adjoint reuses.
 
-Precision: everything runs in float64; under the caller's own ``jax.grad``
-float64 must be on already (wrap the call in ``with jax.enable_x64(True):``),
-else a RuntimeError says so.
-
-Two paths. This module's primal is host code (scipy, Python control flow),
-so it serves eager ``jax.grad``, ``jax.jacfwd``, ``jax.jvp`` and
-``jax.vjp``, where the parameters are traced but concrete. Under ``jax.jit``
-or ``jax.vmap`` of the parameters they are abstract and `solve_equilibrium`
-takes the pure-JAX path of `relax.traced_solution` instead: the relaxation alone, under
-``stop_gradient``, its fixed point differentiated by `implicit.implicit_nodes`
-(the same implicit rule with the iterative solver). The two agree to 1e-10
-relative on the 9x32 bay (tests/derivatives/test_transforms.py). The host methods
-(newton, relax+newton, explicit) refuse jit and vmap with a TypeError that
-names "relax".
-
-The adjoint is a value with its own knobs (``adjoint=`` of
-`solve_equilibrium`): `implicit.ImplicitAdjoint` (the shortcut "implicit")
-or, to check it on small grids, `unrolled.UnrolledAdjoint` ("unrolled"),
-plain AD through a fixed number of relaxation steps. `differentiable_solution`
-calls the value: ``adjoint.primal`` for the primal solve, ``adjoint.jvp`` for
-the tangent.
+Everything runs in float64; under the caller's own ``jax.grad`` float64 must
+be on already (``with jax.enable_x64(True):``), else a RuntimeError says so.
 """
 
 from __future__ import annotations

@@ -13,19 +13,17 @@ dofs. `ImplicitAdjoint` is that rule, the value ``adjoint=`` of
   solver's transpose: one adjoint solve per gradient, whatever the number
   of parameters; forward and reverse mode cannot disagree;
 * a caller that takes forward-mode derivatives only (the design's Jacobian)
-  may say so (`forward_only`): the "lu" tangents of a batch are then solved
-  on the host as arrays, without the transposable program;
+  may say so (`forward_only`);
 * the linear solver is a value too (``ImplicitAdjoint(linear_solver=...)``):
-  `SparseLU` ("lu"), the sparse LU of ``J`` on the host (bound to one
-  equilibrium as `HostLU`: scipy through ``jax.pure_callback``; a Newton
-  solve's own factor is reused), or `krylov.BiCGStab` ("iterative"), the
-  matrix-free block-Jacobi BiCGStab in JAX (no host callback, so it runs
-  under ``jax.jit`` / ``jax.vmap`` and on any backend); None picks by the
-  backend (`default_linear_solver`).
+  `SparseLU` ("lu"), the sparse LU of ``J`` on the host (scipy through
+  ``jax.pure_callback``, `HostLU`; a Newton solve's own factor is reused),
+  or `krylov.BiCGStab` ("iterative"), matrix-free in JAX (no host callback,
+  so it runs under ``jax.jit`` / ``jax.vmap`` and on any backend); None
+  picks by the backend (`default_linear_solver`).
 
-`solve_equilibrium`'s custom JVP (`custom_jvp.differentiable_solution`) and the
-pure-JAX relaxation (`implicit_nodes`, used by `relax.traced_solution` and by the
-batched wing) both differentiate through this one rule.
+`solve_equilibrium`'s custom JVP (`custom_jvp`) and the pure-JAX relaxation
+(`implicit_nodes`: `relax.traced_solution`, the batched wing) both
+differentiate through this one rule.
 """
 
 from __future__ import annotations
@@ -72,8 +70,6 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
                                                                     jnp.result_type(a)), params)
     key = ("tangents", signature(x, geometry, params), physics, n_tangents)
     compile_rhs = compiling(batched_rhs, x, geometry, params, dparams, physics)
-    # `HostLU.direct_tangent`'s custom_vmap traces its one-tangent function (`_callback_tangent`)
-    # before it batches it: trace it here, so that the call finds its trace in JAX's cache.
     n_free = 3 * int(np.count_nonzero(np.asarray(geometry.free) > 0.5))
     one = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape[1:], a.dtype), dparams)
     free = jax.ShapeDtypeStruct((n_free,), jax.dtypes.canonicalize_dtype(np.int64))  # as HostLU's
@@ -81,7 +77,7 @@ def batched_rhs_task(geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
 
     def task():
         compile_rhs()
-        _callback_tangent.trace(x, geometry, params, one, free, token, physics)
+        _callback_tangent.trace(x, geometry, params, one, free, token, physics)  # found then in JAX's cache
 
     return key, task
 
@@ -286,16 +282,6 @@ class HostLU:
         weakref.finalize(anchor, _release, token)
         self.token = jax.device_put(np.int32(token))  # 32 bits: unchanged whether float64 is on or off
 
-    @classmethod
-    def at(cls, x, geometry, params, physics, factor=None, permc_spec: str = PERMC_SPEC) -> "HostLU":
-        """The LU at ``x`` (a JAX array): ``factor`` (a `jacobian.JacobianFactor`) when it is current,
-        else a fresh one (SuperLU with the column ordering ``permc_spec``)."""
-        if factor is not None and factor.current:
-            return cls(factor.lu, np.asarray(factor.free_dofs), x)
-        ref = prepare_compiled(geometry, params, fk.static_physics(physics))
-        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=permc_spec)
-        return cls(lu, free_dofs(ref), x)
-
     def host_solve(self, b, trans: str):
         """``J^-1 b`` (``trans="N"``) or ``J^-T b`` ("T") for free-dof vectors ``b`` (leading batch axes allowed)."""
         return _host_solve(self.token, b, trans)
@@ -346,11 +332,9 @@ class HostLU:
 class SparseLU:
     """The implicit tangent's linear solver on the host: scipy's sparse LU of ``J`` (`HostLU`).
 
-    A Newton solve's own factor (`Solution.factor`) is reused when it is
-    current; otherwise ``J`` is assembled (`jacobian.assemble_jacobian`) and
-    factorised. It needs concrete values and a CPU backend (a host callback),
-    so it refuses ``jax.jit`` and ``jax.vmap``. The shortcut
-    ``linear_solver="lu"`` names the default value.
+    It needs concrete values and a CPU backend (a host callback), so it
+    refuses ``jax.jit`` and ``jax.vmap``. The shortcut ``linear_solver="lu"``
+    names the default value.
 
     Args:
         permc_spec: SuperLU's column ordering of a fresh factor (`jacobian.PERMC_SPEC`).
@@ -360,8 +344,14 @@ class SparseLU:
     name: ClassVar[str] = "lu"
 
     def bind(self, x, geometry, params, physics, factor=None) -> HostLU:
-        """The LU at the equilibrium ``x`` (``factor``, a `jacobian.JacobianFactor`, when current)."""
-        return HostLU.at(x, geometry, params, physics, factor, self.permc_spec)
+        """The LU at the equilibrium ``x`` (a JAX array): ``factor`` (a `jacobian.JacobianFactor`, e.g. a
+        Newton solve's `Solution.factor`) when it is current, else ``J`` assembled
+        (`jacobian.assemble_jacobian`) and factorised."""
+        if factor is not None and factor.current:
+            return HostLU(factor.lu, np.asarray(factor.free_dofs), x)
+        ref = prepare_compiled(geometry, params, fk.static_physics(physics))
+        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=self.permc_spec)
+        return HostLU(lu, free_dofs(ref), x)
 
     def check_traceable(self, where: str) -> None:
         """Refuse ``jax.jit`` / ``jax.vmap`` (a host sparse LU needs concrete values)."""

@@ -1,10 +1,8 @@
 """The implicit tangent without a matrix: ``J dx = -dR/dtheta . dtheta`` by preconditioned BiCGStab in JAX.
 
-The "lu" solver of `implicit` (`implicit.SparseLU`) factorises the sparse
-Jacobian with scipy and reaches it through ``jax.pure_callback``: it needs
-concrete values and a CPU backend. `BiCGStab`, the "iterative" solver, solves
-the same linear system with JAX alone, so it runs under ``jax.jit`` and
-``jax.vmap``, on any backend:
+`BiCGStab`, the "iterative" linear solver of `implicit`, solves the system of
+the host LU (`implicit.SparseLU`) with JAX alone, so it runs under ``jax.jit``
+and ``jax.vmap``, on any backend:
 
 * the operator is matrix-free: ``J v`` is one ``jax.jvp`` of
   `forces.residual` (eq. 10-15) at the equilibrium ``x*``, on the full node
@@ -24,10 +22,9 @@ the same linear system with JAX alone, so it runs under ``jax.jit`` and
   relaxation's masses) cannot: a membrane node is E/h stiff in its plane and
   only about T/h across it. Measured, the scalar Jacobi preconditioner
   needed 1.2-1.7 times as many products;
-* the solve is a ``jax.lax.custom_linear_solve``, so reverse mode transposes
-  it into the adjoint system ``J^T lambda = xbar``, solved by the same
-  BiCGStab on ``J^T v`` (JAX's transpose of the linearised residual) with the
-  transposed blocks: one adjoint solve per gradient, as with the LU.
+* the adjoint system ``J^T lambda = xbar`` (the transpose of the
+  ``jax.lax.custom_linear_solve``) is solved by the same BiCGStab on ``J^T
+  v`` (JAX's transpose of the linearised residual) with the transposed blocks.
 
 Measured (NACA 2412 bay, 2e5 N/m, 0.5% prestrain, 20 kPa, equilibrium at
 rtol 1e-12; x86_64, 2 cores; ``benchmarks/batched_equilibrium.py
@@ -116,8 +113,7 @@ def jacobian_operator(x, geometry, params, physics):
 class BiCGStab:
     """The implicit tangent's linear solver without a matrix: block-Jacobi BiCGStab in JAX (module docstring).
 
-    No host callback, so it runs under ``jax.jit`` and ``jax.vmap`` and on any
-    backend; the shortcut ``linear_solver="iterative"`` names the default value.
+    The shortcut ``linear_solver="iterative"`` names the default value.
 
     Args:
         rtol: relative residual ``||J dx - b|| / ||b||`` to stop at.

@@ -9,9 +9,9 @@ the free dofs):
 * `parameter_rhs`: ``-dR/dtheta . dtheta``, one ``jax.jvp`` of
   `forces.residual` in the kernel parameters, through `forces.prepare` (the
   cut lengths see the prestrain) and through the held (rib) nodes, which move
-  with the rib scales and shapes (`held_at_mounted`); that motion is the held
-  nodes' tangent, returned beside it; `batched_rhs` is it for a batch of
-  tangents, one program;
+  with the rib scales and shapes; that motion is the held nodes' tangent,
+  returned beside it; `batched_rhs` is it for a batch of tangents, one
+  program;
 * `jacobian_matvec`: ``J v`` on the full node array with the held dofs mapped
   to themselves (the residual is zero there, so the held part of a solution is
   zero and the held nodes' motion is added after).
@@ -32,7 +32,7 @@ from .. import forces as fk
 from ..compilation import stored_jit
 from ..model.parameters import PARAMETER_NAMES, Parameters
 
-__all__ = ["kernel_tangent", "held_at_mounted", "parameter_rhs", "batched_rhs", "jacobian_matvec"]
+__all__ = ["kernel_tangent", "parameter_rhs", "batched_rhs", "jacobian_matvec"]
 
 
 def kernel_tangent(dparameters: Parameters, like: fk.KernelInputs) -> fk.KernelInputs:
@@ -58,13 +58,6 @@ def kernel_tangent(dparameters: Parameters, like: fk.KernelInputs) -> fk.KernelI
     return fk.KernelInputs(*(tangent(name) for name in fk.KernelInputs._fields))
 
 
-def held_at_mounted(x, geometry: fk.Geometry, params: fk.KernelInputs):
-    """``x`` on the free nodes, the held nodes at the mounted (rib) position of ``params``."""
-    mounted = fk.mounted_nodes(geometry, params)
-    free = geometry.free[..., None]
-    return free * x + (1.0 - free) * mounted
-
-
 @partial(jax.jit, static_argnames=("physics",))
 def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk.KernelInputs, physics: fk.Physics):
     """``(-dR/dtheta . dtheta, dx_held)`` at the equilibrium ``x``, both ``(n_span, n_contour, 3)``.
@@ -73,9 +66,10 @@ def parameter_rhs(x, geometry: fk.Geometry, params: fk.KernelInputs, dparams: fk
     motion of the held nodes with the rib parameters, is zero on free ones.
     """
     physics = fk.static_physics(physics)
+    free = geometry.free[..., None]
 
-    def response(p):
-        nodes = held_at_mounted(x, geometry, p)
+    def response(p):  # x on the free nodes, the held ones at the mounted (rib) position of p
+        nodes = free * x + (1.0 - free) * fk.mounted_nodes(geometry, p)
         return fk.residual(nodes, fk.prepare(geometry, p, physics), p, physics), nodes
 
     _, (dr, dnodes) = jax.jvp(response, (params,), (dparams,))

@@ -81,19 +81,13 @@ def unrolled_equilibrium_nodes(scene: Scene, parameters: Parameters, *, n_steps:
                                chunk: int = 100) -> jnp.ndarray:
     """Equilibrium nodes by ``n_steps`` of dynamic relaxation, differentiable by plain JAX AD.
 
-    The loop of `relax` (fictitious Gershgorin masses re-estimated every
-    chunk, kinetic damping) from the mounted shape, on the full grid, for a
-    fixed number of steps: a ``lax.scan`` over chunks, each chunk a
-    ``jax.checkpoint``-ed ``lax.scan`` of ``chunk`` steps, so reverse mode
-    stores one state per chunk. The masses are a preconditioner (they do not
-    change the fixed point) and are held constant under differentiation
-    (``stop_gradient``). Traceable: use it under ``jax.grad`` or ``jax.jit``
-    (in float64).
-
-    Meant for checking the implicit derivative on small grids (it is what
-    ``solve_equilibrium(..., adjoint="unrolled")`` runs): it is exact for the
-    iterate it returns, so it agrees with the implicit derivative once the
-    iterates (and their tangents) have converged.
+    From the mounted shape, on the full grid: a ``lax.scan`` over chunks,
+    each a ``jax.checkpoint``-ed ``lax.scan`` of ``chunk`` steps (module
+    docstring). The masses, re-estimated every chunk, are a preconditioner
+    (they do not change the fixed point) and are held constant under
+    differentiation (``stop_gradient``). Traceable: use it under ``jax.grad``
+    or ``jax.jit`` (in float64). Its derivative is exact for the iterate it
+    returns.
 
     Args:
         scene: the bay, fabric and physics switches.

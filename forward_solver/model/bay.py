@@ -1,13 +1,10 @@
-"""The bay: the skin between two rigid ribs, as a structured grid.
+"""The bay: the skin between two rigid ribs, as a structured grid (docs/architecture.md, "Conventions").
 
-Grid convention (docs/architecture.md, "Conventions"): index ``i`` runs along the span (alpha1,
-``n_span`` nodes, ``i = 0`` and ``i = n_span - 1`` on the ribs), index ``j``
-along the contour (alpha2). A closed contour (an airfoil) is periodic in
-``j`` and runs in Selig order: trailing edge, upper surface, leading edge,
-lower surface. An open contour (a flat panel) has both ends clamped.
-
-With the span direction ``+y`` and this contour order, ``e1 x e2`` points out
-of the section, so a positive pressure pushes the skin outward.
+Index ``i`` runs along the span (alpha1, ``i = 0`` and ``n_span - 1`` on the
+ribs), ``j`` along the contour (alpha2): periodic and in Selig order on a
+closed contour (an airfoil), clamped at both ends on an open one (a flat
+panel). With the span direction ``+y`` and this contour order, ``e1 x e2``
+points out of the section, so a positive pressure pushes the skin outward.
 """
 
 from __future__ import annotations
@@ -138,18 +135,9 @@ class Bay:
 
     # ------------------------------------------------------------------ builders
     @classmethod
-    def from_airfoil(
-        cls,
-        airfoil,
-        chord: float = 1.0,
-        rib_spacing: float = 0.25,
-        n_span: int = N_SPAN,
-        n_contour: int = N_CONTOUR,
-        fix_trailing_edge: bool = True,
-        tip_airfoil=None,
-        tip_chord: float | None = None,
-        trailing_edge: str = "close",
-    ) -> "Bay":
+    def from_airfoil(cls, airfoil, chord: float = 1.0, rib_spacing: float = 0.25, n_span: int = N_SPAN,
+                     n_contour: int = N_CONTOUR, fix_trailing_edge: bool = True, tip_airfoil=None,
+                     tip_chord: float | None = None, trailing_edge: str = "close") -> "Bay":
         """A closed bay between two airfoil-shaped ribs.
 
         Args:
@@ -163,12 +151,10 @@ class Bay:
                 for a smooth closed contour such as a circle.
             tip_airfoil: tip rib section for a tapered bay (default: the root's).
             tip_chord: tip rib chord, m (default: the root's).
-            trailing_edge: what to do when one rib's trailing edge is closed
-                and the other's open (the grid has one seam form):
-                "close" closes the open one, "open" opens the closed one to
-                the other's gap, "as-given" refuses
-                (`targets.common_trailing_edge`, which says why closing is the
-                default); ``trailing_edge_changes`` records a change.
+            trailing_edge: for ribs of both trailing-edge forms (the grid has
+                one seam form), "close", "open" or "as-given"
+                (`targets.common_trailing_edge`); ``trailing_edge_changes``
+                records a change.
 
         Raises:
             ValueError: for a non-positive length or a grid too coarse, or
@@ -197,28 +183,13 @@ class Bay:
             fixed[:, 0] = True
             if not closed:
                 fixed[:, -1] = True
-        name = getattr(airfoil, "name", "airfoil")
-        return cls(
-            contour_root=root,
-            contour_tip=tip,
-            camber_root=camber_root,
-            camber_tip=camber_tip,
-            chord_root=float(chord),
-            chord_tip=float(tip_chord),
-            rib_spacing=float(rib_spacing),
-            periodic=True,
-            fixed=fixed,
-            name=str(name),
-            trailing_edge_changes=tuple(changes),
-            airfoil=airfoil,
-            tip_airfoil=tip_airfoil,
-            fix_trailing_edge=bool(fix_trailing_edge),
-        )
+        return cls(root, tip, camber_root, camber_tip, float(chord), float(tip_chord), float(rib_spacing),
+                   periodic=True, fixed=fixed, name=str(getattr(airfoil, "name", "airfoil")),
+                   trailing_edge_changes=tuple(changes), airfoil=airfoil, tip_airfoil=tip_airfoil,
+                   fix_trailing_edge=bool(fix_trailing_edge))
 
     @classmethod
-    def flat_panel(
-        cls, width: float = 0.25, length: float = 1.0, n_span: int = 17, n_contour: int = 65
-    ) -> "Bay":
+    def flat_panel(cls, width: float = 0.25, length: float = 1.0, n_span: int = 17, n_contour: int = 65) -> "Bay":
         """A flat rectangular panel clamped on its four edges.
 
         The panel lies in ``z = 0``; ``width`` runs along the span (y, between
@@ -241,18 +212,8 @@ class Bay:
         fixed[0, :] = fixed[-1, :] = True
         fixed[:, 0] = fixed[:, -1] = True
         zeros = np.zeros(n_contour)
-        return cls(
-            contour_root=contour,
-            contour_tip=contour,
-            camber_root=zeros,
-            camber_tip=zeros,
-            chord_root=float(length),
-            chord_tip=float(length),
-            rib_spacing=float(width),
-            periodic=False,
-            fixed=fixed,
-            name="flat panel",
-        )
+        return cls(contour, contour, zeros, zeros, float(length), float(length), float(width), periodic=False,
+                   fixed=fixed, name="flat panel")
 
     def __getstate__(self) -> dict:
         """Pickled without the `geometry` cache (device arrays, made again on first use): a pickled
@@ -286,14 +247,8 @@ class Bay:
 
     def nominal_nodes(self, rib_thickness_scale=1.0, rib_chord_scale=1.0, rib_shape=None,
                       rib_shape_tip=None) -> jnp.ndarray:
-        """Mounted (nominal) shape of the skin, ``(n_span, n_contour, 3)`` in m.
-
-        The skin is the ruled surface between the two rib contours. The rib
-        thickness scale multiplies the distance from the camber line; the rib
-        shape adds its offset (`forward_solver.model.rib_shape`; ``rib_shape_tip``
-        None: the tip rib takes ``rib_shape``); the rib chord scale
-        multiplies x. All may be traced JAX values.
-        """
+        """Mounted (nominal) shape of the skin, ``(n_span, n_contour, 3)`` in m: `forces.nominal_nodes`
+        (``rib_shape_tip`` None: the tip rib takes ``rib_shape``). All may be traced JAX values."""
         tip = rib_shape if rib_shape_tip is None else rib_shape_tip
         with float64_scope(rib_thickness_scale, rib_chord_scale, rib_shape, tip):
             nodes = nominal_nodes(self.geometry(), rib_thickness_scale, rib_chord_scale, rib_shape, tip)
@@ -309,12 +264,8 @@ class Bay:
 
 def _check_grid(n_span: int, n_contour: int, min_contour: int, what: str) -> None:
     if not isinstance(n_span, (int, np.integer)) or n_span < _MIN_SPAN:
-        raise ValueError(
-            f"n_span must be an integer >= {_MIN_SPAN} (the two ribs and at least one free row), "
-            f"got {n_span!r}; use a finer grid"
-        )
+        raise ValueError(f"n_span must be an integer >= {_MIN_SPAN} (the two ribs and at least one free row), "
+                         f"got {n_span!r}; use a finer grid")
     if not isinstance(n_contour, (int, np.integer)) or n_contour < min_contour:
-        raise ValueError(
-            f"n_contour must be an integer >= {min_contour} for a {what}, got {n_contour!r}; "
-            "use a finer grid"
-        )
+        raise ValueError(f"n_contour must be an integer >= {min_contour} for a {what}, got {n_contour!r}; "
+                         "use a finer grid")

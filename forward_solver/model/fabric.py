@@ -52,9 +52,7 @@ class Fabric:
         _check_positive("stiffness_chord", self.stiffness_chord, "N/m")
         _check_positive("areal_density", self.areal_density, "kg/m^2")
         if not (0.0 <= self.poisson < 1.0):
-            raise ValueError(
-                f"poisson must lie in [0, 1) so that 1 - nu^2 > 0, got {self.poisson!r}"
-            )
+            raise ValueError(f"poisson must lie in [0, 1) so that 1 - nu^2 > 0, got {self.poisson!r}")
         if not (math.isfinite(self.viscosity) and self.viscosity >= 0.0):
             raise ValueError(f"viscosity must be zero or positive in N*s/m, got {self.viscosity!r}")
         if not (self.allowable_tension > 0.0):

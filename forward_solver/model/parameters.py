@@ -1,17 +1,13 @@
 """`Parameters`: the traced, differentiable inputs of one solve, as one typed pytree.
 
-Everything an engineer designs or sweeps travels from the command line to the
-force kernel as one `Parameters` value: internal pressure, the prestrain of
-both fibre directions (the cut, paper eq. 12 reference lengths), both tensile
-stiffnesses (eq. 10) and the two rib geometry multipliers. It is a JAX pytree
-(``jax.tree_util.register_dataclass``), so ``jax.grad`` of a function of
+Everything an engineer designs or sweeps (pressure, prestrains, stiffnesses,
+rib scales and shapes, the cut pattern) travels to the force kernel as one
+`Parameters` value, a JAX pytree: ``jax.grad`` of a function of
 `solve_equilibrium`'s result with respect to it returns a `Parameters` of
-derivatives, and new values never recompile.
-
-What is not a design parameter (Poisson's ratio, areal density, viscosity,
-damping, gravity) belongs to the `Fabric` and the `Scene`;
-`Scene.params` merges both into the kernel's `forces.KernelInputs` at the last
-step.
+derivatives, and new values never recompile. What is not a design parameter
+(Poisson's ratio, areal density, viscosity, damping, gravity) belongs to the
+`Fabric` and the `Scene`; `Scene.params` merges both into the kernel's
+`forces.KernelInputs` at the last step.
 """
 
 from __future__ import annotations
@@ -233,37 +229,16 @@ def _same(a, b) -> bool:
 
 
 class ParameterViews:
-    """Read-only shortcuts to the ``parameters`` (a `Parameters`) of a record that carries one."""
+    """Read-only shortcuts to the ``parameters`` (a `Parameters`) of a record that carries one: its
+    ``pressure``, ``prestrain`` ``(span, chord)``, rib scales, ``rib_shape`` and ``cut_pattern``."""
 
     parameters: Parameters
 
-    @property
-    def pressure(self):
-        """Internal overpressure, Pa."""
-        return self.parameters.pressure
 
-    @property
-    def prestrain(self) -> tuple:
-        """``(span, chord)`` prestrain."""
-        return self.parameters.prestrain
-
-    @property
-    def rib_thickness_scale(self):
-        return self.parameters.rib_thickness_scale
-
-    @property
-    def rib_chord_scale(self):
-        return self.parameters.rib_chord_scale
-
-    @property
-    def rib_shape(self):
-        """Rib-shape coefficients (None: the ribs keep their sections)."""
-        return self.parameters.rib_shape
-
-    @property
-    def cut_pattern(self):
-        """Cut-pattern coefficients (None: a uniform cut; `forward_solver.model.cut_field`)."""
-        return self.parameters.cut_pattern
+for _name in ("pressure", "prestrain", "rib_thickness_scale", "rib_chord_scale", "rib_shape", "cut_pattern"):
+    setattr(ParameterViews, _name, property(lambda self, name=_name: getattr(self.parameters, name),
+                                            doc=f"``parameters.{_name}`` (`Parameters`)."))
+del _name
 
 
 def _concrete(value) -> float | None:

@@ -9,14 +9,11 @@ import jax.numpy as jnp
 
 from .bay import Bay
 from .fabric import Fabric
-from ..precision import device_arrays, float64_scope
+from ..precision import device_arrays
 from ..forces import KernelInputs, Physics
 from .parameters import Parameters
 
-__all__ = ["Scene", "float64_scope"]
-
-#: dtype of each precision mode.
-PRECISIONS = {"float64": jnp.float64, "float32": jnp.float32}
+__all__ = ["Scene"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,9 +48,7 @@ class Scene:
         if not isinstance(self.fabric, Fabric):
             raise TypeError(f"fabric must be a forward_solver.Fabric, got {type(self.fabric).__name__}")
         if not (math.isfinite(self.aerodynamic_damping) and self.aerodynamic_damping >= 0):
-            raise ValueError(
-                f"aerodynamic_damping must be zero or positive in s/m, got {self.aerodynamic_damping!r}"
-            )
+            raise ValueError(f"aerodynamic_damping must be zero or positive in s/m, got {self.aerodynamic_damping!r}")
         if not (math.isfinite(self.gravity_acceleration) and self.gravity_acceleration >= 0):
             raise ValueError(
                 f"gravity_acceleration must be zero or positive in m/s^2, got {self.gravity_acceleration!r}"
@@ -61,13 +56,9 @@ class Scene:
 
     def physics(self, dynamic: bool) -> Physics:
         """Static switches; the equilibrium (``dynamic=False``) drops the velocity terms."""
-        return Physics(
-            periodic=self.bay.periodic,
-            tension_only=self.tension_only,
-            viscous=dynamic and self.fabric.viscosity > 0,
-            aerodynamic=dynamic and self.aerodynamic_damping > 0,
-            gravity=self.gravity,
-        )
+        return Physics(periodic=self.bay.periodic, tension_only=self.tension_only,
+                       viscous=dynamic and self.fabric.viscosity > 0,
+                       aerodynamic=dynamic and self.aerodynamic_damping > 0, gravity=self.gravity)
 
     def params(self, parameters: Parameters, dtype=jnp.float64) -> KernelInputs:
         """The force kernel's traced parameters: ``parameters`` merged with the fabric's constants.

@@ -29,10 +29,8 @@ class Wing:
         chords: the rib chords, m, one per rib.
         stations: the ribs' span positions y, m, strictly increasing.
         trailing_edge: how ribs with open and closed trailing edges are brought
-            to one form (every bay runs one seam form): "close" (default:
-            close the open ones, as a fabric wing's seam is), "open" (open the
-            closed ones to the largest gap) or "as-given" (refuse a mix);
-            `targets.common_trailing_edge`.
+            to one form (every bay runs one seam form): "close", "open" or
+            "as-given" (`targets.common_trailing_edge`).
         fix_trailing_edge: hold every bay's trailing-edge line (a seam; see
             `Bay.from_airfoil`).
 

@@ -1,10 +1,4 @@
-"""Independent references for validation, sharing no code with the force kernel.
-
-* `closed_forms`: analytic rest states of the paper's fabric law (Laplace's
-  law on a cylinder, the inflated strip, the flat panel's pressure force);
-* `independent_residual`: the force residual of eq. (10)-(15) written again
-  in plain numpy.
-
-Reached by the tests and the validation report (`benchmarks/validation_report.py`);
-nothing in the solver imports them.
+"""Independent references for validation, sharing no code with the force kernel: `closed_forms` (analytic rest
+states of the paper's fabric law) and `independent_residual` (eq. 10-15 written again in plain numpy). Reached by
+the tests and the validation report (`benchmarks/validation_report.py`); nothing in the solver imports them.
 """

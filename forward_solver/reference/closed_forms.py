@@ -6,14 +6,10 @@ check the solver against one set of formulas and the two cannot drift apart.
 Every function states the model it solves and the assumption that makes it
 exact; the solver's discretisation error against it is what the tests bound.
 
-The fabric law is eq. (10) of the paper without its viscous term (rest
-states), with zero shear stiffness and ``nu12 = nu21 = poisson``::
-
-    T11 = (E11 e11 + nu E22 e22) / (1 - nu^2),   T22 = (E22 e22 + nu E11 e11) / (1 - nu^2),
-
-``e`` the engineering elongation against the cut length (nominal length /
-(1 + prestrain)), and Laplace's law ``T = p R`` for a membrane curved in one
-direction only.
+The fabric law is eq. (10) of the paper at rest (no viscous term), as
+`Fabric` writes it, ``e`` the engineering elongation against the cut length
+(nominal length / (1 + prestrain)); and Laplace's law ``T = p R`` for a
+membrane curved in one direction only.
 """
 
 from __future__ import annotations
@@ -21,17 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-__all__ = [
-    "arc_sag",
-    "circle_contour",
-    "cylinder_radius",
-    "fabric_tensions",
-    "flat_panel_pressure_force",
-    "hoop_tension",
-    "strip_arc_radius",
-    "strip_elongation",
-    "strip_sag",
-]
+__all__ = ["arc_sag", "circle_contour", "cylinder_radius", "fabric_tensions", "flat_panel_pressure_force",
+           "hoop_tension", "strip_arc_radius", "strip_elongation", "strip_sag"]
 
 
 def fabric_tensions(stiffness_span, stiffness_chord, poisson, elongation_span, elongation_chord):
@@ -93,10 +80,8 @@ def cylinder_radius(nominal_radius, pressure, stiffness_span, stiffness_chord, p
     """
     denominator = stiffness_chord * (1.0 + prestrain_chord) / nominal_radius - pressure * (1.0 - poisson**2)
     if denominator <= 0:
-        raise ValueError(
-            f"a pressure of {pressure!r} Pa inflates this cylinder without bound "
-            "(p R (1 - nu^2) >= E22 (1 + pc)): there is no equilibrium radius"
-        )
+        raise ValueError(f"a pressure of {pressure!r} Pa inflates this cylinder without bound "
+                         "(p R (1 - nu^2) >= E22 (1 + pc)): there is no equilibrium radius")
     return (stiffness_chord - poisson * stiffness_span * axial_elongation) / denominator
 
 

@@ -1,37 +1,23 @@
-"""A whole wing: N bays between N + 1 rigid ribs, solved as one batch.
+"""A whole wing: N bays between N + 1 rigid ribs, solved together (`solve_bays`, `solve_wing`).
 
 Given rigid ribs, the bays of a wing are independent: each is a `Bay`
 between its two ribs (with their sections and chords: taper), and all share
-one inflation pressure and one fabric. On a common grid shape their
-`forces.Geometry` arrays stack along a leading axis, so the relaxation of
-every bay runs as one ``jax.jit(jax.vmap(...))`` call (the pure-JAX loop of
-`relax`, as `relax.traced_solution` runs it under ``jax.vmap``) instead of a Python loop,
-and the result is differentiable in the shared `Parameters` by the implicit
-function theorem (`implicit.implicit_nodes`, per bay). Per-rib shapes
-(``rib_shapes``: one row of rib-shape coefficients per rib) are mapped over
-the bays with the geometries: bay ``k`` is mounted between rib ``k``'s shape
-and rib ``k + 1``'s, and they are differentiated like the parameters. Per-bay
-cut fields (``cut_patterns``: one row of cut-pattern coefficients per bay,
-`forward_solver.model.cut_field`) are mapped the same way: bay ``k``'s skin is cut
-by row ``k`` (each cell's panel is cut on its own).
+one inflation pressure and one fabric, so their equilibrium is
+differentiable in the shared `Parameters` bay by bay (`implicit`). Per-rib
+shapes (``rib_shapes``, one row per rib: bay ``k`` is mounted between rows
+``k`` and ``k + 1``) and per-bay cut fields (``cut_patterns``, one row per
+bay, `model.cut_field`) are mapped over the bays and differentiated like the
+parameters. A warm start (``initial``: an earlier `BaysSolution`) starts
+every bay from its earlier displacement added to this solve's mounted shape
+(as `solution.initial_nodes` does for one bay), so a design loop re-solves a
+nearby design in fewer steps.
 
-A warm start (``initial``: an earlier `BaysSolution`) starts every bay from
-its earlier displacement added to this solve's mounted shape (as
-`solution.initial_nodes` does for one bay), so the design loop
-(`inverse_design.problem`) re-solves a nearby design in fewer steps.
-`BaysSolution.bay_solution` gives one bay as a `Solution` (tensions,
-wrinkles), for reports and for comparison with `solve_equilibrium`.
-
-One forward entry, two strategies, as values. `solve_bays` solves N >= 1
-bays given as `Scene`s. Its `Loop` strategy ("loop") calls
-`solve_equilibrium` on each bay in turn (grid sequencing, half-bay symmetry,
-Newton and the factor reuse of a warm start, the host sparse LU adjoint):
-the faster way on a CPU (``benchmarks/wing_batch.py``). Its `Batch`
-strategy ("batch") is the one ``jax.jit(jax.vmap(...))`` relaxation above
-with the matrix-free Krylov adjoint, for accelerators. "auto" picks the loop
-on a CPU backend and the batch elsewhere (`default_strategy`). Both give the
-same nodes within the solver tolerance. `solve_wing` builds the wing's
-scenes and calls `solve_bays`.
+Two strategies, as values: `Loop` ("loop", `solve_equilibrium` on each bay
+in turn: the faster way on a CPU, ``benchmarks/wing_batch.py``) and `Batch`
+("batch", one ``jax.jit(jax.vmap(...))`` relaxation of the stacked bays'
+`forces.Geometry` with the matrix-free Krylov adjoint: for accelerators);
+"auto" picks by the backend (`default_strategy`). Both give the same nodes
+within the solver tolerance.
 """
 
 from __future__ import annotations
@@ -56,6 +42,7 @@ from ..precision import float64_scope, rounding_floor
 from ..programs import mounted_compiled
 from ..solution import BaysSolution, ConvergenceError, Result, Solution
 from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
+from .loop import check_stop
 from .methods import Relax
 from .relax import RELAX_CHUNK, relaxed_nodes
 
@@ -109,14 +96,10 @@ def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = N_SP
     scene = Scene(bays[0], fabric)
     physics = fk.static_physics(scene.physics(dynamic=False))
     with float64_scope():
-        _check_rib_gaps(wing, bays, scene.params(parameters), physics, rtol)
-
-
-def _check_rib_gaps(wing: Wing, bays: list, params, physics, rtol: float) -> None:
-    eps = float(np.finfo(np.float64).eps)
-    for k, bay in enumerate(bays):
-        geometry = bay.geometry()
-        floor = float(rounding_floor(geometry, params, physics, eps))
+        params = scene.params(parameters)
+        eps = float(np.finfo(np.float64).eps)
+        floors = [float(rounding_floor(bay.geometry(), params, physics, eps)) for bay in bays]
+    for k, (bay, floor) in enumerate(zip(bays, floors)):
         if floor > ROUNDING_MARGIN * rtol:
             gap = bay.rib_spacing
             needed = gap * math.sqrt(floor / (ROUNDING_MARGIN * rtol))  # the floor falls as 1/gap^2
@@ -141,13 +124,9 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
         n_span, n_contour: the grid of every bay.
         rtol: relative residual each bay is solved to.
         tension_only: the scene switch (no compression, wrinkles).
-        **options: `solve_bays`'s keywords: ``max_steps``, ``method``,
-            ``initial`` (an earlier `BaysSolution` of this wing on this grid),
-            ``rib_shapes`` (``(n_ribs, 2 K)``, one row per rib root to tip,
-            `forward_solver.model.rib_shape`: bay ``k`` is mounted between rib
-            ``k``'s shape and rib ``k + 1``'s), ``cut_patterns`` (``(n_bays, 2
-            K)``, one row per bay, `forward_solver.model.cut_field`),
-            ``strategy``, ``throw`` and method knobs.
+        **options: `solve_bays`'s other keywords (``max_steps``, ``method``,
+            ``initial``, ``rib_shapes``, ``cut_patterns``, ``strategy``,
+            ``throw``, method knobs).
 
     Returns:
         A `BaysSolution`. A failed bay is reported by its result code, not
@@ -159,9 +138,8 @@ def solve_wing(wing: Wing, fabric: Fabric, parameters=None, prestrain=None, *, n
             their gap and the least gap that works).
     """
     given = as_parameters(parameters, prestrain)
-    if not any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(given)):
-        check_rib_gaps(wing, fabric, given, n_span=n_span, n_contour=n_contour, rtol=rtol)  # (a design
-        # loop, whose solves are traced, checks its start itself)
+    if not given.is_traced():  # (a design loop, whose solves are traced, checks its start itself)
+        check_rib_gaps(wing, fabric, given, n_span=n_span, n_contour=n_contour, rtol=rtol)
     return solve_bays(wing.scenes(fabric, n_span, n_contour, tension_only=tension_only), given, rtol=rtol,
                       **options)
 
@@ -216,11 +194,8 @@ def solve_bays(scenes, parameters=None, *, rtol: float = 1e-8, max_steps: int = 
         cut_patterns: None, or ``(n_bays, 2 K)`` cut-field coefficients, one
             row per bay (its ``cut_pattern``, `forward_solver.model.cut_field`).
             JAX values allowed.
-        strategy: `Loop` ("loop": per-bay `solve_equilibrium`: grid
-            sequencing, half-bay symmetry, Newton and factor reuse, its
-            ``adjoint``), `Batch` ("batch": one ``jax.jit(jax.vmap(...))``
-            relaxation, matrix-free Krylov adjoint), or "auto"
-            (`default_strategy`).
+        strategy: `Loop` ("loop"), `Batch` ("batch") or "auto"
+            (`default_strategy`); module docstring.
         throw: raise `ConvergenceError` (naming the first failed bay) instead
             of returning the failure codes.
         **knobs: set on the method where it has them (`solve.as_method`), e.g.
@@ -243,10 +218,7 @@ def solve_bays(scenes, parameters=None, *, rtol: float = 1e-8, max_steps: int = 
     first = scenes[0]
     parameters = as_parameters(parameters).resolved(first.fabric)
     first.check_parameters(parameters)
-    if not (isinstance(rtol, float | int) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
-    if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    check_stop(rtol, max_steps=max_steps)
     method = as_method(method, **knobs)
     strategy = as_strategy(strategy)
     strategy.check_method(method)

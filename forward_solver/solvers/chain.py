@@ -1,28 +1,22 @@
 """`Auto`, the ``"auto"`` method of `solve_equilibrium`: try the methods in turn before reporting a failure.
 
-No method solves every scene: dynamic relaxation (kinetic damping) can cycle
-where the force is not the gradient of an energy or the skin is slack, and
-Newton's load continuation can stall where relaxation converges. The
-chain is
+No method solves every scene: dynamic relaxation can cycle where the force
+is not the gradient of an energy or the skin is slack (the measured cases
+are in `relax`'s module docstring), and Newton's load continuation can stall
+where relaxation converges. The chain is
 
-1. `methods.RelaxNewton`: relaxation (which ends early with ``stalled`` when its
-   residual stops falling, see `relax`) handing over to Newton, whose LU
-   factor the adjoint reuses; warm-started from ``initial`` if given, and
-   then retried from a cold start if that fails;
-2. `methods.Newton` from where the relaxation stopped, when that shape did not
-   diverge (a stalled relaxation is often near the equilibrium: Newton's
-   quadratic convergence finishes it);
+1. `methods.RelaxNewton`: relaxation (which ends early with ``stalled`` when
+   its residual stops falling) handing over to Newton, whose LU factor the
+   adjoint reuses; warm-started from ``initial`` if given, and then retried
+   from a cold start if that fails;
+2. `methods.Newton` from where the relaxation stopped, when that shape did
+   not diverge (a stalled relaxation is often near the equilibrium);
 3. `methods.Newton` from the mounted shape, with its load continuation.
 
 The first converged `Solution` is returned, its ``extra["attempts"]`` the
 list of ``(how, result, steps, residual)`` tried. When every method fails
 the returned solution is the one with the least residual, and its
 ``detail`` names every method tried with its result, then what to change.
-Measured (17x64, 2-core x86_64): NACA 0006 bay, 323 Pa, prestrain 4%/3%,
-fabric 2e4/3e5 N/m, ribs 0.5 m: relax stalls after 11,000 steps, Newton
-converges in 30 iterations (before the early stop, relax ran its
-200,000-step cap first); slack fabric (NACA 2412, 1e4 Pa, -5%): relax stalls
-after 10,500 steps, Newton from there converges in 8.
 """
 
 from __future__ import annotations
@@ -35,7 +29,7 @@ import numpy as np
 from ..model.parameters import Parameters
 from ..model.scene import Scene
 from ..solution import Result, Solution
-from .methods import NEWTON_SWITCH_RTOL, Newton, RelaxNewton, host_only
+from .methods import RelaxNewton
 
 __all__ = ["Auto", "EQUILIBRIUM_METHODS"]
 
@@ -49,18 +43,10 @@ _WHAT_TO_CHANGE = (
 
 
 @dataclass(frozen=True)
-class Auto:
-    """The methods in turn until one converges (module docstring).
+class Auto(RelaxNewton):
+    """The methods in turn until one converges (module docstring); its knobs are `methods.RelaxNewton`'s (the
+    first try's; ``newton`` is every Newton try's)."""
 
-    Args:
-        switch_rtol, sequencing, symmetry: the first try's (`methods.RelaxNewton`).
-        newton: the Newton tries' knobs (`methods.Newton`).
-    """
-
-    switch_rtol: float = NEWTON_SWITCH_RTOL
-    sequencing: bool = True
-    symmetry: bool = True
-    newton: Newton = Newton()
     name: ClassVar[str] = "auto"
 
     def _tries(self, initial, failures: list):
@@ -77,8 +63,7 @@ class Auto:
         yield self.newton, None, self.newton.name
 
     def solve(self, scene: Scene, parameters: Parameters, *, rtol: float, max_steps: int, initial) -> Solution:
-        """The first converged `Solution`, or the least-residual failure with a ``detail`` that names
-        every try; ``extra["attempts"]`` the ``(how, result, steps, residual)`` of each try either way."""
+        """The first converged `Solution`, else the least-residual failure (module docstring)."""
         attempts, failures = [], []
         for method, start, how in self._tries(initial, failures):
             sol = method.solve(scene, parameters, rtol=rtol, max_steps=max_steps, initial=start)
@@ -92,6 +77,3 @@ class Auto:
                           for how, name, steps, res in attempts)
         detail = f"every method of the 'auto' chain failed ({tried}); {_WHAT_TO_CHANGE}"
         return best.replace(detail=detail, extra={**best.extra, "attempts": attempts})
-
-    def check_traceable(self, where: str) -> None:
-        host_only(self.name, where)

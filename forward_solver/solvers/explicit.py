@@ -22,14 +22,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
-from ..precision import precision_extra
 from ..model.parameters import Parameters, as_parameters
-from ..model.scene import PRECISIONS, Scene, float64_scope
+from ..model.scene import Scene
+from ..precision import check_precision, float64_scope, precision_extra
 from ..solution import Result, Solution, initial_nodes, make_solution
-from .loop import Stepper, run_chunks
+from .loop import Stepper, check_stop, run_chunks
 
 __all__ = ["PressureRamp", "simulate", "stable_time_step", "wave_speed", "plane_strain_modulus",
-           "DEFAULT_COURANT"]
+           "DEFAULT_COURANT", "DIVERGED_DETAIL"]
 
 #: Courant coefficient alpha_k of eq. (16) used unless the caller picks one;
 #: it keeps a margin of two below `MEASURED_COURANT_LIMIT` for distorted cells.
@@ -41,6 +41,9 @@ DEFAULT_COURANT = 0.5
 #: (9x32 NACA 2412) still runs stably at 1.2: its smallest cell sets the step,
 #: and every other cell runs far below its own limit.
 MEASURED_COURANT_LIMIT = 1.0
+#: `Solution.detail` of a run stopped at the divergence bound (this scheme's and the relaxation's).
+DIVERGED_DETAIL = ("the skin kept inflating past the bound: the pressure is probably beyond what the fabric "
+                   "can hold at this prestrain (lower the pressure, stiffen the fabric or raise the prestrain)")
 
 
 @dataclass(frozen=True)
@@ -78,21 +81,13 @@ def kinetic_rest_threshold(rtol, load, stiffness):
 
 
 def plane_strain_modulus(material):
-    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)``, N/m.
-
-    Args:
-        material: a `Fabric` or the kernel's `forces.KernelInputs` (anything with
-            ``stiffness_span``, ``stiffness_chord`` and ``poisson``).
-    """
+    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)`` of ``material`` (a `Fabric` or the kernel's
+    `forces.KernelInputs`), N/m."""
     return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
 
 
 def wave_speed(material):
-    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s.
-
-    Args:
-        material: a `Fabric` or `forces.KernelInputs` (also ``areal_density``, kg/m^2).
-    """
+    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16) in ``material``, m/s."""
     return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
 
 
@@ -213,9 +208,7 @@ def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
         return (f"the run overflowed between two guard checks: the time step is probably over "
                 f"the stability limit of eq. (16), so {limit}; else check the input")
     if code == Result.diverged:
-        return ("the skin kept inflating past the bound: the pressure is probably beyond what "
-                "the fabric can hold at this prestrain (lower the pressure, stiffen the fabric "
-                "or raise the prestrain)")
+        return DIVERGED_DETAIL
     if not viscous:
         return ("the fabric has no viscosity (eq. 10), so its in-plane modes ring undamped and "
                 "never come to rest: give it viscosity (e.g. 5-20 N*s/m), or use "
@@ -227,19 +220,9 @@ def _explicit_detail(code: int, ratio: float, courant: float, viscous: bool,
     return ""
 
 
-def simulate(
-    scene: Scene,
-    pressure_history,
-    prestrain=None,
-    *,
-    courant: float = DEFAULT_COURANT,
-    rtol: float = 1e-6,
-    max_steps: int = 200_000,
-    record_every: int = 200,
-    initial=None,
-    precision: str = "float64",
-    throw: bool = True,
-) -> Solution:
+def simulate(scene: Scene, pressure_history, prestrain=None, *, courant: float = DEFAULT_COURANT, rtol: float = 1e-6,
+             max_steps: int = 200_000, record_every: int = 200, initial=None, precision: str = "float64",
+             throw: bool = True) -> Solution:
     """Pressurise the bay with the paper's explicit scheme until it comes to rest.
 
     Args:
@@ -257,14 +240,11 @@ def simulate(
         record_every: steps between stop tests and history records.
         initial: starting shape, a `Solution` or ``(n_span, n_contour, 3)``
             array (default: the mounted shape).
-        precision: "float64" (default) or "float32": the steps run in
-            float32, the stop test and the returned `Solution` in float64; an
-            ``rtol`` below the scene's float32 floor raises a ValueError (see
+        precision: "float64" (default) or "float32" (the rule of
             `forward_solver.precision`).
-
-    A node that moves further than `Bay.divergence_bound` from its mounted
-    position stops the run as ``diverged``.
-        throw: raise `ConvergenceError` unless the run converged.
+        throw: raise `ConvergenceError` unless the run converged (a node
+            further than `Bay.divergence_bound` from its mounted position
+            stops it as ``diverged``).
 
     Returns:
         A `Solution` whose ``history`` holds time (s), kinetic_energy (J),
@@ -288,12 +268,8 @@ def simulate(
     parameters = scene.check_parameters(parameters.resolved(scene.fabric))
     if not (math.isfinite(courant) and courant > 0):
         raise ValueError(f"courant must be a positive number (eq. 16), got {courant!r}")
-    if not (isinstance(record_every, int) and record_every >= 1):
-        raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
-    if not (isinstance(max_steps, int) and max_steps >= 1):
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    check_stop(record_every=record_every, max_steps=max_steps)
+    check_precision(precision)
     bay = scene.bay
     bound = bay.divergence_bound
     max_chunks = -(-max_steps // record_every)

@@ -45,14 +45,7 @@ from .. import forces as fk
 from ..precision import float64_scope
 from ..compilation import stored_jit
 
-__all__ = [
-    "PERMC_SPEC",
-    "Sparsity",
-    "JacobianFactor",
-    "jacobian_sparsity",
-    "free_dofs",
-    "assemble_jacobian",
-]
+__all__ = ["PERMC_SPEC", "Sparsity", "JacobianFactor", "jacobian_sparsity", "free_dofs", "assemble_jacobian"]
 
 #: Column ordering of SuperLU. The pattern is structurally symmetric, so a
 #: minimum-degree ordering of ``J^T + J`` fits it; measured on a 33x257 closed
@@ -129,23 +122,11 @@ def _contour_colours(n_contour: int, periodic: bool) -> tuple[np.ndarray, int]:
 
 @functools.lru_cache(maxsize=16)
 def jacobian_sparsity(shape: tuple[int, int], periodic: bool) -> Sparsity:
-    """Structural non-zeros and column colours of ``dR/dx`` on an ``(n_span, n_contour)`` grid.
+    """The `Sparsity` of ``dR/dx`` on an ``(n_span, n_contour)`` grid, closed contour when ``periodic``.
 
-    Each node's force depends only on its 3x3 node neighbourhood (see the
-    module docstring for the check against `forces`), so row ``(i, j, c)``
-    has non-zeros in columns ``(i', j', c')`` with ``|i' - i| <= 1``,
-    ``|j' - j| <= 1`` (``j`` modulo ``n_contour`` when ``periodic``) and any
-    ``c'``. Columns are coloured ``(i mod 3, j mod 3, c)``; on a periodic
-    contour with ``n_contour % 3 != 0`` the last ``n_contour % 3`` contour
-    indices get extra colours. Cached per ``(shape, periodic)``; the returned
-    arrays are read-only.
-
-    Args:
-        shape: ``(n_span, n_contour)`` grid shape.
-        periodic: True for a closed contour.
-
-    Returns:
-        The `Sparsity`.
+    Row ``(i, j, c)`` has non-zeros in the columns of its 3x3 node
+    neighbourhood, any component; the columns are coloured as the module
+    docstring says. Cached per ``(shape, periodic)``; the arrays are read-only.
     """
     ns, nc = (int(s) for s in shape)
     node = np.arange(ns * nc).reshape(ns, nc)
@@ -250,20 +231,12 @@ def linearise(x, ref, params, physics, pattern: FreePattern):
 def assemble_jacobian(x, ref: fk.Reference, params: fk.KernelInputs, physics: fk.Physics) -> sp.csc_matrix:
     """Sparse Jacobian ``dR/dx`` of `forces.residual` on the free degrees of freedom.
 
-    One ``jax.vmap`` of ``jax.jvp`` over the colour seeds of
-    `jacobian_sparsity` (27 to 45 products, compiled once per grid shape and
-    physics), decompressed along the sparsity pattern. Rows and columns are
-    the free dofs of ``ref.free`` in the order of `free_dofs`. The velocity
-    terms of ``physics`` are ignored (static residual).
-
-    Args:
-        x: ``(n_span, n_contour, 3)`` node positions, m.
-        ref: cut lengths and free mask from `forces.prepare`.
-        params: traced parameters (pressure in Pa, ...).
-        physics: static switches.
-
-    Returns:
-        ``(n_free, n_free)`` `scipy.sparse.csc_matrix` in N/m.
+    One ``jax.vmap`` of ``jax.jvp`` over the colour seeds (27 to 45 products,
+    compiled once per grid shape and physics), decompressed along the sparsity
+    pattern: an ``(n_free, n_free)`` `scipy.sparse.csc_matrix` in N/m, rows and
+    columns the free dofs of ``ref.free`` in the order of `free_dofs`, at the
+    ``(n_span, n_contour, 3)`` nodes ``x`` (m). The velocity terms of
+    ``physics`` are ignored (static residual).
     """
     with float64_scope(x, ref, params):
         return linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))[0]

@@ -41,11 +41,20 @@ import jax.numpy as jnp
 
 from ..solution import Result
 
-__all__ = ["LoopOutput", "Stepper", "run_chunks", "GUARD_STEPS"]
+__all__ = ["LoopOutput", "Stepper", "run_chunks", "GUARD_STEPS", "check_stop"]
 
 #: Steps between two checks of the divergence guard (a chunk whose length is
 #: not a multiple of it is guarded every ``gcd(chunk, GUARD_STEPS)`` steps).
 GUARD_STEPS = 5
+
+
+def check_stop(rtol=None, **counts) -> None:
+    """Refuse an ``rtol`` outside (0, 1), and each of ``counts`` (``max_steps=...``) not a positive integer."""
+    if rtol is not None and not (isinstance(rtol, float | int) and 0 < rtol < 1):
+        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
+    for name, value in counts.items():
+        if not (isinstance(value, int) and value >= 1):
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
 
 
 class LoopOutput(NamedTuple):

@@ -3,23 +3,11 @@
 Each method is a small frozen dataclass with its own knobs, and solves a
 scene by a call: ``method.solve(scene, parameters, rtol=..., max_steps=...,
 initial=...)`` returns the concrete `Solution`, its failure code included
-(`solve_equilibrium` raises after it when asked). The shortcut strings name
-default values (`solve.METHODS`).
-
-* `Relax` ("relax"): dynamic relaxation (`relax`), with grid sequencing
-  (`sequencing`) and half-bay symmetry on cold starts; the iteration may run
-  in float32 (`precision`). The only method that also runs under
-  ``jax.jit`` and ``jax.vmap`` (`Relax.traced`).
-* `Newton` ("newton"): Newton's method (`newton`) from the start shape, with
-  load continuation; the knobs of `newton.NewtonOptions`.
-* `RelaxNewton` ("relax+newton"): relaxation to ``switch_rtol``, then Newton;
-  its factorised Jacobian is kept in `Solution.factor` for adjoint solves.
-  Warm-started from such a solution it first tries chord Newton with that
-  factor (`newton.chord_newton`).
-* `Explicit` ("explicit"): the paper's physical-mass scheme (`explicit.simulate`);
-  it needs the scene's viscosity or aerodynamic damping to come to rest.
-* `chain.Auto` ("auto"): the methods in turn until one converges.
-
+(`solve_equilibrium` raises after it when asked); ``check_traceable``
+refuses ``jax.jit`` / ``jax.vmap`` where the method cannot run traced (only
+`Relax` can: `Relax.traced`). The shortcut strings name the default values
+(`solve.METHODS`): `Relax` ("relax"), `Newton` ("newton"), `RelaxNewton`
+("relax+newton"), `Explicit` ("explicit") and `chain.Auto` ("auto").
 Newton's sparse LU, its quadratic convergence and the adjoint need float64:
 only the relaxation and the paper's scheme have a ``precision``.
 """
@@ -37,35 +25,32 @@ import jax.numpy as jnp
 from .. import forces as fk
 from ..compilation import Ahead
 from ..model.parameters import Parameters
-from ..model.scene import PRECISIONS, Scene
-from ..precision import float64_scope, precision_extra
-from ..programs import mounted_compiled, static_forces
+from ..model.scene import Scene
+from ..precision import check_precision, float64_scope, precision_extra
+from ..programs import static_forces
 from ..solution import Result, Solution, initial_nodes, make_solution
-from .explicit import DEFAULT_COURANT, simulate
+from .explicit import DEFAULT_COURANT, DIVERGED_DETAIL, simulate
 from .newton import NewtonOptions, chord_newton, newton
 from .relax import RELAX_CHUNK, traced_solution
 from .sequencing import COARSE_RTOL, Relaxation, compile_ahead, sequenced_start, use_half
 
-__all__ = ["Relax", "Newton", "RelaxNewton", "Explicit", "NEWTON_SWITCH_RTOL", "host_only"]
+__all__ = ["Relax", "Newton", "RelaxNewton", "Explicit", "NEWTON_SWITCH_RTOL", "HostOnly"]
 
-#: Where "relax+newton" hands over from relaxation to Newton: loose enough that
-#: relaxation's slow tail is skipped, tight enough that Newton starts in its
-#: quadratic basin (no line search or continuation needed on the default bay).
-#: 1e-5 until 2026-11-25: the 40-cell design's bays relaxed up to 2200 steps to
-#: reach it, and its design took 37.4 s; with 1e-4 it takes 28.6 s (1e-3: 27.3 s),
-#: the same 9 wing solves and the same design to 1e-9 (the default case: the same 7).
+#: Where "relax+newton" hands over from relaxation to Newton: loose enough that relaxation's slow
+#: tail is skipped, tight enough that Newton starts in its quadratic basin (no line search or
+#: continuation needed on the default bay). The 40-cell design takes 28.6 s with it (1e-3: 27.3 s;
+#: 1e-5, the value until 2026-11-25: 37.4 s, its bays relaxed up to 2200 steps), the same 9 wing
+#: solves and the same design to 1e-9 (the default case: the same 7).
 NEWTON_SWITCH_RTOL = 1e-4
 
 
-def host_only(name: str, where: str) -> None:
-    """Refuse a host method under ``jax.jit`` / ``jax.vmap``, saying what to use instead."""
-    raise TypeError(f"method={name!r} runs on the host and cannot be traced {where}; use method='relax' "
-                    "(the pure-JAX relaxation), or call solve_equilibrium eagerly")
+class HostOnly:
+    """A method that runs on the host: it refuses ``jax.jit`` / ``jax.vmap`` of the parameters."""
 
-
-def _check_precision(precision: str) -> None:
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+    def check_traceable(self, where: str) -> None:
+        """Refuse tracing, saying what to use instead."""
+        raise TypeError(f"method={self.name!r} runs on the host and cannot be traced {where}; use method='relax' "
+                        "(the pure-JAX relaxation), or call solve_equilibrium eagerly")
 
 
 class _Host(NamedTuple):
@@ -111,9 +96,7 @@ def _relaxation_start(knobs: "Relax", host: _Host, scene, parameters, rtol, max_
 def _relax_detail(code: int, extra: dict) -> str:
     """What to change after a failed relaxation (the `Solution.detail`)."""
     if code == Result.diverged:
-        return ("the skin kept inflating past the bound: the pressure is probably beyond what "
-                "the fabric can hold at this prestrain (lower the pressure, stiffen the fabric "
-                "or raise the prestrain)")
+        return DIVERGED_DETAIL
     if code == Result.max_steps_reached and extra.get("precision") == "float32":
         return ("if the residual has stopped falling, the float32 iteration has reached its "
                 f"rounding floor (about {extra['float32_floor']:.1e} on this scene): use "
@@ -156,7 +139,7 @@ class Relax:
     name: ClassVar[str] = "relax"
 
     def __post_init__(self):
-        _check_precision(self.precision)
+        check_precision(self.precision)
 
     def solve(self, scene: Scene, parameters: Parameters, *, rtol: float, max_steps: int, initial) -> Solution:
         """The relaxation's `Solution` at concrete ``parameters`` (from ``initial``, or cold)."""
@@ -185,7 +168,7 @@ class Relax:
 
 
 @dataclass(frozen=True)
-class Newton(NewtonOptions):
+class Newton(NewtonOptions, HostOnly):
     """Sparse Newton (`newton`) from the start shape (the mounted one, or ``initial``), with load continuation.
 
     Its knobs are those of `newton.NewtonOptions` (``max_iterations``,
@@ -201,22 +184,16 @@ class Newton(NewtonOptions):
         with float64_scope():
             host = _host(scene, parameters, "float64", rtol)
             start = time.perf_counter()
-            if initial is None:
-                x_init = mounted_compiled(host.geometry, host.params)
-            else:
-                x_init = initial_nodes(initial, host.geometry, host.params)
+            x_init = initial_nodes(initial, host.geometry, host.params)
             host.extra.update(levels=[], half_bay=False)
             result = newton(x_init, host.geometry, host.params, host.physics, rtol, self,
                             divergence_bound=host.bay.divergence_bound)
             return _newton_solution(result, 0, method=self.name, start=start, parameters=parameters, host=host,
                                     extra=host.extra)
 
-    def check_traceable(self, where: str) -> None:
-        host_only(self.name, where)
-
 
 @dataclass(frozen=True)
-class RelaxNewton:
+class RelaxNewton(HostOnly):
     """Relaxation to ``switch_rtol``, then Newton to ``rtol``: the fast, accurate host method.
 
     Its LU factor is kept in `Solution.factor` (the implicit derivative's
@@ -273,12 +250,9 @@ class RelaxNewton:
             return make_solution(out, f, nodes, steps, time.perf_counter() - start, self.name, parameters,
                                  host.bay, extra=host.extra, detail=_relax_detail(int(out.result), host.extra))
 
-    def check_traceable(self, where: str) -> None:
-        host_only(self.name, where)
-
 
 @dataclass(frozen=True)
-class Explicit:
+class Explicit(HostOnly):
     """The paper's scheme as written (`explicit.simulate`): physical mass, central differences, CFL step.
 
     It comes to rest only through the scene's damping (the fabric's viscosity,
@@ -296,12 +270,10 @@ class Explicit:
     name: ClassVar[str] = "explicit"
 
     def __post_init__(self):
-        _check_precision(self.precision)
+        check_precision(self.precision)
 
     def solve(self, scene: Scene, parameters: Parameters, *, rtol: float, max_steps: int, initial) -> Solution:
         """`explicit.simulate` to rest at concrete ``parameters``, not raising."""
         return simulate(scene, parameters, rtol=rtol, max_steps=max_steps, initial=initial, courant=self.courant,
                         record_every=self.record_every, precision=self.precision, throw=False)
 
-    def check_traceable(self, where: str) -> None:
-        host_only(self.name, where)

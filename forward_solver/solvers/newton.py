@@ -14,13 +14,10 @@ therefore use SuperLU (`scipy.sparse.linalg.splu`), whose factor a caller
 may reuse for adjoint solves (``J^T y = b`` is
 ``factor.solve(b, trans="T")``).
 
-Robustness: a backtracking line search on ``||R_free||``; a Levenberg-style
-diagonal shift ``J - mu D`` (``D`` the nodal mean of ``|diag J|``, which
-stiffens the tangent stiffness ``K = -J``) when the factorisation fails or
-no step descends, since zero shear stiffness and wrinkled cells
-(``tension_only``) can make ``J`` singular; and load continuation
-(pressure steps from a fraction of ``p`` up to ``p``, each warm-started from
-the last) when Newton from the initial shape fails.
+Zero shear stiffness and wrinkled cells (``tension_only``) can make ``J``
+singular, and Newton from the start can fail: `newton` has a line search,
+Levenberg shifts (which stiffen the tangent stiffness ``K = -J``) and load
+continuation.
 
 Known limit: an exactly flat panel with no prestrain is slack, and its
 out-of-plane Jacobian block vanishes (zero tension, and the out-of-plane
@@ -42,10 +39,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .. import forces as fk
-from ..model.scene import float64_scope
+from ..precision import float64_scope
 from ..programs import prepare_compiled, static_state
 from ..solution import Result
 from .jacobian import PERMC_SPEC, FreePattern, JacobianFactor, free_dofs, linearise, sparsity_pattern
+from .loop import check_stop
 
 __all__ = ["NewtonOptions", "NewtonResult", "newton", "chord_newton", "warm_up"]
 
@@ -79,18 +77,11 @@ class NewtonResult(NamedTuple):
             step), over all load steps.
         residual: ``||R_free||_2 / (p A)`` at ``x`` (dimensionless, p the
             full pressure).
-        factor: `scipy.sparse.linalg.SuperLU` of the last factorised matrix
-            (None if none was factorised).
-        jacobian: that matrix's unshifted Jacobian ``dR/dx`` on the free dofs,
-            N/m, `scipy.sparse.csc_matrix` (None if none was assembled).
-        factor_current: True when ``factor`` is the LU of the unshifted
-            ``jacobian`` assembled at the returned ``x`` (so it serves adjoint
-            solves at the equilibrium as it is).
-        shift: Levenberg shift ``mu`` of ``factor`` (it factorises
-            ``jacobian - mu D``, D the mean ``|diag|`` of each node); 0.0
-            when unshifted.
-        free_dofs: ``(n_free,)`` index of each Jacobian row/column into
-            ``x.reshape(-1)``.
+        factor, jacobian, shift, free_dofs, factor_current: the last
+            factorised matrix, as `jacobian.JacobianFactor`'s ``lu``,
+            ``jacobian``, ``shift``, ``free_dofs`` and ``current`` hold it
+            (`jacobian_factor`); ``factor`` and ``jacobian`` None when none
+            was made.
         load_steps: pressure levels solved by continuation (0 if plain Newton
             from ``x_init`` converged or continuation was off).
         message: why it stopped, in words.
@@ -187,8 +178,7 @@ def _rel(problem: _Problem, params, x_flat) -> float:
     return float(static_state(x, problem.geometry, params, problem.physics)[1])
 
 
-def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_search, log,
-                  give_up_when_slow: bool) -> _Stage:
+def _newton_stage(problem: _Problem, params, x, rtol, options: NewtonOptions, log, give_up_when_slow: bool) -> _Stage:
     """Newton iterations at one pressure from ``x`` (flattened, float64).
 
     With ``give_up_when_slow`` (there is a fallback: continuation or a
@@ -206,6 +196,7 @@ def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_s
                       "the residual at the starting shape is not finite")
     first_shift = 0  # index into SHIFTS: after a shifted step, retry one level lower
     past = [rel]
+    max_iterations = options.max_iterations
     for k in range(max_iterations):
         if rel <= rtol:
             return _Stage(x, Result.converged, k, rel, factor, jac, factor_x, shift, "converged")
@@ -229,7 +220,7 @@ def _newton_stage(problem: _Problem, params, x, rtol, max_iterations, max_line_s
                 continue
             factor, shift = lu, mu
             alpha = 1.0
-            for _ in range(max_line_search):
+            for _ in range(options.max_line_search):
                 trial = x.copy()
                 trial[free] += alpha * dx
                 rel_trial = _rel(problem, params, trial)
@@ -267,8 +258,7 @@ def _continuation(problem, params, x_start, rtol, options: NewtonOptions, log):
         at_full = target >= 1.0
         stage_params = params._replace(pressure=p * target)
         stage_rtol = rtol if at_full else max(rtol, STAGE_RTOL)
-        stage = _newton_stage(problem, stage_params, x, stage_rtol, options.max_iterations,
-                              options.max_line_search, log, give_up_when_slow=True)
+        stage = _newton_stage(problem, stage_params, x, stage_rtol, options, log, give_up_when_slow=True)
         iterations += stage.iterations
         if stage.code == Result.converged:
             x, done, levels, last = stage.x, target, levels + 1, stage
@@ -316,15 +306,11 @@ class NewtonOptions:
     max_line_search: int = 12
 
     def __post_init__(self):
-        for name in ("max_iterations", "max_load_steps", "max_line_search"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        check_stop(max_iterations=self.max_iterations, max_load_steps=self.max_load_steps,
+                   max_line_search=self.max_line_search)
         if not 0.0 < self.initial_load_fraction <= 1.0:
-            raise ValueError(
-                f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
-                f"got {self.initial_load_fraction!r}"
-            )
+            raise ValueError(f"initial_load_fraction must lie in (0, 1] (a fraction of the pressure), "
+                             f"got {self.initial_load_fraction!r}")
 
 
 def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics, rtol: float,
@@ -346,12 +332,10 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
     factorises the unshifted Jacobian at the returned ``x`` (one more
     assembly and LU), so ``factor`` serves adjoint solves at the equilibrium.
 
-    Stop test (as the rest of the package): ``forces.relative_residual`` ``=
-    ||R_free||_2 / (p A) <= rtol``, the residual force over the total
-    pressure load, with a non-finite state or residual counted as not
-    converged. Meant to be called inside `scene.float64_scope` (it enters
-    that scope itself too, which nests harmlessly); the residual is computed
-    in the dtype of ``geometry`` and the linear algebra in float64.
+    Stop test: ``||R_free||_2 / (p A) <= rtol`` (`forces.relative_residual`),
+    a non-finite state or residual counting as not converged. It runs in its
+    own `precision.float64_scope`: the residual in the dtype of ``geometry``,
+    the linear algebra in float64.
 
     Args:
         x_init: ``(n_span, n_contour, 3)`` starting node positions, m (held
@@ -373,10 +357,7 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
         ValueError: for an ``rtol`` out of range or an ``x_init`` of the
             wrong shape.
     """
-    if not (isinstance(rtol, float | int) and 0 < rtol < 1):
-        raise ValueError(f"rtol must lie in (0, 1), got {rtol!r}")
-    max_iterations, continuation = options.max_iterations, options.continuation
-    max_line_search = options.max_line_search
+    check_stop(rtol)
     with float64_scope():
         physics = fk.static_physics(physics)
         shape = tuple(geometry.free.shape) + (3,)
@@ -388,10 +369,9 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
                            np.asarray(ref.nodes, dtype=np.float64).reshape(-1), float(divergence_bound))
         log = _Log()
         x0 = np.array(x_init, dtype=np.float64).reshape(-1)
-        stage = _newton_stage(problem, params, x0, rtol, max_iterations, max_line_search, log,
-                              give_up_when_slow=continuation)
+        stage = _newton_stage(problem, params, x0, rtol, options, log, give_up_when_slow=options.continuation)
         iterations, levels = stage.iterations, 0
-        if stage.code != Result.converged and continuation and stage.code != Result.nonfinite:
+        if stage.code != Result.converged and options.continuation and stage.code != Result.nonfinite:
             cont, cont_iterations, levels, reached = _continuation(
                 problem, params, x0, rtol, options, log)
             iterations += cont_iterations
@@ -416,20 +396,10 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
                 pass
         current = (factor is not None and shift == 0.0 and factor_x is not None
                    and np.array_equal(factor_x, stage.x))
-        return NewtonResult(
-            x=jnp.asarray(stage.x.reshape(shape), dtype),
-            result=Result(stage.code),
-            iterations=int(iterations),
-            residual=float(stage.residual),
-            factor=factor,
-            jacobian=jac,
-            factor_current=bool(current),
-            shift=float(shift),
-            free_dofs=problem.pattern.free_dofs,
-            load_steps=int(levels),
-            message=stage.message,
-            history=log.arrays(),
-        )
+        return NewtonResult(x=jnp.asarray(stage.x.reshape(shape), dtype), result=Result(stage.code),
+                            iterations=int(iterations), residual=float(stage.residual), factor=factor, jacobian=jac,
+                            factor_current=bool(current), shift=float(shift), free_dofs=problem.pattern.free_dofs,
+                            load_steps=int(levels), message=stage.message, history=log.arrays())
 
 
 def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rtol: float,

@@ -10,61 +10,53 @@ this path drops them and runs the explicit update of eq. (14)/(17) with
   masses are re-estimated at the start of every chunk as tensions grow;
 * kinetic damping: whenever the total kinetic energy falls, the motion has
   passed an energy peak; velocities are zeroed and the run restarts from
-  there. At every such restart the masses are refreshed against the current
-  shape, growing only (a shape that inflated within the chunk is stiffer than
-  the one its masses were set for). Measured need: a soft fabric under high
-  pressure (NACA 4415 bay, 1e4 N/m, 1e5 Pa, no prestrain) stretches fivefold
-  within the first chunk, its stiffness bound grows past the chunk's masses
-  and the explicit update blew up to NaN in ~40 steps; with the refresh it
-  converges (to a balloon 0.79 m out). The restart zeroes the velocities, so
-  changing the masses there leaves the kinetic energy consistent;
+  there, with the masses refreshed against the current shape, growing only
+  (zero velocities keep the kinetic energy consistent). Measured need: a
+  soft fabric under high pressure (NACA 4415 bay, 1e4 N/m, 1e5 Pa, no
+  prestrain) stretches fivefold within the first chunk and blew up to NaN
+  in ~40 steps on the chunk's masses; with the refresh it converges (to a
+  balloon 0.79 m out);
 * a stagnation guard: if the residual stops falling (non-smooth wrinkling
   can lock kinetic damping into a limit cycle), the masses grow by half;
   and a hopeless run ends early: over every `WINDOW_CHUNKS` chunks without
   such growth, the best residual's rate of fall is extrapolated, and if it
   would need more than `GIVE_UP_CHUNKS` further chunks to reach ``rtol``
-  the run ends ``stalled`` instead of spending its step cap (the caller
-  then hands over to Newton, `chain.Auto`). Measured need: slack fabric
-  (NACA 2412, 1e4 Pa, prestrain -5%, 17x64) cycles at a residual of 1e-4 to
-  4e-3 up to the 200,000-step cap; and where the force is not the gradient
-  of an energy, kinetic damping (which stops at kinetic-energy peaks, the
-  minima of a potential energy) can cycle for ever: the fabric law of
-  eq. (1)-(2) with ``nu12 = nu21`` is not reciprocal when the two
-  stiffnesses differ (NACA 0006, 323 Pa, 2e4/3e5 N/m, poisson 0.25,
-  prestrain 4%/3%, ribs 0.5 m apart, 17x64: residual 0.2-4 for 200,000
-  steps; poisson 0.1 converges in 7800 steps; Newton in 30 iterations
-  either way);
+  the run ends ``stalled`` (the caller then hands over to Newton,
+  `chain.Auto`). Measured need, 17x64: slack fabric (NACA 2412, 1e4 Pa,
+  prestrain -5%) cycles at a residual of 1e-4 to 4e-3 up to the
+  200,000-step cap (now stalled after 10,500 steps; Newton from there
+  converges in 8 iterations); and kinetic damping, which stops at the
+  kinetic-energy peaks (the minima of a potential energy), can cycle for
+  ever where the force is not the gradient of one: eq. (1)-(2) with ``nu12 =
+  nu21`` is not reciprocal when the stiffnesses differ (NACA 0006, 323 Pa,
+  2e4/3e5 N/m, poisson 0.25, prestrain 4%/3%, ribs 0.5 m apart: residual
+  0.2-4 for 200,000 steps, now stalled after 11,000; poisson 0.1 converges
+  in 7800 steps; Newton in 30 iterations either way);
 * half-bay symmetry: a bay whose two ribs are identical (odd ``n_span``) is
   symmetric about mid-span, so only rows ``0..m`` are solved, on a grid
   extended by one ghost row that mirrors row ``m - 1``; the mid row keeps
   ``y = rib_spacing / 2``. A step then costs about half as much;
-* grid sequencing (`sequencing`): solve a coarse grid, interpolate its
-  displacement, refine;
+* grid sequencing (`sequencing`);
 * precision: the iteration runs in ``float32`` or ``float64``; the stop test
   (`loop.run_chunks`) always evaluates the residual in float64 at the
   current nodes, so "converged" means the returned shape meets ``rtol``.
 
-Its jit form. When the `Parameters` reach `solve_equilibrium` as abstract
-tracers (inside ``jax.jit``, or batched by ``jax.vmap``), their values cannot
-steer host code, so the solve is this relaxation alone, with nothing decided
-in Python from values (`traced_solution`):
-
-* from the mounted shape (or the ``initial`` nodes), full or half grid as
-  the eager path chooses it (static), no grid sequencing (its fallback when
-  a coarse level fails is a host decision), at most ``max_steps`` steps;
-* the result code, steps and residual come back as arrays in the `Solution`
-  (leaves of its pytree), so a failure is reported, never raised: the caller
-  passes ``throw=False`` and checks ``solution.result`` / ``converged``
-  (after the compiled call, `Solution.raise_if_failed` raises for the batch);
-* derivatives by the implicit function theorem with a pure-JAX linear
-  solver (`implicit.implicit_nodes`, BiCGStab): the relaxation runs under
-  ``stop_gradient`` and only its fixed point carries a tangent, so
-  ``jax.grad``, ``jax.jacfwd`` and ``jax.vmap`` of either compose with
-  ``jax.jit``.
-
-Under ``jax.vmap`` the relaxation's ``while_loop`` runs until every member
-of the batch has stopped (members that stopped are frozen by JAX's batching
-rule), so a batch costs its slowest member's step count.
+Its jit form (`traced_solution`). When the `Parameters` reach
+`solve_equilibrium` as abstract tracers (inside ``jax.jit``, or batched by
+``jax.vmap``), their values cannot steer host code, so the solve is this
+relaxation alone: from the mounted shape (or the ``initial`` nodes), full
+or half grid as the eager path chooses it (static), no grid sequencing (its
+fallback when a coarse level fails is a host decision), at most
+``max_steps`` steps. The result code, steps and residual come back as
+arrays in the `Solution` (leaves of its pytree), so a failure is reported,
+never raised (the caller passes ``throw=False``; after the compiled call
+`Solution.raise_if_failed` raises for the batch). Derivatives come from the
+implicit function theorem with a pure-JAX linear solver
+(`implicit.implicit_nodes`, BiCGStab): the relaxation runs under
+``stop_gradient`` and only its fixed point carries a tangent, so
+``jax.grad``, ``jax.jacfwd`` and ``jax.vmap`` of either compose with
+``jax.jit``. Under ``jax.vmap`` the ``while_loop`` runs until every member
+of the batch has stopped, so a batch costs its slowest member's step count.
 """
 
 from __future__ import annotations
@@ -90,7 +82,7 @@ try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
 except ImportError:  # pragma: no cover - older JAX
     from jax.core import concrete_or_error
 
-__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows", "half_rows",
+__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows",
            "has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
@@ -147,11 +139,6 @@ def kinetic_damping_step(x, v, kinetic, mass, force):
     return x + v, v, jnp.where(peaked, 0.0, new_kinetic)
 
 
-def half_rows(n_span: int) -> int:
-    """Rows solved under half-bay symmetry: ``0 .. (n_span - 1) / 2``."""
-    return (n_span - 1) // 2 + 1
-
-
 def mirror_rows(rows: jnp.ndarray, mid_y) -> jnp.ndarray:
     """Reflect grid rows through the plane ``y = mid_y``."""
     return rows.at[..., 1].set(2.0 * mid_y - rows[..., 1])
@@ -168,21 +155,13 @@ class _Grid(NamedTuple):
 
 
 def _full_grid(ref, params, physics) -> _Grid:
-    def relative_residual(x):
-        return fk.relative_residual(x, ref, params, physics)
-
-    return _Grid(
-        lambda x: fk.residual(x, ref, params, physics),
-        lambda x: fk.node_stiffness(x, ref, params, physics),
-        relative_residual,
-        lambda x: x,
-        ref.nodes,
-    )
+    return _Grid(lambda x: fk.residual(x, ref, params, physics), lambda x: fk.node_stiffness(x, ref, params, physics),
+                 lambda x: fk.relative_residual(x, ref, params, physics), lambda x: x, ref.nodes)
 
 
 def _half_grid(ref, params, physics) -> _Grid:
     ns = ref.nodes.shape[0]
-    m = half_rows(ns) - 1  # mid row
+    m = (ns - 1) // 2  # the mid row: rows 0 .. m are solved
     mid_y = ref.nodes[m, 0, 1]
     free = jnp.broadcast_to(ref.free[: m + 2], (m + 2,) + ref.free.shape[1:-1] + (3,))
     free = free.at[m + 1].set(0.0).at[m, :, 1].set(0.0)
@@ -199,13 +178,9 @@ def _half_grid(ref, params, physics) -> _Grid:
         r = fk.residual(extend(x), half, params, physics)[: m + 1]
         return jnp.sqrt(jnp.sum(weight * r * r)) / (params.pressure * ref.skin_area)
 
-    return _Grid(
-        lambda x: fk.residual(extend(x), half, params, physics)[: m + 1],
-        lambda x: fk.node_stiffness(extend(x), half, params, physics)[: m + 1],
-        relative_residual,
-        lambda x: jnp.concatenate([x, mirror_rows(x[:m][::-1], mid_y)], axis=0),
-        ref.nodes[: m + 1],
-    )
+    return _Grid(lambda x: fk.residual(extend(x), half, params, physics)[: m + 1],
+                 lambda x: fk.node_stiffness(extend(x), half, params, physics)[: m + 1], relative_residual,
+                 lambda x: jnp.concatenate([x, mirror_rows(x[:m][::-1], mid_y)], axis=0), ref.nodes[: m + 1])
 
 
 def _cast(tree, dtype):

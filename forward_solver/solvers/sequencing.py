@@ -89,13 +89,9 @@ def coarsenable(shape, periodic: bool) -> bool:
 
 def coarsen(geometry: fk.Geometry) -> fk.Geometry:
     """Every other node along both directions (nested grids, see `Bay`)."""
-    return geometry._replace(
-        contour_root=geometry.contour_root[::2],
-        contour_tip=geometry.contour_tip[::2],
-        camber_root=geometry.camber_root[::2],
-        camber_tip=geometry.camber_tip[::2],
-        free=geometry.free[::2, ::2],
-    )
+    return geometry._replace(contour_root=geometry.contour_root[::2], contour_tip=geometry.contour_tip[::2],
+                             camber_root=geometry.camber_root[::2], camber_tip=geometry.camber_tip[::2],
+                             free=geometry.free[::2, ::2])
 
 
 def prolong(u: jnp.ndarray, periodic: bool) -> jnp.ndarray:

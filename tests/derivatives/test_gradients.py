@@ -13,7 +13,7 @@ import pytest
 
 from forward_solver import Parameters, Solution, solve_equilibrium
 from forward_solver.model.parameters import PARAMETER_NAMES as DIFFERENTIABLE  # (every scalar field)
-from forward_solver.derivatives.implicit import HostLU, forward_only
+from forward_solver.derivatives.implicit import SparseLU, forward_only
 from inverse_design.objectives import objective_residuals
 from targets import naca
 from support.solver import default_scene
@@ -220,8 +220,8 @@ def test_host_solve_returns_float64_on_a_thread_without_float64(scene, reference
 
     with jax.enable_x64(True):
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        lin = HostLU.at(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
-                        scene.physics(dynamic=False))
+        lin = SparseLU().bind(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
+                             scene.physics(dynamic=False))
     out = {}
 
     def worker():
@@ -247,8 +247,8 @@ def test_host_solve_receives_float64_exactly_on_a_thread_without_float64(scene, 
 
     with jax.enable_x64(True):
         geometry = jax.tree_util.tree_map(jnp.asarray, scene.bay.geometry())
-        lin = HostLU.at(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
-                        scene.physics(dynamic=False))
+        lin = SparseLU().bind(jnp.asarray(reference.nodes), geometry, scene.params(THETA),
+                             scene.physics(dynamic=False))
         b = np.random.default_rng(1).normal(size=lin.factor.shape[0])
         words = np.asarray(_bits(jnp.asarray(b)))
     out = {}
