@@ -256,6 +256,12 @@ class Airfoil:
         """Station of the camber of largest magnitude (chord units)."""
         return self._max_camber[0]
 
+    @property
+    def surface_error(self) -> str | None:
+        """Why the section has no single-valued surfaces (x turns back along one: its thickness, camber
+        and resampling, which a bay needs, are then undefined), or None."""
+        return self._contour.monotonic_error
+
     def resample(self, n_points: int) -> Airfoil:
         """Nodes at cosine-spaced chordwise stations on the smooth contour.
 

@@ -49,8 +49,11 @@ class Projection(NamedTuple):
     normal: np.ndarray
 
 
-def _unit(vectors: np.ndarray) -> np.ndarray:
-    return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
+def _unit(vectors: np.ndarray, fallback=0.0) -> np.ndarray:
+    """``vectors`` over their lengths; ``fallback`` where a length is zero (two opposite normals summed at
+    a cusp of an open trailing edge: NumPy's 0/0 warned "invalid value" on the command's console)."""
+    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return np.where(length > 0.0, vectors / np.where(length > 0.0, length, 1.0), fallback)
 
 
 def is_smooth_join(x: np.ndarray, z: np.ndarray) -> bool:
@@ -268,13 +271,13 @@ class SmoothContour:
         if not self.periodic:
             n_start, n_end = self.outward_normal(np.array([0.0, self.length]))
             if self.closed:
-                corner = _unit(n_start + n_end)
+                corner = _unit(n_start + n_end, fallback=n_start)
                 normal[(s <= 0.0) | (s >= self.length)] = corner
             else:
                 base = self.start - self.end  # trailing-edge base, last point -> first point
                 n_base = _unit(np.array([base[1], -base[0]]))
-                corner_start = _unit(n_start + n_base)
-                corner_end = _unit(n_end + n_base)
+                corner_start = _unit(n_start + n_base, fallback=n_base)
+                corner_end = _unit(n_end + n_base, fallback=n_base)
                 normal[s <= 0.0] = corner_start
                 normal[s >= self.length] = corner_end
                 fraction = np.clip((points - self.end) @ base / (base @ base), 0.0, 1.0)

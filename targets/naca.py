@@ -317,6 +317,12 @@ def naca(code: str, n_points: int = 257, closed_te: bool = True) -> Airfoil:
         The section in Selig order, chord-normalised, named "NACA <digits>".
 
     Raises:
-        ValueError: If the code or n_points is invalid.
+        ValueError: If the code or n_points is invalid, or the section folds
+            over itself (x turns back along a surface, as NACA 9999's does
+            near its trailing edge): no rib or bay can be built on it.
     """
-    return parse_naca(code, closed_te).airfoil(n_points)
+    section = parse_naca(code, closed_te).airfoil(n_points)
+    if section.surface_error is not None:
+        raise ValueError(f"{section.name}: {section.surface_error}; a section this thick or this cambered folds "
+                         "over itself: choose a thinner or less cambered code")
+    return section

@@ -404,7 +404,7 @@ def load_section(spec: str, option: str):
         InputError: one line for a folder, a missing file, a file that is not an airfoil (the airfoil
             reader's own message, which names the file and the line) or an unknown code.
     """
-    from targets import load_airfoil, naca  # (worker: imported through cli by every report worker; 0.3 s of SciPy)
+    from targets import load_airfoil, naca, parse_naca  # (worker: imported through cli by every report worker; 0.3 s of SciPy)
 
     if not str(spec).strip():
         raise InputError(f"{option}: the section is an empty name (an unset shell variable?); give a NACA code such "
@@ -417,13 +417,20 @@ def load_section(spec: str, option: str):
             raise InputError(f"{option}: no such file {spec!r}; give a NACA code such as naca2412 or the "
                              "path of a Selig/Lednicer .dat file")
         try:
-            return load_airfoil(path)
+            section = load_airfoil(path)
         except OSError as exc:
             raise InputError(f"{option}: cannot read {spec}: {exc.strerror or exc}") from None
         except ValueError as exc:
             raise InputError(str(exc)) from None
+        if section.surface_error is not None:  # (a bay needs single-valued surfaces: refused here, not mid-run)
+            raise InputError(f"{spec}: airfoil {section.name!r}: {section.surface_error}")
+        return section
+    try:
+        parse_naca(spec)
+    except ValueError as exc:
+        raise InputError(f"{option} {spec!r} is neither a NACA code nor a .dat file: {exc}") from None
     try:
         return naca(spec)
     except ValueError as exc:
-        raise InputError(f"{option} {spec!r} is neither a NACA code nor a .dat file: {exc}") from None
+        raise InputError(f"{option} {spec}: {exc}") from None
 
