@@ -34,7 +34,7 @@ from ..plausibility import LIMITS, check_plausibility
 from ..rib_design import RibLimits
 from ..settings import DesignRequest, Layout, Limits, SolverSettings
 from ..tolerance import SOURCE_UNITS, Sampling, connect_scheduler, parse_tolerances, tolerance_analysis
-from . import resources
+from . import interrupts, resources
 from .measures import mid_bay_targets
 from .options import PROG, InputError
 
@@ -322,13 +322,21 @@ def compare_aero(case, result, alphas) -> list:
 def analyse_tolerances(case, result, parsed: dict, notes: list):
     """`inverse_design.tolerance.tolerance_analysis` of ``result`` with the options' spec, samples and
     seed; the samples stream to a temporary CSV file (its path in the analysis' ``samples_file``, for the
-    report to copy), and are not kept in memory (`inverse_design.tolerance.Sampling`'s ``keep_rows``).
+    report to copy), and are not kept in memory (`inverse_design.tolerance.Sampling`'s ``keep_rows``). A
+    stop is raised after each sample (`interrupts.check`); the file is removed on a stop, also when the
+    stop abandons the work (`interrupts.undo_if_abandoned`).
 
     A design that does not solve again at its own values (the analysis' nominal solve) is not lost: the
     analysis is skipped with a warning line, kept in ``notes`` (the summary's warnings), and None returned.
     """
     o = case.options
     stream = {"file": None, "writer": None}
+
+    def remove() -> None:
+        if stream["file"] is not None:
+            stream["file"].close()
+            os.unlink(stream["path"])
+            stream["file"] = None
 
     def on_sample(row: dict) -> None:
         if stream["writer"] is None:
@@ -339,14 +347,14 @@ def analyse_tolerances(case, result, parsed: dict, notes: list):
             stream["writer"].writeheader()
         stream["writer"].writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
         stream["file"].flush()
+        interrupts.check()  # (the samples' safe point)
 
     try:
-        analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, sampling=Sampling(
-            samples=o.samples, seed=o.seed, on_sample=on_sample, scheduler=o.scheduler or None, keep_rows=False))
+        with interrupts.undo_if_abandoned(remove):
+            analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, sampling=Sampling(
+                samples=o.samples, seed=o.seed, on_sample=on_sample, scheduler=o.scheduler or None, keep_rows=False))
     except BaseException as exc:
-        if stream["file"] is not None:
-            stream["file"].close()
-            os.unlink(stream["path"])
+        remove()
         if not isinstance(exc, ConvergenceError):
             raise
         line = (f"the tolerance analysis is skipped: the design did not solve again at its own values, which the "
