@@ -28,16 +28,34 @@ tolerance of 1e-4) peaked at 2,053-2,080 MiB in four runs, and at 2,079 MiB in 1
 solves to the default 1e-3 (the estimate: 2,000 MiB), its resident memory
 level at 1.5-1.6 GB from the fourth iterate, where it had reached 6.7 GB
 after 60 minutes and was growing.
+
+A Monte Carlo check of the tolerances (`tolerance.monte_carlo`) draws and
+solves its samples a chunk at a time; what it keeps grows with the samples
+(`sample_memory`): for the statistics' percentiles, each sample's rms, largest
+distance and least tension of the wing and of every bay (``3 + 3 n_bays``
+floats), and while the statistics are taken, two copies of one of them
+(`STATISTICS_BYTES`); and, where the rows are kept (the library's default,
+`tolerance.Sampling`'s ``keep_rows``), each sample's row, a dict of its drawn
+values. A row's size, measured with ``tracemalloc`` over 2000 rows (Python 3.11,
+a float per column and ``sample``, ``rms``, ``max``, ``min_tension``,
+``converged``)::
+
+    columns           1     9     50     250
+    bytes a row     741   736   2840   12632
+
+and `ROW_BYTES` ``(768, 52)``, ``768 + 52 * columns``, lies above each
+(by 9%-68%: a dict's table grows in powers of two).
 """
 
 from __future__ import annotations
 
 import ctypes
 import math
+import os
 import sys
 
-__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "MMAP_THRESHOLD_BYTES", "design_tangents",
-           "design_memory", "fix_mmap_threshold"]
+__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "MMAP_THRESHOLD_BYTES", "ROW_BYTES", "STATISTICS_BYTES",
+           "design_tangents", "design_memory", "fix_mmap_threshold", "physical_memory", "sample_memory"]
 
 #: The size from which glibc's ``malloc`` maps each block on its own (returned to the system when
 #: freed) under `fix_mmap_threshold`: glibc's own starting value, 128 KiB.
@@ -90,6 +108,40 @@ def design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: int) -> 
     nodes = n_bays * n_span * n_contour
     mib = BASE_MIB + nodes * (PER_NODE_MIB + PER_TANGENT_NODE_MIB * max(n_tangents, 1))
     return math.ceil(mib * 2**20)
+
+
+#: ``(base, per column)`` bytes of a Monte Carlo sample's row kept in memory (module docstring).
+ROW_BYTES = (768, 52)
+#: Bytes a sample while the statistics are taken: the finite values of one measure copied, the copy that
+#: the percentile partitions, and the finiteness mask (8 + 8 + 1, rounded up).
+STATISTICS_BYTES = 24
+
+
+def sample_memory(samples: int, n_bays: int, n_columns: int = 0, keep_rows: bool = False) -> int:
+    """What a Monte Carlo check of ``samples`` wings keeps, bytes, at its peak (module docstring): the
+    per-sample measures of the statistics and their transient copies, and with ``keep_rows`` each
+    sample's row of ``n_columns`` drawn values. The chunk of draws being solved (a few hundred
+    samples) and the failures named (a bounded list) are left out: they do not grow with ``samples``.
+
+    Args:
+        samples: Monte Carlo wings.
+        n_bays: bays of the wing.
+        n_columns: tolerance parameters (the rows' drawn values; only with ``keep_rows``).
+        keep_rows: whether every sample's row is kept in memory.
+    """
+    per_sample = 8 * (3 + 3 * n_bays) + STATISTICS_BYTES
+    if keep_rows:
+        per_sample += ROW_BYTES[0] + ROW_BYTES[1] * n_columns
+    return int(samples) * per_sample
+
+
+def physical_memory() -> int | None:
+    """The machine's physical memory, bytes (``os.sysconf``), or None where the system does not say."""
+    try:
+        pages, size = os.sysconf("SC_PHYS_PAGES"), os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+    return pages * size if pages > 0 and size > 0 else None
 
 
 def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:

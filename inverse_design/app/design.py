@@ -28,13 +28,13 @@ from .. import methods
 from ..aero import AeroUnavailable, aerodynamic_cost, alpha_range, require_neuralfoil
 from ..constraints import Constraints
 from ..flat_panels import bay_panels
-from ..memory import design_tangents
+from ..memory import design_memory, design_tangents
 from ..optimise import evaluate_design, optimise_wing, refine_design
 from ..plausibility import LIMITS, check_plausibility
 from ..rib_design import RibLimits
 from ..settings import DesignRequest, Layout, Limits, SolverSettings
 from ..tolerance import SOURCE_UNITS, Sampling, connect_scheduler, parse_tolerances, tolerance_analysis
-from . import resources
+from . import interrupts, resources
 from .case_file import read_config
 from .measures import mid_bay_targets
 from .options import PROG, InputError
@@ -141,10 +141,23 @@ def check_wing(case) -> None:
             raise
         raise InputError(f"--rib-spacing {o.rib_spacing:g}: {exc}") from None
     if not o.evaluate:
-        grid = layout(case)
-        resources.check_design_memory(case.n_bays, o.n_span, o.n_contour, design_tangents(
-            case.variables, case.n_bays, cut_pattern_terms=o.cut_pattern_terms, rib_shape_terms=o.rib_shape_terms,
-            cut_pattern=grid.cut_pattern, rib_shape=grid.rib_shape), allow_large=o.allow_large_grid)
+        resources.check_design_memory(case.n_bays, o.n_span, o.n_contour, _tangents(case),
+                                      allow_large=o.allow_large_grid)
+
+
+def _tangents(case) -> int:
+    """The design's Jacobian tangents per bay (`inverse_design.memory.design_tangents`)."""
+    o, grid = case.options, layout(case)
+    return design_tangents(case.variables, case.n_bays, cut_pattern_terms=o.cut_pattern_terms,
+                           rib_shape_terms=o.rib_shape_terms, cut_pattern=grid.cut_pattern, rib_shape=grid.rib_shape)
+
+
+def _run_memory(case) -> float:
+    """The run's estimated peak memory before its samples, bytes: the grid's (`resources.estimate_cost`) or
+    the wing design's (`inverse_design.memory.design_memory`), the larger."""
+    o = case.options
+    grid = resources.estimate_cost(o.n_span, o.n_contour, evaluate=o.evaluate).memory
+    return max(grid, design_memory(case.n_bays, o.n_span, o.n_contour, 0 if o.evaluate else _tangents(case)))
 
 
 #: Rib spacing over mean chord below which `check_flat_panels` lays a bay's panels out before the
@@ -191,8 +204,9 @@ def tolerances(case) -> dict | None:
     Raises:
         InputError: one line: an unknown or negative tolerance, a stiffness
             scatter of 100% or more of the fabric's, every tolerance 0 for
-            ``--objective robust``, a ``--scheduler`` that does not answer or
-            without the ``distributed`` package.
+            ``--objective robust``, more ``--samples`` than the machine holds or
+            runs in reasonable time (`resources.check_samples`), a ``--scheduler``
+            that does not answer or without the ``distributed`` package.
     """
     o = case.options
     if not o.tolerances:
@@ -217,6 +231,12 @@ def tolerances(case) -> dict | None:
         if t is not None and not t.relative and t.spread(nominal) >= nominal:
             raise InputError(f"--tolerance {name}={t.text} {SOURCE_UNITS[name]} is a scatter of 100% or more of "
                              f"the fabric's {nominal:g} N/m (zero or negative stiffness): give less")
+    if o.samples:
+        try:
+            resources.check_samples(o.samples, case.n_bays, o.n_span, o.n_contour, base=_run_memory(case),
+                                    scheduler=bool(o.scheduler), allow_large=o.allow_large_grid)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
     if o.scheduler and o.samples:  # (the samples connect again: no connection is held through the design)
         try:
             connect_scheduler(o.scheduler).close()
@@ -315,13 +335,21 @@ def compare_aero(case, result, alphas) -> list:
 def analyse_tolerances(case, result, parsed: dict, notes: list):
     """`inverse_design.tolerance.tolerance_analysis` of ``result`` with the options' spec, samples and
     seed; the samples stream to a temporary CSV file (its path in the analysis' ``samples_file``, for the
-    report to copy).
+    report to copy), and are not kept in memory (`inverse_design.tolerance.Sampling`'s ``keep_rows``). A
+    stop is raised after each sample (`interrupts.check`); the file is removed on a stop, also when the
+    stop abandons the work (`interrupts.undo_if_abandoned`).
 
     A design that does not solve again at its own values (the analysis' nominal solve) is not lost: the
     analysis is skipped with a warning line, kept in ``notes`` (the summary's warnings), and None returned.
     """
     o = case.options
     stream = {"file": None, "writer": None}
+
+    def remove() -> None:
+        if stream["file"] is not None:
+            stream["file"].close()
+            os.unlink(stream["path"])
+            stream["file"] = None
 
     def on_sample(row: dict) -> None:
         if stream["writer"] is None:
@@ -332,14 +360,14 @@ def analyse_tolerances(case, result, parsed: dict, notes: list):
             stream["writer"].writeheader()
         stream["writer"].writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
         stream["file"].flush()
+        interrupts.check()  # (the samples' safe point)
 
     try:
-        analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, sampling=Sampling(
-            samples=o.samples, seed=o.seed, on_sample=on_sample, scheduler=o.scheduler or None))
+        with interrupts.undo_if_abandoned(remove):
+            analysis = tolerance_analysis(result, parsed, spec=o.shape_spec, sampling=Sampling(
+                samples=o.samples, seed=o.seed, on_sample=on_sample, scheduler=o.scheduler or None, keep_rows=False))
     except BaseException as exc:
-        if stream["file"] is not None:
-            stream["file"].close()
-            os.unlink(stream["path"])
+        remove()
         if not isinstance(exc, ConvergenceError):
             raise
         line = (f"the tolerance analysis is skipped: the design did not solve again at its own values, which the "

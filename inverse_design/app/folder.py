@@ -247,7 +247,7 @@ def _figures(bays: _Bays, options: ReportOptions, skipped: dict) -> list:
                 result.parameters, result.wing.sections[0], chord, options.rib_limits), {}))
     tolerance = options.tolerance
     if tolerance is not None:
-        sampled = [r["rms"] for r in tolerance.samples] if tolerance.samples else None
+        sampled = tolerance.sampled_rms if tolerance.sampled_rms is not None and tolerance.sampled_rms.size else None
         specs.append(("tolerance.png", plot_tolerance, (tolerance.summary(), tolerance.linear_rms, sampled), {}))
     return specs
 

@@ -151,7 +151,8 @@ OPTIONS = (
     ("bay", "--allow-large-grid", dict(action="store_true",
                                        help="run a grid that is refused otherwise: one whose estimated peak "
                                        "memory exceeds half of the available memory, or with more than "
-                                       f"{MAX_NODES:,} nodes (hours per design)")),
+                                       f"{MAX_NODES:,} nodes (hours per design); and --samples beyond their "
+                                       "memory and time limits (not beyond the machine's memory)")),
     ("fabric", "--stiffness-span", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
                                         help="tensile stiffness E11 of the span fibres per unit width, N/m "
                                         "(default 2e5)")),
@@ -251,7 +252,9 @@ OPTIONS = (
                                        "that meets it")),
     ("optimiser", "--samples", dict(type=_whole(0, " (0: first order only)"), default=0, metavar="N",
                                     help="with tolerances: Monte Carlo wings solved to check the first-order "
-                                    "analysis (default 0: first order only); tolerance_samples.csv")),
+                                    "analysis (default 0: first order only); tolerance_samples.csv. More than "
+                                    "an hour of solves here, or than half of the available memory holds, is "
+                                    "refused before the run (docs/tolerances.md)")),
     ("optimiser", "--seed", dict(type=_whole(0), default=0, metavar="N",
                                  help="seed of the Monte Carlo draws (default 0: the same wings every run)")),
     ("optimiser", "--scheduler", dict(default=None, metavar="ADDRESS",
@@ -362,7 +365,9 @@ it are relative to the case file's folder; options on the command line override 
 
 grid size: a grid whose estimated peak memory exceeds half of the available memory,
 or with more than {max_nodes:,} nodes, is refused before the run (exit 2, with the
-estimate); --allow-large-grid runs it anyway.
+estimate); --allow-large-grid runs it anyway. So are --samples that would take more than an
+hour of solves in this process (not with --scheduler) or more than half of the available memory,
+unless --allow-large-grid (never more than the machine's memory).
 
 A second run into a DIR that a run is writing is refused (exit 2); a file of an earlier
 report that was edited since (its size or SHA-256 differ from summary.json's record) is

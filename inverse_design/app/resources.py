@@ -1,4 +1,4 @@
-"""What a grid costs: the memory and time that ``optimise-pressure`` estimates before it starts.
+"""What a grid and its samples cost: the memory and time that ``optimise-pressure`` estimates before it starts.
 
 The command refuses a grid whose estimated peak memory exceeds half of the
 memory available, or that has more than `MAX_NODES` nodes (hours per
@@ -32,6 +32,41 @@ per node (within 13 %). Wall time, ``a + solves * b * nodes**p``
 4.2e-5 s * nodes**1.237 per forward solve. Both within 40 % (a shared
 machine), enough to tell minutes from hours. The default case (9 x 64)
 takes 14 forward solves (`TYPICAL_SOLVES`).
+
+The Monte Carlo samples of ``--samples`` (`check_samples`) are checked before
+the design too. Their memory is what the analysis keeps per sample
+(`inverse_design.memory.sample_memory`: the command streams the rows to a file,
+so a few floats a sample for the statistics' percentiles), over the design's own
+estimate; their time is the samples times the bays times a bay's warm solve
+(`SAMPLE_TIME_FIT`). That fit is ``benchmarks/sample_cost.py``
+(``benchmarks/results/sample_cost.json``) on a 2-core AMD EPYC machine shared
+with other jobs (load 2-3 on the small grids, 6 at the end; Python 3.11.7, JAX
+0.10.2 on the CPU): one bay, NACA 2412, chord 1 m, ribs 0.25 m apart, solved
+warm from the nominal equilibrium to the samples' 1e-8, after 2 samples that
+compile; seconds per sample and bay::
+
+    grid (span x contour)   nodes   default tolerances   pressure=2% alone
+    5 x 32                    160        0.0069               0.0031
+    9 x 64                    576        0.0166               0.0052
+    17 x 64                  1088        0.039                0.0067
+    17 x 128                 2176        0.063                0.0115
+    33 x 128                 4224        0.247                0.028
+    33 x 256                 8448        0.530                0.055
+    65 x 256                16640        2.10                 0.136
+
+The fit ``b * nodes**p`` of the default tolerances (the costlier: each bay's
+stiffnesses, cuts and ribs move, where a pressure scatter alone takes 2-15 times
+less) is 8.1e-6 s * nodes**1.235, within a factor 1.7 of every row (0.62 to
+1.70 times the measured: a shared machine), enough to tell minutes from hours.
+A sample costs its bays' solves: a bay of a 3-bay wing on 17 x 64 took 0.072 s
+a sample at the end of that run; in another, at load 10, a bay of a 3-bay and
+of a 2-bay wing took 0.078 and 0.067 s, one bay alone 0.061-0.069 s. The samples are refused when their memory exceeds
+`MEMORY_FRACTION` of the available memory less the design's, when they would take
+more than `MAX_SAMPLE_SECONDS` in this process, or, whatever the options, when
+their memory exceeds the machine's (`inverse_design.memory.physical_memory`: the
+library's own refusal, `inverse_design.tolerance.monte_carlo.check_samples`).
+``--scheduler`` lifts the time limit (the cluster's size is its own);
+``--allow-large-grid`` lifts both limits, as it does the grid's.
 """
 
 from __future__ import annotations
@@ -40,19 +75,24 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..memory import design_memory
+from ..memory import design_memory, physical_memory, sample_memory
 
 __all__ = [
     "MAX_NODES",
+    "MAX_SAMPLE_SECONDS",
     "MEMORY_FIT",
     "MEMORY_FRACTION",
+    "SAMPLE_TIME_FIT",
     "TIME_FIT",
     "TYPICAL_SOLVES",
     "GridCost",
+    "SampleCost",
     "available_memory",
     "check_design_memory",
     "check_grid",
+    "check_samples",
     "estimate_cost",
+    "estimate_samples",
 ]
 
 #: Most grid nodes (n_span x n_contour) run without ``--allow-large-grid``: at
@@ -67,6 +107,11 @@ MEMORY_FIT = {"evaluate": (705.0, 3.75 / 1024, 1.0), "optimise": (583.0, 0.02425
 TIME_FIT = {"evaluate": (10.1, 2.5e-4, 1.115), "optimise": (20.3, 4.2e-5, 1.237)}
 #: Forward solves of an optimisation, as the default case takes (14).
 TYPICAL_SOLVES = 15
+#: ``(b s, p)`` of a Monte Carlo sample's seconds per bay, ``b * nodes**p`` (see the module docstring).
+SAMPLE_TIME_FIT = (8.1e-6, 1.235)
+#: Most seconds of Monte Carlo samples run in this process without ``--allow-large-grid`` or
+#: ``--scheduler``: an hour, about an optimisation at the grid cap (`MAX_NODES`).
+MAX_SAMPLE_SECONDS = 3600.0
 
 _MIB = 2**20
 # cgroup memory limits (containers): v2, then v1; "max" or a huge number means no limit.
@@ -163,7 +208,9 @@ def _duration(seconds: float) -> str:
         return f"{seconds:.0f} s"
     if seconds < 2 * 3600:
         return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
+    if seconds < 72 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:,.0f} days"
 
 
 def check_grid(n_span: int, n_contour: int, *, evaluate: bool = False, allow_large: bool = False,
@@ -222,3 +269,79 @@ def check_design_memory(n_bays: int, n_span: int, n_contour: int, n_tangents: in
                          "fewer bays, a smaller --n-span or --n-contour, fewer --cut-pattern-terms or "
                          "--rib-shape-terms, or --allow-large-grid to run it anyway")
     return estimate
+
+
+@dataclass(frozen=True)
+class SampleCost:
+    """Estimated cost of a run's Monte Carlo samples.
+
+    Attributes:
+        samples: Monte Carlo wings.
+        memory: what the analysis keeps for them, bytes (`inverse_design.memory.sample_memory`).
+        seconds: their solves in this process on the development machine (2 cores).
+    """
+
+    samples: int
+    memory: float
+    seconds: float
+
+
+def estimate_samples(samples: int, n_bays: int, n_span: int, n_contour: int) -> SampleCost:
+    """The estimated memory and time of ``samples`` Monte Carlo wings of ``n_bays`` bays on ``n_span x
+    n_contour`` (module docstring: `SAMPLE_TIME_FIT`), their rows streamed to a file."""
+    b, p = SAMPLE_TIME_FIT
+    return SampleCost(samples=int(samples), memory=float(sample_memory(samples, n_bays)),
+                      seconds=float(samples) * n_bays * b * (int(n_span) * int(n_contour)) ** p)
+
+
+def check_samples(samples: int, n_bays: int, n_span: int, n_contour: int, *, base: float = 0.0,
+                  scheduler: bool = False, allow_large: bool = False,
+                  available: tuple[float | None, str] | None = None, physical: float | None = None) -> SampleCost:
+    """Refuse ``--samples`` the machine cannot hold, or solve in reasonable time (module docstring).
+
+    Args:
+        samples: Monte Carlo wings (``--samples``, 1 or more).
+        n_bays, n_span, n_contour: the wing's bays and each bay's grid.
+        base: the run's own peak memory before the samples, bytes (the design's estimate).
+        scheduler: the samples are solved on a Dask cluster (``--scheduler``): no time limit.
+        allow_large: lift the memory and time limits (``--allow-large-grid``); the machine's memory
+            still holds.
+        available: ``(bytes or None, source)`` as `available_memory` returns it (default: measured now).
+        physical: the machine's memory, bytes (default `inverse_design.memory.physical_memory`).
+
+    Returns:
+        The `SampleCost` estimate.
+
+    Raises:
+        ValueError: one line with the estimate, the limit and what to change.
+    """
+    cost = estimate_samples(samples, n_bays, n_span, n_contour)
+    per_sample = estimate_samples(1, n_bays, n_span, n_contour)
+    physical = physical_memory() if physical is None else physical
+    limits = []  # (the samples that fit, whether these exceed it, the limit in words, whether a flag lifts it)
+    if physical is not None:
+        room = physical - base
+        limits.append((room / per_sample.memory, cost.memory > room,
+                       f"this machine's {_size(physical)} of memory with the design's {_size(base)}", False))
+    free, source = (None, "") if allow_large else available_memory() if available is None else available
+    if free is not None:
+        room = MEMORY_FRACTION * free - base
+        limits.append((room / per_sample.memory, cost.memory > room,
+                       f"the limit of {_size(max(room, 0.0))} of memory (half of the {_size(free)} available, "
+                       f"{source}, less the design's {_size(base)})", True))
+    slow = not (scheduler or allow_large) and cost.seconds > MAX_SAMPLE_SECONDS
+    if not (scheduler or allow_large):
+        limits.append((MAX_SAMPLE_SECONDS / per_sample.seconds, slow,
+                       f"the limit of {_duration(MAX_SAMPLE_SECONDS)} of solves in this process", True))
+    over = [(words, liftable) for _, exceeded, words, liftable in limits if exceeded]
+    if not over:
+        return cost
+    fits = int(max(min(count for count, *_ in limits), 0))
+    # (the memory is a few floats a sample whatever the grid: only fewer samples lower it)
+    faster = ", a smaller --n-span or --n-contour, --scheduler ADDRESS to solve them on a Dask cluster" if slow else ""
+    anyway = ", or --allow-large-grid to run them anyway" if all(liftable for _, liftable in over) else ""
+    bays = f"{n_bays} bays" if n_bays > 1 else "1 bay"
+    raise ValueError(f"--samples {samples:,} on {bays} of {n_span} x {n_contour} is too many for this machine: "
+                     f"estimate {_size(cost.memory)} of memory for their statistics and {_duration(cost.seconds)} of "
+                     f"solves on a 2-core machine, more than {' and '.join(words for words, _ in over)}; give at most "
+                     f"{fits:,} --samples{faster}{anyway}")

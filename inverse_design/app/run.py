@@ -110,11 +110,13 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
                            rib_limits=case.limits.ribs, patterns=not o.no_patterns,
                            seam_allowance_mm=o.seam_allowance, inputs=case.inputs, timings=timings, aero=aero,
                            warnings=notes, tolerance=analysis)
+    samples_file = analysis.samples_file if analysis is not None else None
     try:
-        return write_report(out, result, options=report, workers=workers)
+        with interrupts.undo_if_abandoned(lambda: samples_file and os.unlink(samples_file)):
+            return write_report(out, result, options=report, workers=workers)
     finally:
-        if analysis is not None and analysis.samples_file:
-            os.unlink(analysis.samples_file)
+        if samples_file and os.path.exists(samples_file):  # (a stop that abandoned the work removed it)
+            os.unlink(samples_file)
 
 
 def _starting_line(case: Case) -> str:

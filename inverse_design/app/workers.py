@@ -27,9 +27,14 @@ importing, or starved by a busy machine, hold nobody up), waits at most
 `WORKER_TIMEOUT_S` for the workers' own, stops the pool and returns the
 tasks done; the caller writes the rest itself (`run_task`). A stop
 (Ctrl-C, SIGTERM) unwinds the caller, whose `ReportWorkers.close` stops
-the workers before the staging folder is removed; the workers ignore
-SIGINT themselves, so a Ctrl-C sent to the process group ends the run with
-the caller's one line.
+the workers before the staging folder is removed. The workers leave the
+caller's process group as they start (POSIX), so that a signal sent to the
+group (a terminal's Ctrl-C, GNU ``timeout``'s SIGTERM, ``kill -TERM
+-PGID``) reaches the caller alone: a worker killed by it while it waited for
+a task held the task queue's lock, and the pool's termination then waited
+for that lock for ever (the command printed its stop line and hung). Out of
+the group, a worker ends when the caller does (`PARENT_POLL_S`); it also
+ignores SIGINT.
 
 Used by the ``optimise-pressure`` command for its report (one bay or a wing)
 (`inverse_design.app.folder.write_report` takes its ``workers``); a library
@@ -43,11 +48,12 @@ import multiprocessing
 import os
 import pickle
 import signal
+import threading
 import time
 from contextlib import contextmanager
 
-__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "REPORT_MODULES", "WORKER_MODULES", "WORKER_TIMEOUT_S",
-           "ReportWorkers", "run_task", "save_figure", "saved_after"]
+__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "PARENT_POLL_S", "REPORT_MODULES", "WORKER_MODULES",
+           "WORKER_TIMEOUT_S", "ReportWorkers", "run_task", "save_figure", "saved_after"]
 
 #: The report's libraries, imported ahead by the command's run (`run`) and by the workers.
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
@@ -64,6 +70,9 @@ WORKER_TIMEOUT_S = 60.0
 ANSWER_WAIT_S = 0.1
 #: Most workers started (one per core beyond the caller's, at least one).
 MAX_WORKERS = 2
+#: Seconds between a worker's looks at its parent: out of the caller's process group, it ends when the
+#: caller has ended (a SIGKILL of the caller, or of its group, no longer reaches it).
+PARENT_POLL_S = 0.5
 
 
 def _cores() -> int:
@@ -81,12 +90,17 @@ _CLAIMED = None  # in a worker: the pool's shared claims (`multiprocessing.Array
 
 
 def _initialise(modules: tuple, claimed) -> None:
-    """A worker's start: SIGINT ignored (the caller stops the pool), ``modules`` imported."""
+    """A worker's start: out of the caller's process group and SIGINT ignored (the caller stops the pool:
+    module docstring), ``modules`` imported."""
     import importlib
 
     global _CLAIMED
     _CLAIMED = claimed
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(os, "setpgid"):
+        parent = os.getppid()
+        os.setpgid(0, 0)
+        threading.Thread(target=_end_with, args=(parent,), name="watch-parent", daemon=True).start()
     idle = _schedule(getattr(os, "SCHED_IDLE", None))  # (the imports on idle cores only: module docstring)
     for name in modules:
         try:
@@ -95,6 +109,13 @@ def _initialise(modules: tuple, claimed) -> None:
             pass
     if idle:
         _schedule(os.SCHED_OTHER)
+
+
+def _end_with(parent: int) -> None:
+    """End this worker once its parent ``parent`` has (it is then another process's child)."""
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_S)
+    os._exit(0)
 
 
 def _schedule(policy) -> bool:

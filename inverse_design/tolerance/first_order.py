@@ -38,7 +38,7 @@ from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
 
 from .inputs import SOURCE_UNITS, as_tolerances
 from .model import ToleranceModel, summary_of
-from .monte_carlo import SAMPLE_RTOL, monte_carlo
+from .monte_carlo import SAMPLE_RTOL, check_samples, monte_carlo
 
 __all__ = ["BUDGET_SCALE_CAP", "LINEAR_SAMPLES", "Sampling", "ToleranceAnalysis", "tolerance_analysis"]
 
@@ -65,9 +65,15 @@ class Sampling:
             drawn absolute value of every column, ``rms``, ``max``,
             ``min_tension``, ``converged``) as it is solved, in sample order.
         linear_samples: draws of the linearised model (`LINEAR_SAMPLES`).
+        keep_rows: keep every sample's row in `ToleranceAnalysis.samples`
+            (`inverse_design.memory.ROW_BYTES` a row); False: the rows only go to
+            ``on_sample`` (the command streams them to a file) and the analysis keeps
+            each sample's few measures (`monte_carlo`'s module docstring).
 
     Raises:
-        ValueError: for a negative number of samples.
+        ValueError: for a negative number of samples (`tolerance_analysis` refuses, before any
+            solve, a number whose kept state exceeds the machine's memory:
+            `monte_carlo.check_samples`).
     """
 
     samples: int = 0
@@ -76,6 +82,7 @@ class Sampling:
     scheduler: object = None
     on_sample: object = field(default=None, compare=False)
     linear_samples: int = LINEAR_SAMPLES
+    keep_rows: bool = True
 
     def __post_init__(self):
         if not isinstance(self.samples, int) or isinstance(self.samples, bool) or self.samples < 0:
@@ -115,14 +122,18 @@ class ToleranceAnalysis:
         budget: None without a spec, else the spec (mm), each source's
             largest tolerance that alone keeps 95% of wings within it, and
             the common scale factor of all (`_budget`).
-        samples: one dict per Monte Carlo sample (the CSV's rows).
+        samples: one dict per Monte Carlo sample (the CSV's rows; empty
+            unless `Sampling`'s ``keep_rows``).
         failures: ``[{"sample", "bay", "message"}]`` of the samples whose
-            solve failed.
+            solve failed (the first `monte_carlo.FAILURES_KEPT`; ``sampled``
+            counts them all).
         rms_squared_mean: the linear model's exact ``E[rms^2]``, mm^2.
         timings: ``tolerance`` (first order) and ``samples`` seconds.
         samples_file: where the command streamed the samples' rows (a
             temporary CSV file), or None.
         linear_rms: the linearised model's draws of the wing's rms, mm.
+        sampled_rms: each Monte Carlo sample's wing rms, mm (NaN where its
+            solve failed), or None without samples.
     """
 
     tolerances: dict
@@ -146,6 +157,7 @@ class ToleranceAnalysis:
     timings: dict = field(default_factory=dict)
     samples_file: str | None = None
     linear_rms: np.ndarray | None = None
+    sampled_rms: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The ``tolerance`` section of ``summary.json`` (plain JSON values)."""
@@ -162,7 +174,7 @@ class ToleranceAnalysis:
             "sampled": self.sampled,
             "rms_squared_mean": self.rms_squared_mean,
             "budget": self.budget,
-            "samples": len(self.samples),
+            "samples": 0 if self.sampled is None else self.sampled["count"],
             "failed_samples": self.failures,
         }
 
@@ -259,8 +271,9 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samplin
 
     Raises:
         ValueError: for bad tolerances, a spec of 0 or less, a stiffness
-            scatter reaching the nominal stiffness, or a scheduler that cannot
-            be reached.
+            scatter reaching the nominal stiffness, more samples than the
+            machine's memory holds (`monte_carlo.check_samples`), or a scheduler
+            that cannot be reached.
         ImportError: for a scheduler without ``distributed`` installed.
         forward_solver.ConvergenceError: if the nominal design does not solve.
     """
@@ -274,6 +287,7 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samplin
             if c.source.startswith("stiffness") and spread >= v:
                 raise ValueError(f"tolerance {c.source}={model.tolerances[c.source].text}: a stiffness scatter of "
                                  f"{spread:g} N/m reaches the nominal {v:g} N/m (100% or more); give less")
+        check_samples(sampling.samples, model, sampling.keep_rows)  # (before any solve)
         nominal = model.nominal_solutions(rtol)
         d0, t0, jd, jt = [], [], [], []
         nd = model.n_distances
@@ -313,7 +327,8 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samplin
         linear_rms=linear_measures["rms"])
     if sampling.samples:
         t = time.perf_counter()
-        analysis.samples, analysis.failures, analysis.sampled = monte_carlo(model, nominal, sampling, rtol)
+        analysis.samples, analysis.failures, analysis.sampled, analysis.sampled_rms = monte_carlo(
+            model, nominal, sampling, rtol)
         analysis.timings["samples"] = time.perf_counter() - t
     return analysis
 
