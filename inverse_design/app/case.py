@@ -118,7 +118,7 @@ class Case:
         options, sources = _merged_options(sys.argv[1:] if argv is None else list(argv))
         variables = _variables(options, sources)
         _check_combinations(options, sources, variables)
-        _check_values(options)
+        _check_values(options, sources)
         with warnings.catch_warnings(record=True) as caught:  # (a section renormalised, a field per bay on one)
             warnings.simplefilter("always")
             ribs = _ribs(options, sources)
@@ -350,8 +350,19 @@ def _check_combinations(o: Options, sources: Mapping, variables: tuple) -> None:
                              "section: use slsqp, gauss_newton, least_squares or optax")
 
 
-def _check_values(o: Options) -> None:
+#: The options that are a (lower, upper) pair of bounds.
+BOUND_OPTIONS = ("pressure_bounds", "prestrain_bounds", "rib_thickness_bounds", "rib_chord_bounds", "rib_shape_bounds",
+                 "cut_pattern_bounds")
+
+
+def _check_values(o: Options, sources: Mapping) -> None:
     """Refuse the values that the option types leave open (before any solve)."""
+    for name in BOUND_OPTIONS:  # (whether its variable is designed or not: a reversed pair is a slip)
+        low, high = getattr(o, name)
+        if not low < high:
+            where = f"{o.config}: {name.replace('_', '-')}" if sources.get(name) == "config" else f"--{name.replace('_', '-')}"
+            raise InputError(f"{where} {low:g} {high:g}: the lower bound must lie below the upper; give LOW HIGH "
+                             "with LOW < HIGH")
     if not o.seam_allowance >= 0:
         raise InputError(f"--seam-allowance must be 0 mm or more (the cut line lies outside the sewing line), "
                          f"got {o.seam_allowance:g}: give 0 or a positive number of mm")

@@ -17,7 +17,8 @@ from inverse_design.app.options import InputError
     (["--seam-allowance", "1e9"], "--seam-allowance 1e+09 mm puts the cut line more than 1 m outside the sewing "
                                   "line: give the allowance in millimetres"),
     (["--rib-spacing", "1000"], "--rib-spacing 1000: the ribs lie 1000 m apart on a 1 m chord, more than 5 chords"),
-], ids=["seed", "iterations", "n-span", "n-contour", "variable", "empty-target", "seam", "far-ribs"])
+    (["--prestrain-bounds", "0.05", "0"], "--prestrain-bounds 0.05 0: the lower bound must lie below the upper"),
+], ids=["seed", "iterations", "n-span", "n-contour", "variable", "empty-target", "seam", "far-ribs", "bounds"])
 def test_a_bad_option_is_refused_as_the_case_is_read(argv, message):
     with pytest.raises(InputError) as info:
         Case.from_arguments([*argv, "--out", "unused"])
