@@ -34,10 +34,12 @@ import jax.numpy as jnp
 
 from .model.cut_field import local_prestrain
 from .model.rib_shape import rib_offsets
+from .stencils import (cell_corners, contour_edge_sum, next_j, safe_norm, scatter_cell_corners, scatter_contour_edges,
+                       scatter_span_edges, span_edge_sum, this_j)
 
 __all__ = ["Geometry", "KernelInputs", "Physics", "Reference", "Forces", "nominal_nodes", "mounted_nodes", "prepare",
            "forces", "residual", "relative_residual", "static_physics", "node_area_vectors", "surface_area",
-           "node_stiffness", "fibres", "Fibres", "safe_norm", "rounding_residual_floor"]
+           "node_stiffness", "fibres", "Fibres", "rounding_residual_floor"]
 
 
 class Geometry(NamedTuple):
@@ -108,77 +110,6 @@ class Forces(NamedTuple):
     wrinkled: jnp.ndarray  # (ns-1, ncell) bool: a fibre tension would be compressive
 
 
-def safe_norm(v: jnp.ndarray, axis: int = -1) -> jnp.ndarray:
-    """Euclidean norm whose gradient stays finite at zero (double-``where``).
-
-    NaN stays NaN (so a stop test on a norm can never pass on a NaN state).
-    """
-    sq = jnp.sum(v * v, axis=axis)
-    nonzero = sq > 0.0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), sq)
-
-
-# --------------------------------------------------------------- grid stencils
-def _next_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """``a[:, j+1]`` for every contour edge (wrapping on a closed contour)."""
-    return jnp.roll(a, -1, axis=1) if periodic else a[:, 1:]
-
-
-def _this_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """``a[:, j]`` for every contour edge (all of them on a closed contour)."""
-    return a if periodic else a[:, :-1]
-
-
-def _contour_edge_sum(c: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """Sum the cell values on both sides of each span edge (along j)."""
-    if periodic:
-        return c + jnp.roll(c, 1, axis=1)
-    return jnp.pad(c, ((0, 0), (1, 0))) + jnp.pad(c, ((0, 0), (0, 1)))
-
-
-def _span_edge_sum(c: jnp.ndarray) -> jnp.ndarray:
-    """Sum the cell values on both sides of each contour edge (along i)."""
-    pad = [(1, 0), (0, 0)] + [(0, 0)] * (c.ndim - 2)
-    pad_hi = [(0, 1), (0, 0)] + [(0, 0)] * (c.ndim - 2)
-    return jnp.pad(c, pad) + jnp.pad(c, pad_hi)
-
-
-def _scatter_span_edges(f: jnp.ndarray) -> jnp.ndarray:
-    """Nodal sum of edge vectors ``f`` acting ``+f`` on node i and ``-f`` on i+1."""
-    return jnp.pad(f, ((0, 1), (0, 0), (0, 0))) - jnp.pad(f, ((1, 0), (0, 0), (0, 0)))
-
-
-def _scatter_contour_edges(f: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """Nodal sum of edge vectors acting ``+f`` on node j and ``-f`` on j+1."""
-    if periodic:
-        return f - jnp.roll(f, 1, axis=1)
-    return jnp.pad(f, ((0, 0), (0, 1), (0, 0))) - jnp.pad(f, ((0, 0), (1, 0), (0, 0)))
-
-
-def _scatter_cell_corners(c00, c10, c11, c01, periodic: bool) -> jnp.ndarray:
-    """Nodal sum of per-cell values given at the cell's four corners.
-
-    ``c00`` belongs to node (i, j), ``c10`` to (i+1, j), ``c11`` to
-    (i+1, j+1), ``c01`` to (i, j+1); cells are (ns-1, ncell, ...).
-    """
-    def pad_i(a, lo):
-        return jnp.pad(a, [(lo, 1 - lo)] + [(0, 0)] * (a.ndim - 1))
-
-    at_j = pad_i(c00, 0) + pad_i(c10, 1)  # contributions to the cell's j column
-    at_j1 = pad_i(c01, 0) + pad_i(c11, 1)  # contributions to its j+1 column
-    if periodic:
-        return at_j + jnp.roll(at_j1, 1, axis=1)
-    pad_lo = [(0, 0), (0, 1)] + [(0, 0)] * (at_j.ndim - 2)
-    pad_hi = [(0, 0), (1, 0)] + [(0, 0)] * (at_j.ndim - 2)
-    return jnp.pad(at_j, pad_lo) + jnp.pad(at_j1, pad_hi)
-
-
-def _cell_corners(x: jnp.ndarray, periodic: bool):
-    """The four corner arrays (n00, n10, n11, n01) of every cell."""
-    lo, hi = x[:-1], x[1:]
-    return _this_j(lo, periodic), _this_j(hi, periodic), _next_j(hi, periodic), _next_j(lo, periodic)
-
-
 # ------------------------------------------------------------------ reference
 def nominal_nodes(geometry: Geometry, rib_thickness_scale=1.0, rib_chord_scale=1.0,
                   rib_shape_root=None, rib_shape_tip=None) -> jnp.ndarray:
@@ -223,19 +154,19 @@ def prepare(geometry: Geometry, params: KernelInputs, physics: Physics) -> Refer
     x0 = mounted_nodes(geometry, params)
     prestrain_span, prestrain_chord = local_prestrain(geometry, params, physics.periodic)
     span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + prestrain_span)
-    contour_length = safe_norm(_next_j(x0, physics.periodic) - _this_j(x0, physics.periodic))
+    contour_length = safe_norm(next_j(x0, physics.periodic) - this_j(x0, physics.periodic))
     contour_length = contour_length / (1.0 + prestrain_chord)
-    h1_cell = 0.5 * (_this_j(span_length, physics.periodic) + _next_j(span_length, physics.periodic))
+    h1_cell = 0.5 * (this_j(span_length, physics.periodic) + next_j(span_length, physics.periodic))
     h2_cell = 0.5 * (contour_length[:-1] + contour_length[1:])
     quarter = 0.25 * h1_cell * h2_cell
-    node_area = _scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
+    node_area = scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
     return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None],
                      surface_area(x0, physics.periodic))
 
 
 def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
     """Area of the grid's surface, m^2: the sum of its quadrilaterals (half the diagonals' cross product)."""
-    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    n00, n10, n11, n01 = cell_corners(x, periodic)
     return 0.5 * jnp.sum(safe_norm(jnp.cross(n11 - n00, n01 - n10)))
 
 
@@ -246,13 +177,13 @@ def node_area_vectors(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
     Its components are the projections of the eight triangles around the
     node on the coordinate planes; it points along ``e1 x e2`` (outward).
     """
-    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    n00, n10, n11, n01 = cell_corners(x, periodic)
     centre = 0.25 * (n00 + n10 + n11 + n01)
     c00 = 0.25 * jnp.cross(centre - n00, n01 - n10)
     c10 = 0.25 * jnp.cross(centre - n10, n00 - n11)
     c11 = 0.25 * jnp.cross(centre - n11, n10 - n01)
     c01 = 0.25 * jnp.cross(centre - n01, n11 - n00)
-    return _scatter_cell_corners(c00, c10, c11, c01, periodic)
+    return scatter_cell_corners(c00, c10, c11, c01, periodic)
 
 
 class Fibres(NamedTuple):
@@ -275,7 +206,7 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     """Stretches (eq. 12), directions (13), tensions (10) and edge forces (14)."""
     periodic = physics.periodic
     d1 = x[1:] - x[:-1]  # span edges (ns-1, nc, 3)
-    d2 = _next_j(x, periodic) - _this_j(x, periodic)  # contour edges (ns, ne, 3)
+    d2 = next_j(x, periodic) - this_j(x, periodic)  # contour edges (ns, ne, 3)
     len1 = safe_norm(d1)
     len2 = safe_norm(d2)
     stretch1 = len1 / ref.span_length  # eq. (12)
@@ -283,7 +214,7 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     unit1 = d1 / jnp.where(len1 > 0, len1, 1.0)[..., None]  # eq. (13)
     unit2 = d2 / jnp.where(len2 > 0, len2, 1.0)[..., None]
 
-    cell_stretch1 = 0.5 * (_this_j(stretch1, periodic) + _next_j(stretch1, periodic))
+    cell_stretch1 = 0.5 * (this_j(stretch1, periodic) + next_j(stretch1, periodic))
     cell_stretch2 = 0.5 * (stretch2[:-1] + stretch2[1:])
     e1 = cell_stretch1 - 1.0
     e2 = cell_stretch2 - 1.0
@@ -294,16 +225,16 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     wrinkled = (t11 < 0.0) | (t22 < 0.0)
     if physics.viscous:
         dv1 = v[1:] - v[:-1]
-        dv2 = _next_j(v, periodic) - _this_j(v, periodic)
+        dv2 = next_j(v, periodic) - this_j(v, periodic)
         rate1 = jnp.sum(unit1 * dv1, axis=-1) / ref.span_length
         rate2 = jnp.sum(unit2 * dv2, axis=-1) / ref.contour_length
-        t11 = t11 + params.viscosity * 0.5 * (_this_j(rate1, periodic) + _next_j(rate1, periodic))
+        t11 = t11 + params.viscosity * 0.5 * (this_j(rate1, periodic) + next_j(rate1, periodic))
         t22 = t22 + params.viscosity * 0.5 * (rate2[:-1] + rate2[1:])
     if physics.tension_only:
         t11 = jnp.maximum(t11, 0.0)
         t22 = jnp.maximum(t22, 0.0)
 
-    h1_cell = 0.5 * (_this_j(ref.span_length, periodic) + _next_j(ref.span_length, periodic))
+    h1_cell = 0.5 * (this_j(ref.span_length, periodic) + next_j(ref.span_length, periodic))
     h2_cell = 0.5 * (ref.contour_length[:-1] + ref.contour_length[1:])
     # Current cell widths lambda2 h2 and lambda1 h1; the span-fibre force
     # {T11 lambda2} h2 across a cell goes half to each of its span edges (eq. 14).
@@ -314,10 +245,10 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
         unit2=unit2,
         length1=len1,
         length2=len2,
-        edge_force1=_contour_edge_sum(t11 * half_width2, periodic),
-        edge_force2=_span_edge_sum(t22 * half_width1),
-        width1=_contour_edge_sum(half_width2, periodic),
-        width2=_span_edge_sum(half_width1),
+        edge_force1=contour_edge_sum(t11 * half_width2, periodic),
+        edge_force2=span_edge_sum(t22 * half_width1),
+        width1=contour_edge_sum(half_width2, periodic),
+        width2=span_edge_sum(half_width1),
         tension_span=t11,
         tension_chord=t22,
         wrinkled=wrinkled,
@@ -343,8 +274,8 @@ def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physic
     periodic = physics.periodic
     p = params.pressure if pressure is None else pressure
     fib = fibres(x, ref, params, physics, v)
-    total = _scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
-    total = total + _scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
+    total = scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
+    total = total + scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
 
     area = node_area_vectors(x, periodic)
     if physics.aerodynamic:
@@ -438,7 +369,7 @@ def rounding_residual_floor(ref: Reference, params: KernelInputs, physics: Physi
     modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
     free = ref.free[..., 0] > 0
     touches1 = free[1:] | free[:-1]
-    touches2 = _this_j(free, periodic) | _next_j(free, periodic)
+    touches2 = this_j(free, periodic) | next_j(free, periodic)
     k1 = jnp.where(touches1, fib.width1 / ref.span_length, 0.0)
     k2 = jnp.where(touches2, fib.width2 / ref.contour_length, 0.0)
     spread = jnp.sqrt(jnp.sum(k1 * k1) + jnp.sum(k2 * k2))

@@ -16,6 +16,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from . import forces as fk
+from .stencils import safe_norm
 from .compilation import stored_jit
 
 __all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces"]
@@ -42,7 +43,7 @@ def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.
     physics = fk.static_physics(physics)
     ref = fk.prepare(geometry, params, physics)
     f = fk.forces(x, ref, params, physics)
-    rel = fk.safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
+    rel = safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
     return f, jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
 
 
