@@ -7,9 +7,11 @@ Discretisation of paper eq. (10)-(15) on the structured grid of a `Bay`:
   ``h = nominal length / (1 + prestrain)``, and unit vectors (direction
   cosines, eq. 13).
 * Each cell ``(i+1/2, j+1/2)`` averages the stretches of its two span edges
-  and of its two contour edges (eq. 12) and takes the tensions of eq. (10)
-  with elongations ``e = lambda - 1``; with ``tension_only`` a negative
-  tension is clamped to zero (the fabric wrinkles instead).
+  and of its two contour edges (eq. 12) and takes the tensions of the
+  fabric's law (`Physics.law`: eq. 10, or a law fitted to a biaxial test,
+  `model.fibre_law`) with elongations ``e = lambda - 1``; with
+  ``tension_only`` a negative tension is clamped to zero (the fabric
+  wrinkles instead).
 * The force that the span fibres carry across a cell is ``T11 lambda2 h2``
   (the ``{T11 lambda2}`` terms of eq. 14); half of it acts along each of the
   cell's two span edges, on the edge's current direction (eq. 13). Contour
@@ -18,28 +20,34 @@ Discretisation of paper eq. (10)-(15) on the structured grid of a `Bay`:
   the eight triangles between it, its edge midpoints and its cell centres
   (eq. 15), which is the quarter-quadrilateral ``(B - O) x (C - A) / 2`` of
   each adjacent cell.
+* With a shear stiffness (`Physics.shear_stiffness`), the ``T12`` terms of
+  eq. (1) and (6) from the shear angle of eq. (8)-(9) (`shear`).
 
 The law is not conservative in general (eq. 10 with ``nu12 E22 != nu21 E11``
 and a follower load), so solvers work on the force residual, not an energy.
 Everything here is a pure function of arrays: geometry and parameters are
-traced, only the grid shape and the `Physics` switches are static.
+traced, only the grid shape and the `Physics` switches (the law and the
+shear stiffness among them) are static.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax.numpy as jnp
 
 from .model.cut_field import local_prestrain
+from .model.fibre_law import LinearLaw
 from .model.rib_shape import rib_offsets
+from .shear import shear_forces
 from .stencils import (cell_corners, contour_edge_sum, next_j, safe_norm, scatter_cell_corners, scatter_contour_edges,
                        scatter_span_edges, span_edge_sum, this_j)
 
 __all__ = ["Geometry", "KernelInputs", "Physics", "Reference", "Forces", "nominal_nodes", "mounted_nodes", "prepare",
            "forces", "residual", "relative_residual", "static_physics", "node_area_vectors", "surface_area",
-           "node_stiffness", "fibres", "Fibres", "rounding_residual_floor"]
+           "node_stiffness", "fibres", "Fibres", "rounding_residual_floor", "SHEAR_BOUND"]
 
 
 class Geometry(NamedTuple):
@@ -81,13 +89,28 @@ class KernelInputs(NamedTuple):
 
 @dataclass(frozen=True)
 class Physics:
-    """Static switches: a term that is off is absent from the compiled program."""
+    """Static switches and the fabric's law: a term that is off is absent from the compiled program.
+
+    ``law`` gives the fibres' tensions (`fibre_law.LinearLaw`, eq. 10, or a
+    fitted `fibre_law.SurfaceLaw`); ``shear_stiffness`` is ``G`` of the
+    ``T12`` terms (`shear`), N/m, a Python float: 0 leaves them out.
+    """
 
     periodic: bool
     tension_only: bool = True
     viscous: bool = False
     aerodynamic: bool = False
     gravity: bool = False
+    law: object = LinearLaw()
+    shear_stiffness: float = 0.0
+
+
+#: The shear term's share of `node_stiffness`'s modulus, in units of the shear stiffness ``G``: a cell's
+#: shear energy couples its four corners with a stiffness of order ``G (h2/h1 + 2 + h1/h2)``, which the
+#: edges' width-over-length factors carry with this modulus. Measured against the shear forces'
+#: Jacobian near the mounted shape: its row sums are at most 1.1 times this share (default bay 5x32,
+#: and ribs 0.05 m apart on 9x128), as the fibres' own are 0.8-1.7 times theirs.
+SHEAR_BOUND = 2.0
 
 
 class Reference(NamedTuple):
@@ -200,6 +223,8 @@ class Fibres(NamedTuple):
     tension_span: jnp.ndarray  # (ns-1, ncell) T11, N/m
     tension_chord: jnp.ndarray  # (ns-1, ncell) T22, N/m
     wrinkled: jnp.ndarray  # (ns-1, ncell) bool
+    strain_span: jnp.ndarray  # (ns-1, ncell) e11 = lambda1 - 1 of each cell (eq. 12)
+    strain_chord: jnp.ndarray  # (ns-1, ncell) e22
 
 
 def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) -> Fibres:
@@ -218,10 +243,7 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     cell_stretch2 = 0.5 * (stretch2[:-1] + stretch2[1:])
     e1 = cell_stretch1 - 1.0
     e2 = cell_stretch2 - 1.0
-    nu = params.poisson
-    scale = 1.0 / (1.0 - nu * nu)
-    t11 = (params.stiffness_span * e1 + nu * params.stiffness_chord * e2) * scale  # eq. (10)
-    t22 = (params.stiffness_chord * e2 + nu * params.stiffness_span * e1) * scale
+    t11, t22 = physics.law.tensions(e1, e2, params)  # eq. (10), or the fabric's fitted law
     wrinkled = (t11 < 0.0) | (t22 < 0.0)
     if physics.viscous:
         dv1 = v[1:] - v[:-1]
@@ -252,6 +274,8 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
         tension_span=t11,
         tension_chord=t22,
         wrinkled=wrinkled,
+        strain_span=e1,
+        strain_chord=e2,
     )
 
 
@@ -276,6 +300,8 @@ def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physic
     fib = fibres(x, ref, params, physics, v)
     total = scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
     total = total + scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
+    if physics.shear_stiffness:
+        total = total + shear_forces(x, ref, physics)  # the T12 terms of eq. (1), (6)
 
     area = node_area_vectors(x, periodic)
     if physics.aerodynamic:
@@ -295,17 +321,19 @@ def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physic
 def node_stiffness(x, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
     """Upper estimate of each node's stiffness, ``(ns, nc)`` N/m.
 
-    The sum over the node's edges of the axial stiffness (plane-strain
-    modulus with the Poisson coupling, times the carried width over the cut
-    length) and the geometric stiffness (edge force over edge length), plus
-    the follower pressure's ``p * h``. Dynamic relaxation scales its
-    fictitious masses to it (Gershgorin bound, so every node runs at the same
-    stable step).
+    The sum over the node's edges of the axial stiffness (the law's tangent
+    bound, `fibre_law`: for eq. 10 the plane-strain modulus with the Poisson
+    coupling; with a shear stiffness, `SHEAR_BOUND` times it more; times the
+    carried width over the cut length) and the geometric stiffness (edge
+    force over edge length), plus the follower pressure's ``p * h``. Dynamic
+    relaxation scales its fictitious masses to it (Gershgorin bound, so every
+    node runs at the same stable step).
     """
     periodic = physics.periodic
     fib = fibres(x, ref, params, static_physics(physics))
-    nu = params.poisson
-    modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) * (1.0 + nu) / (1.0 - nu * nu)
+    modulus = physics.law.stiffness_bound(params, fib.strain_span, fib.strain_chord)
+    if physics.shear_stiffness:
+        modulus = modulus + SHEAR_BOUND * physics.shear_stiffness
     k1 = modulus * fib.width1 / ref.span_length + fib.edge_force1 / jnp.where(fib.length1 > 0, fib.length1, 1.0)
     k2 = modulus * fib.width2 / ref.contour_length + fib.edge_force2 / jnp.where(fib.length2 > 0, fib.length2, 1.0)
     k1 = k1 + jnp.abs(params.pressure) * fib.length1
@@ -320,7 +348,7 @@ def node_stiffness(x, ref: Reference, params: KernelInputs, physics: Physics) ->
 
 def static_physics(physics: Physics) -> Physics:
     """The same switches without the velocity terms (equilibrium does not see them)."""
-    return Physics(physics.periodic, physics.tension_only, False, False, physics.gravity)
+    return dataclasses.replace(physics, viscous=False, aerodynamic=False)
 
 
 def residual(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
@@ -365,8 +393,9 @@ def rounding_residual_floor(ref: Reference, params: KernelInputs, physics: Physi
     """
     periodic = physics.periodic
     fib = fibres(ref.nodes, ref, params, static_physics(physics))
-    nu = params.poisson
-    modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
+    modulus = physics.law.modulus(params)
+    if physics.shear_stiffness:
+        modulus = modulus + SHEAR_BOUND * physics.shear_stiffness
     free = ref.free[..., 0] > 0
     touches1 = free[1:] | free[:-1]
     touches2 = this_j(free, periodic) | next_j(free, periodic)

@@ -81,15 +81,16 @@ def kinetic_rest_threshold(rtol, load, stiffness):
     return 0.5 * (rtol * load) ** 2 / stiffness
 
 
-def plane_strain_modulus(material):
-    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)`` of ``material`` (a `Fabric` or the kernel's
-    `forces.KernelInputs`), N/m."""
-    return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
+def plane_strain_modulus(params, physics):
+    """Stiffest plane-strain modulus of the kernel's `forces.KernelInputs` ``params`` under ``physics``'s
+    law, N/m: ``max(E11, E22) / (1 - nu^2)`` for eq. (10), the largest diagonal tangent over the tested
+    range for a fitted law (`model.fibre_law`)."""
+    return physics.law.modulus(params)
 
 
-def wave_speed(material):
-    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16) in ``material``, m/s."""
-    return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
+def wave_speed(params, physics):
+    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s."""
+    return jnp.sqrt(plane_strain_modulus(params, physics) / params.areal_density)
 
 
 def stable_time_step(courant, h_min, wave_speed, params, physics):
@@ -125,9 +126,9 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
             lambda a: jnp.asarray(a).astype(dtype),
             (geometry, params, x_init, ramp_time, courant, divergence_bound))
     ref = fk.prepare(geometry, params, physics)
-    e_max = plane_strain_modulus(params)
+    e_max = plane_strain_modulus(params, physics)
     h_min = jnp.minimum(jnp.min(ref.span_length), jnp.min(ref.contour_length))
-    dt = stable_time_step(courant, h_min, wave_speed(params), params, physics)
+    dt = stable_time_step(courant, h_min, wave_speed(params, physics), params, physics)
     mass = (params.areal_density * ref.node_area)[..., None]
     load = params.pressure * ref.skin_area
     ke_rest = kinetic_rest_threshold(rtol.astype(load.dtype), load, e_max)
