@@ -35,10 +35,12 @@ import numpy as np
 from .readings import BiaxialTest, TestFileError
 from .surface import EnergySurface, monomials
 
-__all__ = ["DEGREES", "FittedLaw", "fit_law", "tested_points"]
+__all__ = ["DEGREES", "FIT_WARNING", "FittedLaw", "fit_law", "points_on_paths"]
 
 #: The degrees of the surface tried, highest first (4: cubic tensions).
 DEGREES = (4, 3, 2)
+#: The fit's largest error, as a fraction of the largest tension tested, beyond which a design warns.
+FIT_WARNING = 0.05
 #: Points put between consecutive readings of a path where the tangent must be positive-definite.
 _BETWEEN = 3
 
@@ -58,6 +60,7 @@ class FittedLaw:
         source: the test file's name.
         digest: the first 16 hex digits of the file's SHA-256.
         notes: what the fit chose (the degree, and why where it is not the highest).
+        largest_tension: ``(warp, weft)`` the largest tension read, N/m.
     """
 
     surface: EnergySurface
@@ -71,6 +74,7 @@ class FittedLaw:
     source: str
     digest: str
     notes: tuple = ()
+    largest_tension: tuple = (math.nan, math.nan)
 
     def tensions(self, e_warp, e_weft, xp=np):
         """``(T_warp, T_weft)``, N/m (`surface.EnergySurface.tensions`)."""
@@ -91,9 +95,22 @@ class FittedLaw:
                 "tested_strain": {k: list(v) for k, v in self.strain_range.items()},
                 "fit_error_n_per_m": {"rms": {"warp": self.rms_error[0], "weft": self.rms_error[1]},
                                       "max": {"warp": self.max_error[0], "weft": self.max_error[1]}},
+                "largest_tension_n_per_m": {"warp": self.largest_tension[0], "weft": self.largest_tension[1]},
                 "nominal": {"stiffness_warp_n_per_m": self.stiffness_warp,
                             "stiffness_weft_n_per_m": self.stiffness_weft, "poisson": self.poisson},
                 "notes": list(self.notes)}
+
+    def fit_warning(self) -> str | None:
+        """One line when the fit misses a reading by more than `FIT_WARNING` of the largest tension tested
+        (the law does not follow the test there), else None."""
+        full = max(self.largest_tension)
+        worst = max(self.max_error)
+        if not worst > FIT_WARNING * full:
+            return None
+        return (f"the fibre law fitted to {self.source} misses a reading by {worst:.4g} N/m, "
+                f"{100 * worst / full:.3g}% of the largest tension tested ({full:.4g} N/m; surface of degree "
+                f"{self.surface.degree}): check the readings, or read the design as that uncertain "
+                "(docs/fabric_test.md)")
 
     def describe(self) -> str:
         """One paragraph: the law, its fit and its tested range, in words."""
@@ -106,7 +123,7 @@ class FittedLaw:
                 f"weft {self.stiffness_weft:.4g} N/m, coupling {self.poisson:.3g}")
 
 
-def tested_points(test: BiaxialTest) -> tuple:
+def points_on_paths(test: BiaxialTest) -> tuple:
     """``(e_warp, e_weft)``: the strains along every tested path, where the fitted tangent must be
     positive-definite (each reading, `_BETWEEN` points between consecutive readings of a path, and as
     many from zero strain to a path's first reading)."""
@@ -154,7 +171,7 @@ def fit_law(test: BiaxialTest, degree: int | None = None) -> FittedLaw:
         TestFileError: when no surface (or not the one of ``degree``) has a positive-definite
             tangent along the tested paths, naming the strains where it fails.
     """
-    points = tested_points(test)
+    points = points_on_paths(test)
     linear = _least_squares(test, 2)
     kww, kwf, kff = linear.tangent(0.0, 0.0)
     if not (kww > 0 and kff > 0 and kww * kff > kwf * kwf):
@@ -180,4 +197,5 @@ def fit_law(test: BiaxialTest, degree: int | None = None) -> FittedLaw:
                      stiffness_weft=float(kff - kwf * kwf / kww), poisson=float(kwf / math.sqrt(kww * kff)),
                      rms_error=tuple(float(np.sqrt(np.mean(e * e))) for e in errors),
                      max_error=tuple(float(np.max(np.abs(e))) for e in errors), readings=test.size,
-                     paths=test.path_labels, source=test.source, digest=test.digest, notes=tuple(notes))
+                     paths=test.path_labels, source=test.source, digest=test.digest, notes=tuple(notes),
+                     largest_tension=(float(np.max(test.tension_warp)), float(np.max(test.tension_weft))))

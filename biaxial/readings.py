@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["COLUMNS", "MIN_READINGS", "PATH_ANGLE", "BiaxialTest", "TestFileError", "read_test", "path_label",
-           "test_from_arrays"]
+           "readings_from_arrays"]
 
 #: The columns a test file must have, in the order `BiaxialTest` holds them.
 COLUMNS = ("strain_warp", "strain_weft", "tension_warp", "tension_weft")
@@ -164,11 +164,11 @@ def read_test(path) -> BiaxialTest:
         labels.append(cells[index["load_ratio"]].strip() if "load_ratio" in index else None)
         lines.append(line)
     array = np.array(values, np.float64).reshape(-1, 4)
-    return test_from_arrays(*array.T, paths=None if "load_ratio" not in index else labels, source=name,
+    return readings_from_arrays(*array.T, paths=None if "load_ratio" not in index else labels, source=name,
                             digest=hashlib.sha256(raw).hexdigest()[:16], lines=lines)
 
 
-def test_from_arrays(strain_warp, strain_weft, tension_warp, tension_weft, paths=None, source: str = "readings",
+def readings_from_arrays(strain_warp, strain_weft, tension_warp, tension_weft, paths=None, source: str = "readings",
                      digest: str | None = None, lines=None) -> BiaxialTest:
     """A `BiaxialTest` of readings given as arrays, checked as `read_test` checks a file.
 

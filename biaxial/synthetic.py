@@ -6,7 +6,9 @@ cruciform specimen) in equal steps of the larger arm's tension, and records
 the strains where the law carries each load (its inverse, by Newton's
 method), with optional noise on the tensions. The checks use it (a law
 recovered from its own readings), and it made the example test shipped
-with the command (`EXAMPLE_TEST`, `example_surface`): labelled synthetic.
+with the command (`example_readings` of `example_surface`, written by
+`write_test` as ``inverse_design/cases/fabric_test_example.csv``): labelled
+synthetic.
 """
 
 from __future__ import annotations
@@ -15,16 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .readings import BiaxialTest, path_label, test_from_arrays
+from .readings import BiaxialTest, path_label, readings_from_arrays
 from .surface import EnergySurface, monomials
 
-__all__ = ["EXAMPLE_TEST", "STANDARD_PATHS", "example_readings", "example_surface", "linear_law",
+__all__ = ["EXAMPLE_HEADER", "EXAMPLE_LAW", "EXAMPLE_LOAD", "STANDARD_PATHS", "example_readings", "example_surface", "linear_law",
            "synthetic_test", "write_test"]
 
 #: The load-ratio paths of a standard biaxial test, warp:weft.
 STANDARD_PATHS = ((1, 1), (2, 1), (1, 2), (1, 0), (0, 1))
-#: The example test file shipped with the command (package data of ``inverse_design``).
-EXAMPLE_TEST = Path(__file__).resolve().parents[1] / "inverse_design" / "cases" / "fabric_test_example.csv"
 
 
 def linear_law(stiffness_warp: float, stiffness_weft: float, poisson: float):
@@ -84,7 +84,7 @@ def synthetic_test(law, max_tension: float, steps: int = 10, paths=STANDARD_PATH
             columns.append([e[0], e[1], *recorded])
             labels.append(path_label(*ratio))
     array = np.array(columns)
-    return test_from_arrays(*array.T, paths=labels, source=source)
+    return readings_from_arrays(*array.T, paths=labels, source=source)
 
 
 def write_test(path, test: BiaxialTest, header: str = "") -> Path:
@@ -122,5 +122,15 @@ def example_surface(law: dict = EXAMPLE_LAW, strain_range=((-0.1, 0.1), (-0.1, 0
 
 
 def example_readings() -> BiaxialTest:
-    """The example test's readings (`EXAMPLE_TEST` holds them, rounded as `write_test` writes them)."""
-    return synthetic_test(example_surface().polynomial_tensions, source=EXAMPLE_TEST.name, **EXAMPLE_LOAD)
+    """The example test's readings (the shipped file holds them, rounded as `write_test` writes them)."""
+    return synthetic_test(example_surface().polynomial_tensions, source="fabric_test_example.csv", **EXAMPLE_LOAD)
+
+
+#: The comment lines at the head of the example file.
+EXAMPLE_HEADER = """SYNTHETIC biaxial test: not a measured fabric. Readings of a known law (docs/fabric_test.md,
+"The example"), made by biaxial.synthetic.example_readings: a woven fabric that is soft at low strain and
+stiffens (crimp interchange), warp stiffer than weft, its warp stiffer when the weft is stretched:
+T_warp = 1.4e5 e_w + 0.35e5 e_f + 1.0e6 e_w^2 + 3.0e7 e_w^3 + 1.0e6 e_w e_f
+T_weft = 0.9e5 e_f + 0.35e5 e_w + 1.5e6 e_f^2 + 4.0e7 e_f^3 + 0.5e6 e_w^2       (N/m, strains as fractions)
+Five load-ratio paths warp:weft (1:1, 2:1, 1:2, 1:0, 0:1) to 8 kN/m on the larger arm in ten steps,
+tensions recorded with 0.5% noise (seed 2024)."""
