@@ -1,8 +1,8 @@
 """The fibre strains a design reaches against the strains its fabric's test covered.
 
-A fibre law fitted to a biaxial test (`biaxial.fit_law`) is trusted over the
+A fibre law fitted to a biaxial test (`model.biaxial.fit_law`) is trusted over the
 strains the test covered; beyond them it is continued along its tangent
-(`biaxial.surface`). `strain_range` gives the least and largest cell strain
+(`model.biaxial.surface`). `strain_range` gives the least and largest cell strain
 of every bay of an equilibrium, per wing direction; `outside_tested_range`
 the one line that says where they leave the tested range, which a design,
 a single equilibrium and the Monte Carlo samples of a tolerance analysis

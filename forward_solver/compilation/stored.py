@@ -39,7 +39,7 @@ import jaxlib
 __all__ = ["stored_jit", "use_program_store", "program_store"]
 
 #: The packages whose source shapes the programs.
-_PACKAGES = ("forward_solver", "inverse_design", "targets", "biaxial")
+_PACKAGES = ("forward_solver", "inverse_design", "targets")
 _FOLDER: Path | None = None
 _VERSION: str | None = None
 _LOCK = threading.Lock()

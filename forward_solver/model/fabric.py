@@ -6,8 +6,7 @@ import math
 from dataclasses import dataclass
 from functools import cached_property
 
-from biaxial import FittedLaw, fit_law, read_test
-
+from .biaxial import FittedLaw, fit_law, read_test
 from .fibre_law import LinearLaw, SurfaceLaw
 
 __all__ = ["DEFAULT_STIFFNESS", "DEFAULT_POISSON", "WARP_DIRECTIONS", "Fabric"]
@@ -35,7 +34,7 @@ class Fabric:
 
     with ``e = lambda - 1`` the engineering elongation of a fibre direction
     against its cut (reference) length and ``nu12 = nu21 = poisson``. With
-    ``law``, a law fitted to the fabric's biaxial test (`biaxial.fit_law`;
+    ``law``, a law fitted to the fabric's biaxial test (`model.biaxial.fit_law`;
     `from_test` reads and fits a file), the elastic part is the law's
     strain-energy surface instead (docs/fabric_test.md), its warp along
     ``warp``; each wing direction's tensions are then scaled by its
@@ -56,7 +55,7 @@ class Fabric:
         viscosity: viscous friction eta of eq. (10), N*s/m. Dynamic only.
         allowable_tension: largest fibre tension the fabric may carry, N/m
             (a design constraint; ``inf`` means none).
-        law: None (eq. 10), or the `biaxial.FittedLaw` of the fabric's biaxial test.
+        law: None (eq. 10), or the `model.biaxial.FittedLaw` of the fabric's biaxial test.
         warp: where the warp (the roll's length, the test's warp) runs on the wing: "span" (the
             default) or "chord". With eq. (10) it only says which way the patterns' warp arrow points.
         shear_stiffness: ``G`` of ``T12 = G gamma``, N/m, 0 or more (default 0, as the paper takes it;
@@ -78,7 +77,7 @@ class Fabric:
 
     def __post_init__(self) -> None:
         if self.law is not None and not isinstance(self.law, FittedLaw):
-            raise TypeError(f"law must be a biaxial.FittedLaw (biaxial.fit_law) or None, got {type(self.law).__name__}")
+            raise TypeError(f"law must be a forward_solver.FittedLaw (forward_solver.fit_law) or None, got {type(self.law).__name__}")
         if self.warp not in WARP_DIRECTIONS:
             raise ValueError(f"warp must be 'span' or 'chord' (where the warp runs on the wing), got {self.warp!r}")
         if self.law is not None and self.poisson is not None:
@@ -107,8 +106,8 @@ class Fabric:
     @classmethod
     def from_test(cls, path, *, warp: str = "span", shear_stiffness: float = 0.0, degree: int | None = None,
                   **fields) -> "Fabric":
-        """The fabric whose law is fitted to the biaxial test file ``path`` (`biaxial.read_test`,
-        `biaxial.fit_law`; docs/fabric_test.md), its warp along ``warp``.
+        """The fabric whose law is fitted to the biaxial test file ``path`` (`model.biaxial.read_test`,
+        `model.biaxial.fit_law`; docs/fabric_test.md), its warp along ``warp``.
 
         Args:
             path: the test file (CSV).
@@ -119,7 +118,7 @@ class Fabric:
             **fields: other `Fabric` fields (``areal_density``, ``allowable_tension``, ...).
 
         Raises:
-            biaxial.TestFileError: one line, for a file that cannot be fitted.
+            model.biaxial.TestFileError: one line, for a file that cannot be fitted.
         """
         return cls(law=fit_law(read_test(path), degree), warp=warp, shear_stiffness=shear_stiffness, **fields)
 

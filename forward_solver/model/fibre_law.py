@@ -12,9 +12,9 @@ kernel's `forces.KernelInputs`. Two laws:
   with the traced ``E11 = stiffness_span``, ``E22 = stiffness_chord`` and
   ``nu = poisson``: the default, the same arithmetic as before there were
   laws, so its results do not change by a digit.
-* `SurfaceLaw`, a law fitted to a biaxial test (`biaxial.FittedLaw`): the
+* `SurfaceLaw`, a law fitted to a biaxial test (`model.biaxial.FittedLaw`): the
   tensions of a strain-energy surface ``W(e_warp, e_weft)``
-  (`biaxial.surface.EnergySurface`, its coefficients Python floats), the
+  (`model.biaxial.surface.EnergySurface`, its coefficients Python floats), the
   warp along the span or the chord, each wing direction's tensions scaled
   by its traced stiffness over the law's nominal one (a fabric lot's
   stiffness scatter; 1 at the nominal stiffness).
@@ -26,7 +26,7 @@ Each law also bounds its tangent, for the relaxation's fictitious masses
 of the tangent) and `modulus` (its largest diagonal entry). For eq. (10)
 they are ``max(E) (1 + nu) / (1 - nu^2)`` and ``max(E) / (1 - nu^2)`` at
 every strain. A fitted law's tangent varies: its bound is the larger of the
-bound over the tested range (computed once, `biaxial.EnergySurface.tangent_bounds`)
+bound over the tested range (computed once, `model.biaxial.EnergySurface.tangent_bounds`)
 and the tangent at the cells' current strains (two forward derivatives over
 the grid), so that strains the solve reaches beyond the test are followed
 as the masses are refreshed (every chunk and every kinetic-energy peak,
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from biaxial.surface import EnergySurface
+from .biaxial.surface import EnergySurface
 
 __all__ = ["LinearLaw", "SurfaceLaw"]
 
@@ -73,11 +73,11 @@ class SurfaceLaw:
     """A fitted strain-energy surface in the wing's directions (module docstring).
 
     Attributes:
-        surface: the law in the test's warp and weft (`biaxial.EnergySurface`).
+        surface: the law in the test's warp and weft (`model.biaxial.EnergySurface`).
         warp_along_span: the warp runs along the span (else along the chord).
         nominal_span, nominal_chord: the law's nominal stiffness along the span and the chord, N/m: the
             stiffness at which its scale is 1.
-        bounds: the tangent's bounds over the tested range (`biaxial.EnergySurface.tangent_bounds`), as
+        bounds: the tangent's bounds over the tested range (`model.biaxial.EnergySurface.tangent_bounds`), as
             ``(row_warp, row_weft, diagonal_warp, diagonal_weft)``, N/m.
     """
 

@@ -4,7 +4,7 @@ Written from eq. (10), (12)-(15) with ``np.add.at``, sharing no code with
 `forward_solver.forces`: every cell computes its own edge vectors, averaged
 stretches, tensions, the forces its fibres carry along its four edges, and
 the pressure on its four quarter-cells. A fabric with a fitted law takes its
-tensions from the law's surface (`biaxial`, in NumPy) in the wing's
+tensions from the law's surface (`model.biaxial`, in NumPy) in the wing's
 directions, scaled by the stiffnesses; a shear stiffness adds each cell's
 ``T12`` forces from the derivative of its angle, written out by hand (the
 kernel differentiates the shear energy with JAX). If the JAX kernel and this

@@ -96,7 +96,7 @@ class Case:
             two ribs take one rib shape and one cut field, as `inverse_design.optimise_pressure`'s).
         notes: the warnings raised while the case was read (a section renormalised to unit chord, ...):
             the run shows them with its own and records them in the summary.
-        law: the fibre law fitted to ``--fabric-test`` (a `biaxial.FittedLaw`), or None (eq. 10).
+        law: the fibre law fitted to ``--fabric-test`` (a `model.biaxial.FittedLaw`), or None (eq. 10).
     """
 
     options: Options
@@ -383,14 +383,14 @@ MAX_SEAM_ALLOWANCE_MM = 1000.0
 
 
 def _fabric_law(o: Options):
-    """The fibre law fitted to ``--fabric-test`` (`biaxial`: read, checked and fitted, NumPy only), or None.
+    """The fibre law fitted to ``--fabric-test`` (`forward_solver.model.biaxial`: read, checked and fitted), or None.
 
     Raises:
         InputError: the test file's own line (it names the file, where and what to change; docs/errors.md).
     """
     if o.fabric_test is None:
         return None
-    from biaxial import TestFileError, fit_law, read_test  # (worker: imported through cli by every report worker)
+    from forward_solver.model.biaxial import TestFileError, fit_law, read_test  # (worker: imported through cli by every report worker)
 
     if not str(o.fabric_test).strip():
         raise InputError("--fabric-test: the test file is an empty name (an unset shell variable?); give the CSV of "

@@ -32,7 +32,7 @@ FABRIC_KEYS = ("test", "warp", "shear-stiffness", "stiffness-span", "stiffness-c
 RIB_KEYS = (("section", "chord", "station"), ("target",))
 #: The built-in example: a 3-bay tapered NACA 2412 wing.
 EXAMPLE_CASE = Path(__file__).parents[1] / "cases" / "wing_taper.toml"
-#: The example biaxial test of a fabric (synthetic: `biaxial.synthetic.example_readings`; docs/fabric_test.md).
+#: The example biaxial test of a fabric (synthetic: `model.biaxial.synthetic.example_readings`; docs/fabric_test.md).
 EXAMPLE_FABRIC_TEST = Path(__file__).parents[1] / "cases" / "fabric_test_example.csv"
 
 

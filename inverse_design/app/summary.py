@@ -168,7 +168,7 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
 
 
 def _law(fabric) -> dict:
-    """``case.fabric.law``: eq. (10), or the fitted law's record (`biaxial.FittedLaw.as_dict`: its
+    """``case.fabric.law``: eq. (10), or the fitted law's record (`model.biaxial.FittedLaw.as_dict`: its
     coefficients, fit errors, tested strains) with the tested strains in the wing's directions."""
     if fabric.law is None:
         return {"kind": "linear, eq. 10", "stiffness_span_n_per_m": fabric.stiffness_span,

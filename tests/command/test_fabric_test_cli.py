@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from biaxial.synthetic import linear_law, synthetic_test
+from forward_solver.model.biaxial.synthetic import linear_law, synthetic_test
 from inverse_design.app import cli
 from inverse_design.app.case import Case
 from inverse_design.app.case_file import EXAMPLE_FABRIC_TEST

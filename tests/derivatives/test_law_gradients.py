@@ -12,8 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biaxial import fit_law
-from biaxial.synthetic import example_readings
+from forward_solver.model.biaxial import fit_law
+from forward_solver.model.biaxial.synthetic import example_readings
 from forward_solver import Fabric, Parameters, solve_equilibrium
 from support.solver import default_scene
 

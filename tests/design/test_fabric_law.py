@@ -11,8 +11,8 @@ import warnings
 import numpy as np
 import pytest
 
-from biaxial import fit_law
-from biaxial.synthetic import example_readings, linear_law, synthetic_test
+from forward_solver.model.biaxial import fit_law
+from forward_solver.model.biaxial.synthetic import example_readings, linear_law, synthetic_test
 from forward_solver import Fabric, Scene, Wing
 from inverse_design import SolverSettings, evaluate_design, optimise_pressure
 from inverse_design.fabric_range import FabricRangeWarning, strain_range

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from biaxial import fit_law
-from biaxial.synthetic import example_readings
+from forward_solver.model.biaxial import fit_law
+from forward_solver.model.biaxial.synthetic import example_readings
 
 from forward_solver import Bay, Fabric, Scene, solve_equilibrium
 from forward_solver.reference.closed_forms import cylinder_radius, hoop_tension

@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biaxial import fit_law
-from biaxial.synthetic import example_readings, linear_law, synthetic_test
+from forward_solver.model.biaxial import fit_law
+from forward_solver.model.biaxial.synthetic import example_readings, linear_law, synthetic_test
 from forward_solver import Bay, Fabric, Scene, simulate, solve_equilibrium
 from forward_solver import forces as fk
 from forward_solver.model.fibre_law import LinearLaw, SurfaceLaw

@@ -1,4 +1,4 @@
-"""A shop's biaxial test read, checked and fitted (`biaxial`): NumPy only, no solve.
+"""A shop's biaxial test read, checked and fitted (`forward_solver.model.biaxial`): NumPy only, no solve.
 
 The fit is exact for readings of a reciprocal linear law (eq. 10 with equal
 stiffnesses among them), recovers a known nonlinear law from noisy readings,
@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biaxial import TestFileError, fit_law, read_test
-from biaxial.fit import points_on_paths
-from biaxial.readings import MIN_READINGS, readings_from_arrays
-from biaxial.synthetic import (EXAMPLE_HEADER, STANDARD_PATHS, example_readings, example_surface, linear_law,
+from forward_solver.model.biaxial import TestFileError, fit_law, read_test
+from forward_solver.model.biaxial.fit import points_on_paths
+from forward_solver.model.biaxial.readings import MIN_READINGS, readings_from_arrays
+from forward_solver.model.biaxial.synthetic import (EXAMPLE_HEADER, STANDARD_PATHS, example_readings, example_surface, linear_law,
                                synthetic_test, write_test)
 from inverse_design.app.case_file import EXAMPLE_FABRIC_TEST
 

@@ -19,8 +19,8 @@ where, and what to change (`TestFileError`): fewer than `MIN_READINGS`
 readings, a single load-ratio path, a value that is not a number (NaN
 included), strains that look like percent (the largest over 1), a negative
 tension, or along a path a tension that falls while its strain grows, or at
-all (an unloading branch). NumPy only: the command reads the file before it
-imports JAX.
+all (an unloading branch). NumPy only, like the fit: the command reads and
+fits the file as it reads its case, before any solve.
 """
 
 from __future__ import annotations

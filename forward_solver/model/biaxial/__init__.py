@@ -1,4 +1,4 @@
-"""The shop's biaxial test of its fabric, and the fibre law fitted to it (NumPy only: no JAX).
+"""The shop's biaxial test of its fabric, and the fibre law fitted to it (NumPy only, the bottom of the model layer).
 
 ``read_test`` reads and checks a test file (`readings`: one line naming the
 file and what to change for a file that cannot be fitted, `TestFileError`);

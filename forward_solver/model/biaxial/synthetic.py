@@ -128,8 +128,8 @@ def example_readings() -> BiaxialTest:
 
 #: The comment lines at the head of the example file.
 EXAMPLE_HEADER = """SYNTHETIC biaxial test: not a measured fabric. Readings of a known law (docs/fabric_test.md,
-"The example"), made by biaxial.synthetic.example_readings: a woven fabric that is soft at low strain and
-stiffens (crimp interchange), warp stiffer than weft, its warp stiffer when the weft is stretched:
+"The example"), made by forward_solver.model.biaxial.synthetic.example_readings: a woven fabric that is soft at low
+strain and stiffens (crimp interchange), warp stiffer than weft, its warp stiffer when the weft is stretched:
 T_warp = 1.4e5 e_w + 0.35e5 e_f + 1.0e6 e_w^2 + 3.0e7 e_w^3 + 1.0e6 e_w e_f
 T_weft = 0.9e5 e_f + 0.35e5 e_w + 1.5e6 e_f^2 + 4.0e7 e_f^3 + 0.5e6 e_w^2       (N/m, strains as fractions)
 Five load-ratio paths warp:weft (1:1, 2:1, 1:2, 1:0, 0:1) to 8 kN/m on the larger arm in ten steps,
