@@ -32,6 +32,7 @@ import scipy
 
 from forward_solver import Bay, Fabric, PressureRamp, Relax, Scene, simulate, solve_equilibrium
 from forward_solver import forces as fk
+from forward_solver.stencils import safe_norm
 from forward_solver.reference.closed_forms import (
     circle_contour,
     cylinder_radius,
@@ -185,7 +186,7 @@ def pressure_resultants():
         ref = fk.prepare(tube.geometry(), params, scene.physics(dynamic=False))
         x = _perturbed(tube, ref, 0, 0.02)
         area = fk.node_area_vectors(x, True)
-        closure = float(fk.safe_norm(jnp.sum(area, axis=(0, 1))) / jnp.sum(fk.safe_norm(area)))
+        closure = float(safe_norm(jnp.sum(area, axis=(0, 1))) / jnp.sum(safe_norm(area)))
     return [
         Row("Pressure on a flat panel", "p A along the normal (the triangles of eq. 15 tile it)",
             "1e-13 relative (round-off)", f"{panel_error:.1e}", panel_error < 1e-13, "6x9",

@@ -13,7 +13,9 @@ strings naming the defaults::
 contours (`model.rib_shape`) and `rib_section` is the designed rib as an
 airfoil. The layers are folders (docs/architecture.md): `model`, `forces`
 (the kernel), `solvers`, `derivatives`, `reference` (independent checks)
-and `compilation` (which the physics never imports). Importing this package
+and `compilation` (which the physics never imports). A fabric's biaxial test
+is read and fitted by ``read_test`` and ``fit_law`` (`model.biaxial`, NumPy
+only; docs/fabric_test.md), and the fit is ``Fabric(law=...)``. Importing this package
 changes no JAX configuration: solvers run in float64 inside a thread-local
 ``jax.enable_x64`` scope (`precision`).
 """
@@ -23,6 +25,10 @@ from .derivatives.implicit import SparseLU as SparseLU
 from .derivatives.krylov import BiCGStab as BiCGStab
 from .derivatives.unrolled import UnrolledAdjoint as UnrolledAdjoint
 from .model.bay import Bay as Bay
+from .model.biaxial import FittedLaw as FittedLaw
+from .model.biaxial import TestFileError as TestFileError
+from .model.biaxial import fit_law as fit_law
+from .model.biaxial import read_test as read_test
 from .model.fabric import Fabric as Fabric
 from .model.parameters import Parameters as Parameters
 from .model.rib_shape import rib_section as rib_section
@@ -47,6 +53,6 @@ from .solvers.methods import Relax as Relax
 from .solvers.methods import RelaxNewton as RelaxNewton
 
 __all__ = ["Auto", "Batch", "Bay", "BaysSolution", "BiCGStab", "ConvergenceError", "DEFAULT_COURANT", "Explicit",
-           "Fabric", "ImplicitAdjoint", "Loop", "Newton", "Parameters", "PressureRamp", "Relax", "RelaxNewton",
-           "Result", "rib_section", "Scene", "Solution", "SparseLU", "simulate", "solve_equilibrium", "solve_bays",
-           "solve_wing", "UnrolledAdjoint", "Wing"]
+           "Fabric", "FittedLaw", "ImplicitAdjoint", "Loop", "Newton", "Parameters", "PressureRamp", "Relax", "RelaxNewton",
+           "Result", "read_test", "rib_section", "Scene", "Solution", "SparseLU", "simulate", "fit_law", "solve_equilibrium", "solve_bays",
+           "solve_wing", "TestFileError", "UnrolledAdjoint", "Wing"]

@@ -7,9 +7,11 @@ Discretisation of paper eq. (10)-(15) on the structured grid of a `Bay`:
   ``h = nominal length / (1 + prestrain)``, and unit vectors (direction
   cosines, eq. 13).
 * Each cell ``(i+1/2, j+1/2)`` averages the stretches of its two span edges
-  and of its two contour edges (eq. 12) and takes the tensions of eq. (10)
-  with elongations ``e = lambda - 1``; with ``tension_only`` a negative
-  tension is clamped to zero (the fabric wrinkles instead).
+  and of its two contour edges (eq. 12) and takes the tensions of the
+  fabric's law (`Physics.law`: eq. 10, or a law fitted to a biaxial test,
+  `model.fibre_law`) with elongations ``e = lambda - 1``; with
+  ``tension_only`` a negative tension is clamped to zero (the fabric
+  wrinkles instead).
 * The force that the span fibres carry across a cell is ``T11 lambda2 h2``
   (the ``{T11 lambda2}`` terms of eq. 14); half of it acts along each of the
   cell's two span edges, on the edge's current direction (eq. 13). Contour
@@ -18,26 +20,34 @@ Discretisation of paper eq. (10)-(15) on the structured grid of a `Bay`:
   the eight triangles between it, its edge midpoints and its cell centres
   (eq. 15), which is the quarter-quadrilateral ``(B - O) x (C - A) / 2`` of
   each adjacent cell.
+* With a shear stiffness (`Physics.shear_stiffness`), the ``T12`` terms of
+  eq. (1) and (6) from the shear angle of eq. (8)-(9) (`shear`).
 
 The law is not conservative in general (eq. 10 with ``nu12 E22 != nu21 E11``
 and a follower load), so solvers work on the force residual, not an energy.
 Everything here is a pure function of arrays: geometry and parameters are
-traced, only the grid shape and the `Physics` switches are static.
+traced, only the grid shape and the `Physics` switches (the law and the
+shear stiffness among them) are static.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import jax.numpy as jnp
 
 from .model.cut_field import local_prestrain
+from .model.fibre_law import LinearLaw
 from .model.rib_shape import rib_offsets
+from .shear import shear_forces
+from .stencils import (cell_corners, contour_edge_sum, next_j, safe_norm, scatter_cell_corners, scatter_contour_edges,
+                       scatter_span_edges, span_edge_sum, this_j)
 
 __all__ = ["Geometry", "KernelInputs", "Physics", "Reference", "Forces", "nominal_nodes", "mounted_nodes", "prepare",
            "forces", "residual", "relative_residual", "static_physics", "node_area_vectors", "surface_area",
-           "node_stiffness", "fibres", "Fibres", "safe_norm", "rounding_residual_floor"]
+           "node_stiffness", "fibres", "Fibres", "rounding_residual_floor", "SHEAR_BOUND"]
 
 
 class Geometry(NamedTuple):
@@ -79,13 +89,28 @@ class KernelInputs(NamedTuple):
 
 @dataclass(frozen=True)
 class Physics:
-    """Static switches: a term that is off is absent from the compiled program."""
+    """Static switches and the fabric's law: a term that is off is absent from the compiled program.
+
+    ``law`` gives the fibres' tensions (`fibre_law.LinearLaw`, eq. 10, or a
+    fitted `fibre_law.SurfaceLaw`); ``shear_stiffness`` is ``G`` of the
+    ``T12`` terms (`shear`), N/m, a Python float: 0 leaves them out.
+    """
 
     periodic: bool
     tension_only: bool = True
     viscous: bool = False
     aerodynamic: bool = False
     gravity: bool = False
+    law: object = LinearLaw()
+    shear_stiffness: float = 0.0
+
+
+#: The shear term's share of `node_stiffness`'s modulus, in units of the shear stiffness ``G``: a cell's
+#: shear energy couples its four corners with a stiffness of order ``G (h2/h1 + 2 + h1/h2)``, which the
+#: edges' width-over-length factors carry with this modulus. Measured against the shear forces'
+#: Jacobian near the mounted shape: its row sums are at most 1.1 times this share (default bay 5x32,
+#: and ribs 0.05 m apart on 9x128), as the fibres' own are 0.8-1.7 times theirs.
+SHEAR_BOUND = 2.0
 
 
 class Reference(NamedTuple):
@@ -106,77 +131,6 @@ class Forces(NamedTuple):
     tension_span: jnp.ndarray  # (ns-1, ncell) T11, N/m
     tension_chord: jnp.ndarray  # (ns-1, ncell) T22, N/m
     wrinkled: jnp.ndarray  # (ns-1, ncell) bool: a fibre tension would be compressive
-
-
-def safe_norm(v: jnp.ndarray, axis: int = -1) -> jnp.ndarray:
-    """Euclidean norm whose gradient stays finite at zero (double-``where``).
-
-    NaN stays NaN (so a stop test on a norm can never pass on a NaN state).
-    """
-    sq = jnp.sum(v * v, axis=axis)
-    nonzero = sq > 0.0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), sq)
-
-
-# --------------------------------------------------------------- grid stencils
-def _next_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """``a[:, j+1]`` for every contour edge (wrapping on a closed contour)."""
-    return jnp.roll(a, -1, axis=1) if periodic else a[:, 1:]
-
-
-def _this_j(a: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """``a[:, j]`` for every contour edge (all of them on a closed contour)."""
-    return a if periodic else a[:, :-1]
-
-
-def _contour_edge_sum(c: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """Sum the cell values on both sides of each span edge (along j)."""
-    if periodic:
-        return c + jnp.roll(c, 1, axis=1)
-    return jnp.pad(c, ((0, 0), (1, 0))) + jnp.pad(c, ((0, 0), (0, 1)))
-
-
-def _span_edge_sum(c: jnp.ndarray) -> jnp.ndarray:
-    """Sum the cell values on both sides of each contour edge (along i)."""
-    pad = [(1, 0), (0, 0)] + [(0, 0)] * (c.ndim - 2)
-    pad_hi = [(0, 1), (0, 0)] + [(0, 0)] * (c.ndim - 2)
-    return jnp.pad(c, pad) + jnp.pad(c, pad_hi)
-
-
-def _scatter_span_edges(f: jnp.ndarray) -> jnp.ndarray:
-    """Nodal sum of edge vectors ``f`` acting ``+f`` on node i and ``-f`` on i+1."""
-    return jnp.pad(f, ((0, 1), (0, 0), (0, 0))) - jnp.pad(f, ((1, 0), (0, 0), (0, 0)))
-
-
-def _scatter_contour_edges(f: jnp.ndarray, periodic: bool) -> jnp.ndarray:
-    """Nodal sum of edge vectors acting ``+f`` on node j and ``-f`` on j+1."""
-    if periodic:
-        return f - jnp.roll(f, 1, axis=1)
-    return jnp.pad(f, ((0, 0), (0, 1), (0, 0))) - jnp.pad(f, ((0, 0), (1, 0), (0, 0)))
-
-
-def _scatter_cell_corners(c00, c10, c11, c01, periodic: bool) -> jnp.ndarray:
-    """Nodal sum of per-cell values given at the cell's four corners.
-
-    ``c00`` belongs to node (i, j), ``c10`` to (i+1, j), ``c11`` to
-    (i+1, j+1), ``c01`` to (i, j+1); cells are (ns-1, ncell, ...).
-    """
-    def pad_i(a, lo):
-        return jnp.pad(a, [(lo, 1 - lo)] + [(0, 0)] * (a.ndim - 1))
-
-    at_j = pad_i(c00, 0) + pad_i(c10, 1)  # contributions to the cell's j column
-    at_j1 = pad_i(c01, 0) + pad_i(c11, 1)  # contributions to its j+1 column
-    if periodic:
-        return at_j + jnp.roll(at_j1, 1, axis=1)
-    pad_lo = [(0, 0), (0, 1)] + [(0, 0)] * (at_j.ndim - 2)
-    pad_hi = [(0, 0), (1, 0)] + [(0, 0)] * (at_j.ndim - 2)
-    return jnp.pad(at_j, pad_lo) + jnp.pad(at_j1, pad_hi)
-
-
-def _cell_corners(x: jnp.ndarray, periodic: bool):
-    """The four corner arrays (n00, n10, n11, n01) of every cell."""
-    lo, hi = x[:-1], x[1:]
-    return _this_j(lo, periodic), _this_j(hi, periodic), _next_j(hi, periodic), _next_j(lo, periodic)
 
 
 # ------------------------------------------------------------------ reference
@@ -223,19 +177,19 @@ def prepare(geometry: Geometry, params: KernelInputs, physics: Physics) -> Refer
     x0 = mounted_nodes(geometry, params)
     prestrain_span, prestrain_chord = local_prestrain(geometry, params, physics.periodic)
     span_length = safe_norm(x0[1:] - x0[:-1]) / (1.0 + prestrain_span)
-    contour_length = safe_norm(_next_j(x0, physics.periodic) - _this_j(x0, physics.periodic))
+    contour_length = safe_norm(next_j(x0, physics.periodic) - this_j(x0, physics.periodic))
     contour_length = contour_length / (1.0 + prestrain_chord)
-    h1_cell = 0.5 * (_this_j(span_length, physics.periodic) + _next_j(span_length, physics.periodic))
+    h1_cell = 0.5 * (this_j(span_length, physics.periodic) + next_j(span_length, physics.periodic))
     h2_cell = 0.5 * (contour_length[:-1] + contour_length[1:])
     quarter = 0.25 * h1_cell * h2_cell
-    node_area = _scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
+    node_area = scatter_cell_corners(quarter, quarter, quarter, quarter, physics.periodic)
     return Reference(x0, span_length, contour_length, node_area, geometry.free[..., None],
                      surface_area(x0, physics.periodic))
 
 
 def surface_area(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
     """Area of the grid's surface, m^2: the sum of its quadrilaterals (half the diagonals' cross product)."""
-    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    n00, n10, n11, n01 = cell_corners(x, periodic)
     return 0.5 * jnp.sum(safe_norm(jnp.cross(n11 - n00, n01 - n10)))
 
 
@@ -246,13 +200,13 @@ def node_area_vectors(x: jnp.ndarray, periodic: bool) -> jnp.ndarray:
     Its components are the projections of the eight triangles around the
     node on the coordinate planes; it points along ``e1 x e2`` (outward).
     """
-    n00, n10, n11, n01 = _cell_corners(x, periodic)
+    n00, n10, n11, n01 = cell_corners(x, periodic)
     centre = 0.25 * (n00 + n10 + n11 + n01)
     c00 = 0.25 * jnp.cross(centre - n00, n01 - n10)
     c10 = 0.25 * jnp.cross(centre - n10, n00 - n11)
     c11 = 0.25 * jnp.cross(centre - n11, n10 - n01)
     c01 = 0.25 * jnp.cross(centre - n01, n11 - n00)
-    return _scatter_cell_corners(c00, c10, c11, c01, periodic)
+    return scatter_cell_corners(c00, c10, c11, c01, periodic)
 
 
 class Fibres(NamedTuple):
@@ -269,13 +223,15 @@ class Fibres(NamedTuple):
     tension_span: jnp.ndarray  # (ns-1, ncell) T11, N/m
     tension_chord: jnp.ndarray  # (ns-1, ncell) T22, N/m
     wrinkled: jnp.ndarray  # (ns-1, ncell) bool
+    strain_span: jnp.ndarray  # (ns-1, ncell) e11 = lambda1 - 1 of each cell (eq. 12)
+    strain_chord: jnp.ndarray  # (ns-1, ncell) e22
 
 
 def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) -> Fibres:
     """Stretches (eq. 12), directions (13), tensions (10) and edge forces (14)."""
     periodic = physics.periodic
     d1 = x[1:] - x[:-1]  # span edges (ns-1, nc, 3)
-    d2 = _next_j(x, periodic) - _this_j(x, periodic)  # contour edges (ns, ne, 3)
+    d2 = next_j(x, periodic) - this_j(x, periodic)  # contour edges (ns, ne, 3)
     len1 = safe_norm(d1)
     len2 = safe_norm(d2)
     stretch1 = len1 / ref.span_length  # eq. (12)
@@ -283,27 +239,24 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
     unit1 = d1 / jnp.where(len1 > 0, len1, 1.0)[..., None]  # eq. (13)
     unit2 = d2 / jnp.where(len2 > 0, len2, 1.0)[..., None]
 
-    cell_stretch1 = 0.5 * (_this_j(stretch1, periodic) + _next_j(stretch1, periodic))
+    cell_stretch1 = 0.5 * (this_j(stretch1, periodic) + next_j(stretch1, periodic))
     cell_stretch2 = 0.5 * (stretch2[:-1] + stretch2[1:])
     e1 = cell_stretch1 - 1.0
     e2 = cell_stretch2 - 1.0
-    nu = params.poisson
-    scale = 1.0 / (1.0 - nu * nu)
-    t11 = (params.stiffness_span * e1 + nu * params.stiffness_chord * e2) * scale  # eq. (10)
-    t22 = (params.stiffness_chord * e2 + nu * params.stiffness_span * e1) * scale
+    t11, t22 = physics.law.tensions(e1, e2, params)  # eq. (10), or the fabric's fitted law
     wrinkled = (t11 < 0.0) | (t22 < 0.0)
     if physics.viscous:
         dv1 = v[1:] - v[:-1]
-        dv2 = _next_j(v, periodic) - _this_j(v, periodic)
+        dv2 = next_j(v, periodic) - this_j(v, periodic)
         rate1 = jnp.sum(unit1 * dv1, axis=-1) / ref.span_length
         rate2 = jnp.sum(unit2 * dv2, axis=-1) / ref.contour_length
-        t11 = t11 + params.viscosity * 0.5 * (_this_j(rate1, periodic) + _next_j(rate1, periodic))
+        t11 = t11 + params.viscosity * 0.5 * (this_j(rate1, periodic) + next_j(rate1, periodic))
         t22 = t22 + params.viscosity * 0.5 * (rate2[:-1] + rate2[1:])
     if physics.tension_only:
         t11 = jnp.maximum(t11, 0.0)
         t22 = jnp.maximum(t22, 0.0)
 
-    h1_cell = 0.5 * (_this_j(ref.span_length, periodic) + _next_j(ref.span_length, periodic))
+    h1_cell = 0.5 * (this_j(ref.span_length, periodic) + next_j(ref.span_length, periodic))
     h2_cell = 0.5 * (ref.contour_length[:-1] + ref.contour_length[1:])
     # Current cell widths lambda2 h2 and lambda1 h1; the span-fibre force
     # {T11 lambda2} h2 across a cell goes half to each of its span edges (eq. 14).
@@ -314,13 +267,15 @@ def fibres(x, ref: Reference, params: KernelInputs, physics: Physics, v=None) ->
         unit2=unit2,
         length1=len1,
         length2=len2,
-        edge_force1=_contour_edge_sum(t11 * half_width2, periodic),
-        edge_force2=_span_edge_sum(t22 * half_width1),
-        width1=_contour_edge_sum(half_width2, periodic),
-        width2=_span_edge_sum(half_width1),
+        edge_force1=contour_edge_sum(t11 * half_width2, periodic),
+        edge_force2=span_edge_sum(t22 * half_width1),
+        width1=contour_edge_sum(half_width2, periodic),
+        width2=span_edge_sum(half_width1),
         tension_span=t11,
         tension_chord=t22,
         wrinkled=wrinkled,
+        strain_span=e1,
+        strain_chord=e2,
     )
 
 
@@ -343,8 +298,10 @@ def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physic
     periodic = physics.periodic
     p = params.pressure if pressure is None else pressure
     fib = fibres(x, ref, params, physics, v)
-    total = _scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
-    total = total + _scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
+    total = scatter_span_edges(fib.edge_force1[..., None] * fib.unit1)
+    total = total + scatter_contour_edges(fib.edge_force2[..., None] * fib.unit2, periodic)
+    if physics.shear_stiffness:
+        total = total + shear_forces(x, ref, physics)  # the T12 terms of eq. (1), (6)
 
     area = node_area_vectors(x, periodic)
     if physics.aerodynamic:
@@ -364,17 +321,19 @@ def forces(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physic
 def node_stiffness(x, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
     """Upper estimate of each node's stiffness, ``(ns, nc)`` N/m.
 
-    The sum over the node's edges of the axial stiffness (plane-strain
-    modulus with the Poisson coupling, times the carried width over the cut
-    length) and the geometric stiffness (edge force over edge length), plus
-    the follower pressure's ``p * h``. Dynamic relaxation scales its
-    fictitious masses to it (Gershgorin bound, so every node runs at the same
-    stable step).
+    The sum over the node's edges of the axial stiffness (the law's tangent
+    bound, `fibre_law`: for eq. 10 the plane-strain modulus with the Poisson
+    coupling; with a shear stiffness, `SHEAR_BOUND` times it more; times the
+    carried width over the cut length) and the geometric stiffness (edge
+    force over edge length), plus the follower pressure's ``p * h``. Dynamic
+    relaxation scales its fictitious masses to it (Gershgorin bound, so every
+    node runs at the same stable step).
     """
     periodic = physics.periodic
     fib = fibres(x, ref, params, static_physics(physics))
-    nu = params.poisson
-    modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) * (1.0 + nu) / (1.0 - nu * nu)
+    modulus = physics.law.stiffness_bound(params, fib.strain_span, fib.strain_chord)
+    if physics.shear_stiffness:
+        modulus = modulus + SHEAR_BOUND * physics.shear_stiffness
     k1 = modulus * fib.width1 / ref.span_length + fib.edge_force1 / jnp.where(fib.length1 > 0, fib.length1, 1.0)
     k2 = modulus * fib.width2 / ref.contour_length + fib.edge_force2 / jnp.where(fib.length2 > 0, fib.length2, 1.0)
     k1 = k1 + jnp.abs(params.pressure) * fib.length1
@@ -389,7 +348,7 @@ def node_stiffness(x, ref: Reference, params: KernelInputs, physics: Physics) ->
 
 def static_physics(physics: Physics) -> Physics:
     """The same switches without the velocity terms (equilibrium does not see them)."""
-    return Physics(physics.periodic, physics.tension_only, False, False, physics.gravity)
+    return dataclasses.replace(physics, viscous=False, aerodynamic=False)
 
 
 def residual(x: jnp.ndarray, ref: Reference, params: KernelInputs, physics: Physics) -> jnp.ndarray:
@@ -434,11 +393,12 @@ def rounding_residual_floor(ref: Reference, params: KernelInputs, physics: Physi
     """
     periodic = physics.periodic
     fib = fibres(ref.nodes, ref, params, static_physics(physics))
-    nu = params.poisson
-    modulus = jnp.maximum(params.stiffness_span, params.stiffness_chord) / (1.0 - nu * nu)
+    modulus = physics.law.modulus(params)
+    if physics.shear_stiffness:
+        modulus = modulus + SHEAR_BOUND * physics.shear_stiffness
     free = ref.free[..., 0] > 0
     touches1 = free[1:] | free[:-1]
-    touches2 = _this_j(free, periodic) | _next_j(free, periodic)
+    touches2 = this_j(free, periodic) | next_j(free, periodic)
     k1 = jnp.where(touches1, fib.width1 / ref.span_length, 0.0)
     k2 = jnp.where(touches2, fib.width2 / ref.contour_length, 0.0)
     spread = jnp.sqrt(jnp.sum(k1 * k1) + jnp.sum(k2 * k2))

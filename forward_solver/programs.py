@@ -5,7 +5,9 @@
 * `mounted_compiled`: the mounted (nominal) shape (`forces.mounted_nodes`);
 * `static_state`, `static_forces`: the forces of the static residual and
   ``||R_free|| / (p A)`` at a state, for Newton, chord Newton and every
-  returned `Solution`'s tensions.
+  returned `Solution`'s tensions;
+* `cell_strains`: each cell's fibre strains at a state (what a fitted law's
+  tested range is checked against).
 
 They are `compilation.stored_jit` programs: kept between processes while a
 program store is in use.
@@ -16,9 +18,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from . import forces as fk
+from .stencils import safe_norm
 from .compilation import stored_jit
 
-__all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces"]
+__all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces", "cell_strains"]
 
 
 #: `forces.prepare` as one compiled program (eagerly, each of its operations compiles on its own).
@@ -42,10 +45,19 @@ def static_state(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.
     physics = fk.static_physics(physics)
     ref = fk.prepare(geometry, params, physics)
     f = fk.forces(x, ref, params, physics)
-    rel = fk.safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
+    rel = safe_norm(f.total.reshape(-1)) / (params.pressure * ref.skin_area)
     return f, jnp.where(jnp.all(jnp.isfinite(x)), rel, jnp.nan)
 
 
 def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics) -> fk.Forces:
     """`forces.Forces` of the static residual at nodes ``x`` (velocity terms dropped); `static_state`."""
     return static_state(x, geometry, params, physics)[0]
+
+
+@stored_jit(static_argnames=("physics",))
+def cell_strains(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
+    """``(strain_span, strain_chord)``, each ``(n_span - 1, n_cells)``: the cells' fibre strains
+    ``lambda - 1`` (eq. 12) at nodes ``x``."""
+    physics = fk.static_physics(physics)
+    fib = fk.fibres(x, fk.prepare(geometry, params, physics), params, physics)
+    return fib.strain_span, fib.strain_chord

@@ -41,6 +41,7 @@ map.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from functools import partial
@@ -127,7 +128,7 @@ class Constraints:
 
 @partial(jax.jit, static_argnames=("physics",))
 def _tensions(x, geometry, params, physics):
-    physics = fk.Physics(physics.periodic, tension_only=False)
+    physics = dataclasses.replace(physics, tension_only=False)  # (the fabric's law kept)
     ref = fk.prepare(geometry, params, physics)
     fib = fk.fibres(x, ref, params, physics)
     return jnp.concatenate([fib.tension_span.reshape(-1), fib.tension_chord.reshape(-1)])

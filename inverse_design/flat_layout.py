@@ -39,6 +39,8 @@ class Panel:
         span_cut: ``(n_span - 1, m)`` the cut length of each span edge, m.
         leading_edge: the panel column of the leading edge, or None.
         length_error: largest ``|flat edge length - cut length|`` over the panel's edges, m.
+        warp: where the fabric's warp (the roll's length) runs: "span" (along y, the span fibres) or
+            "chord" (along the contour rows); the drawing's WARP arrow follows it.
     """
 
     bay: int
@@ -49,6 +51,7 @@ class Panel:
     span_cut: np.ndarray
     leading_edge: int | None
     length_error: float
+    warp: str = "span"
 
 
 def edge_lengths(flat):

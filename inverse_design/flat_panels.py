@@ -5,8 +5,9 @@ solver's reference state is the cut: every grid edge has a cut (reference)
 length, paper eq. (12) ``h = mounted length / (1 + prestrain)``
 (`rib_design.cut_lengths`, per edge, so a prestrain that varies from node to
 node is followed with no change here). A panel is a strip of the grid's
-quads: contour nodes ``j`` across (the weft), span stations ``i`` along (the
-warp, the span fibres). `flat_layout.develop` lays it flat.
+quads: contour nodes ``j`` across, span stations ``i`` along (the span
+fibres: the warp, unless the fabric's ``warp`` is "chord", when the contour
+rows are; the drawing's WARP arrow says which, `Panel.warp`). `flat_layout.develop` lays it flat.
 
 What is exact and what is a choice:
 
@@ -124,7 +125,7 @@ def bay_panels(scene, parameters, bay: int = 0) -> list[Panel]:
         c, s = edge_lengths(flat)
         error = float(max(np.max(np.abs(c - contour_cut)), np.max(np.abs(s - span_cut))))
         panels.append(Panel(bay=bay, name=name, columns=columns, flat=flat, contour_cut=contour_cut,
-                            span_cut=span_cut, leading_edge=le, length_error=error))
+                            span_cut=span_cut, leading_edge=le, length_error=error, warp=scene.fabric.warp))
     return panels
 
 

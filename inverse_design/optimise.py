@@ -42,6 +42,7 @@ from forward_solver.solvers.bays import check_rib_gaps
 from targets import Airfoil
 
 from .constraints import UNMET_ADVICE, cell_tensions, constraint_report, tension_scale
+from .fabric_range import warn_outside_tested_range
 from .objectives import DEFAULT_OBJECTIVE, WingTargets, same_section
 from .problem import DesignProblem
 from .progress import notify, progress_bar
@@ -272,12 +273,14 @@ def _optimise(scenes, targets, ribs, wing, request: DesignRequest, *, name: str,
     limits = LimitReport(active=active, violated=_largest(violated), violated_where=violated,
                          violated_at_start=_largest(violated_at_start), violated_at_start_where=violated_at_start,
                          values=report)
-    return DesignResult(
+    result = DesignResult(
         parameters=parameters, rms_error=after["wing_rms"], max_error=float(np.max(after["max"])),
         initial_rms_error=before["wing_rms"], initial_max_error=float(np.max(before["max"])), wing_solution=sol,
         request=dataclasses.replace(request, variables=design.names), per_bay=per_bay, history=problem.history.entries,
         success=bool(success and sol.converged), message=message, limits=limits, solves=solves,
         wall_time=time.perf_counter() - start, wing=wing, sensitivity=prices)
+    warn_outside_tested_range(result)
+    return result
 
 
 def _sensitivity(problem, method, sol, after, u, active, parameters, shapes, fields) -> dict | None:
@@ -365,7 +368,7 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
     per_bay = PerBayResults(scenes=tuple(scenes), targets=tuple(targets), weights=measured.weights,
                             rms_error=errors["rms"], max_error=errors["max"], initial_rms_error=nan,
                             initial_max_error=nan, min_tension=low, max_tension=high)
-    return DesignResult(
+    result = DesignResult(
         parameters=parameters.as_floats(), rms_error=errors["wing_rms"], max_error=float(np.max(errors["max"])),
         initial_rms_error=math.nan, initial_max_error=math.nan, wing_solution=sol,
         request=DesignRequest(variables=(), initial=parameters, objective=objective, method=None),
@@ -374,6 +377,9 @@ def evaluate_design(scenes, targets, parameters: Parameters | Mapping | None = N
                  f"a single equilibrium that did not converge: {sol.bay_solution(sol.failed_bays()[0]).message}"),
         limits=LimitReport(values={"min_tension": float(low.min()), "max_tension": float(high.max())}),
         solves=1, wall_time=time.perf_counter() - start, wing=wing)
+    if sol.converged:
+        warn_outside_tested_range(result, "the equilibrium")
+    return result
 
 
 def refine_design(result: DesignResult, layout: Layout, solver: SolverSettings | None = None) -> DesignResult:

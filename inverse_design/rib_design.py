@@ -45,6 +45,7 @@ import numpy as np
 
 from forward_solver import Parameters
 from forward_solver import forces as fk
+from forward_solver.stencils import safe_norm
 from forward_solver.model.cut_field import local_prestrain
 from forward_solver.model.rib_shape import rib_offsets
 
@@ -96,7 +97,7 @@ def curvature(x, z):
     c = jnp.stack([x[2:], z[2:]], -1)
     ab, bc, ac = b - a, c - b, c - a
     cross = ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0]
-    return 2.0 * cross / (fk.safe_norm(ab) * fk.safe_norm(bc) * fk.safe_norm(ac))
+    return 2.0 * cross / (safe_norm(ab) * safe_norm(bc) * safe_norm(ac))
 
 
 class RibGeometry:

@@ -55,10 +55,12 @@ class Scene:
             )
 
     def physics(self, dynamic: bool) -> Physics:
-        """Static switches; the equilibrium (``dynamic=False``) drops the velocity terms."""
+        """Static switches and the fabric's law and shear stiffness; the equilibrium (``dynamic=False``)
+        drops the velocity terms."""
         return Physics(periodic=self.bay.periodic, tension_only=self.tension_only,
                        viscous=dynamic and self.fabric.viscosity > 0,
-                       aerodynamic=dynamic and self.aerodynamic_damping > 0, gravity=self.gravity)
+                       aerodynamic=dynamic and self.aerodynamic_damping > 0, gravity=self.gravity,
+                       law=self.fabric.fibre_law, shear_stiffness=self.fabric.shear_stiffness)
 
     def params(self, parameters: Parameters, dtype=jnp.float64) -> KernelInputs:
         """The force kernel's traced parameters: ``parameters`` merged with the fabric's constants.

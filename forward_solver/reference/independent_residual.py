@@ -3,8 +3,12 @@
 Written from eq. (10), (12)-(15) with ``np.add.at``, sharing no code with
 `forward_solver.forces`: every cell computes its own edge vectors, averaged
 stretches, tensions, the forces its fibres carry along its four edges, and
-the pressure on its four quarter-cells. If the JAX kernel and this disagree,
-one of them is wrong. Slow (a Python loop over cells): for small grids, in
+the pressure on its four quarter-cells. A fabric with a fitted law takes its
+tensions from the law's surface (`model.biaxial`, in NumPy) in the wing's
+directions, scaled by the stiffnesses; a shear stiffness adds each cell's
+``T12`` forces from the derivative of its angle, written out by hand (the
+kernel differentiates the shear energy with JAX). If the JAX kernel and this
+disagree, one of them is wrong. Slow (a Python loop over cells): for small grids, in
 the tests (`tests/solver/test_independent_residual.py`) and the validation report
 (`benchmarks/validation_report.py`).
 """
@@ -21,7 +25,7 @@ def numpy_residual(bay, fabric, nodes, pressure, prestrain, tension_only=True):
 
     Args:
         bay: a `forward_solver.Bay` (its mounted nodes and held nodes).
-        fabric: a `forward_solver.Fabric` (stiffnesses and Poisson coupling).
+        fabric: a `forward_solver.Fabric` (its law, stiffnesses, Poisson coupling and shear stiffness).
         nodes: ``(n_span, n_contour, 3)`` positions, m.
         pressure: Pa.
         prestrain: ``(span, chord)``.
@@ -31,7 +35,6 @@ def numpy_residual(bay, fabric, nodes, pressure, prestrain, tension_only=True):
         ``(n_span, n_contour, 3)`` forces in N.
     """
     ps, pc = prestrain
-    e1, e2, nu = fabric.stiffness_span, fabric.stiffness_chord, fabric.poisson
     x0 = np.asarray(bay.nominal_nodes(), dtype=np.float64)
     x = np.asarray(nodes, dtype=np.float64)
     ns, nc = bay.shape
@@ -52,8 +55,7 @@ def numpy_residual(bay, fabric, nodes, pressure, prestrain, tension_only=True):
             len2 = [np.linalg.norm(p[b] - p[a]) for a, b in contour_edges]
             lam1 = 0.5 * (len1[0] / cut1[0] + len1[1] / cut1[1])  # eq. (12)
             lam2 = 0.5 * (len2[0] / cut2[0] + len2[1] / cut2[1])
-            t11 = (e1 * (lam1 - 1) + nu * e2 * (lam2 - 1)) / (1 - nu**2)  # eq. (10)
-            t22 = (e2 * (lam2 - 1) + nu * e1 * (lam1 - 1)) / (1 - nu**2)
+            t11, t22 = _tensions(fabric, lam1 - 1, lam2 - 1)
             if tension_only:
                 t11, t22 = max(t11, 0.0), max(t22, 0.0)
             h1 = 0.5 * (cut1[0] + cut1[1])
@@ -76,8 +78,47 @@ def numpy_residual(bay, fabric, nodes, pressure, prestrain, tension_only=True):
                 before = 0.5 * (node + p[(k - 1) % 4])
                 area = 0.5 * np.cross(after - node, centre - node) + 0.5 * np.cross(centre - node, before - node)
                 np.add.at(force, corners[k], pressure * area)
+            if fabric.shear_stiffness:
+                for k, f in enumerate(_shear_forces(p, q, fabric.shear_stiffness, h1 * h2)):
+                    np.add.at(force, corners[k], f)
     force[bay.fixed] = 0.0
     return force
+
+
+def _tensions(fabric, e1: float, e2: float) -> tuple:
+    """``(T11, T22)`` of a cell's span and chord strains: eq. (10), or the fabric's fitted law."""
+    if fabric.law is None:
+        e_span, e_chord, nu = fabric.stiffness_span, fabric.stiffness_chord, fabric.poisson
+        return ((e_span * e1 + nu * e_chord * e2) / (1 - nu**2),  # eq. (10)
+                (e_chord * e2 + nu * e_span * e1) / (1 - nu**2))
+    warp_along_span = fabric.warp == "span"
+    t_warp, t_weft = fabric.law.tensions(*((e1, e2) if warp_along_span else (e2, e1)))
+    t_span, t_chord = (t_warp, t_weft) if warp_along_span else (t_weft, t_warp)
+    nominal = fabric.law.stiffness_warp, fabric.law.stiffness_weft
+    n_span, n_chord = nominal if warp_along_span else nominal[::-1]
+    return float(t_span) * fabric.stiffness_span / n_span, float(t_chord) * fabric.stiffness_chord / n_chord
+
+
+def _angle(a, b) -> float:
+    return float(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b)))
+
+
+def _shear_forces(p: list, q: list, stiffness: float, area: float) -> list:
+    """The forces on a cell's corners (n00, n10, n11, n01) of its shear energy ``G gamma^2 A / 2``:
+    ``gamma = phi0 - phi``, ``phi`` the angle between the mean span edge ``a`` and the mean contour edge
+    ``b``; ``dphi/da = -(b^ - cos(phi) a^) / (|a| sin(phi))`` and likewise for ``b``, and each corner moves
+    ``a`` and ``b`` by half its displacement, with the signs of ``a = (n10 - n00 + n11 - n01) / 2`` and
+    ``b = (n01 - n00 + n11 - n10) / 2``."""
+    a = 0.5 * (p[1] - p[0] + p[2] - p[3])
+    b = 0.5 * (p[3] - p[0] + p[2] - p[1])
+    phi = _angle(a, b)
+    gamma = _angle(0.5 * (q[1] - q[0] + q[2] - q[3]), 0.5 * (q[3] - q[0] + q[2] - q[1])) - phi
+    ua, ub = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    dphi_da = -(ub - np.cos(phi) * ua) / (np.linalg.norm(a) * np.sin(phi))
+    dphi_db = -(ua - np.cos(phi) * ub) / (np.linalg.norm(b) * np.sin(phi))
+    t12 = stiffness * gamma  # T12 = G gamma; F = -dE/dx = G gamma A dphi/dx
+    signs_a, signs_b = (-0.5, 0.5, 0.5, -0.5), (-0.5, -0.5, 0.5, 0.5)
+    return [t12 * area * (sa * dphi_da + sb * dphi_db) for sa, sb in zip(signs_a, signs_b)]
 
 
 def numpy_relative_residual(bay, fabric, nodes, pressure, prestrain, tension_only=True) -> float:

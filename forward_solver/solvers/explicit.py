@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
+from ..stencils import safe_norm
 from ..model.parameters import Parameters, as_parameters
 from ..model.scene import Scene
 from ..precision import check_precision, float64_scope, precision_extra
@@ -80,15 +81,16 @@ def kinetic_rest_threshold(rtol, load, stiffness):
     return 0.5 * (rtol * load) ** 2 / stiffness
 
 
-def plane_strain_modulus(material):
-    """Stiffest plane-strain modulus ``max(E11, E22) / (1 - nu^2)`` of ``material`` (a `Fabric` or the kernel's
-    `forces.KernelInputs`), N/m."""
-    return jnp.maximum(material.stiffness_span, material.stiffness_chord) / (1.0 - material.poisson**2)
+def plane_strain_modulus(params, physics):
+    """Stiffest plane-strain modulus of the kernel's `forces.KernelInputs` ``params`` under ``physics``'s
+    law, N/m: ``max(E11, E22) / (1 - nu^2)`` for eq. (10), the largest diagonal tangent over the tested
+    range for a fitted law (`model.fibre_law`)."""
+    return physics.law.modulus(params)
 
 
-def wave_speed(material):
-    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16) in ``material``, m/s."""
-    return jnp.sqrt(plane_strain_modulus(material) / material.areal_density)
+def wave_speed(params, physics):
+    """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s."""
+    return jnp.sqrt(plane_strain_modulus(params, physics) / params.areal_density)
 
 
 def stable_time_step(courant, h_min, wave_speed, params, physics):
@@ -124,9 +126,9 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
             lambda a: jnp.asarray(a).astype(dtype),
             (geometry, params, x_init, ramp_time, courant, divergence_bound))
     ref = fk.prepare(geometry, params, physics)
-    e_max = plane_strain_modulus(params)
+    e_max = plane_strain_modulus(params, physics)
     h_min = jnp.minimum(jnp.min(ref.span_length), jnp.min(ref.contour_length))
-    dt = stable_time_step(courant, h_min, wave_speed(params), params, physics)
+    dt = stable_time_step(courant, h_min, wave_speed(params, physics), params, physics)
     mass = (params.areal_density * ref.node_area)[..., None]
     load = params.pressure * ref.skin_area
     ke_rest = kinetic_rest_threshold(rtol.astype(load.dtype), load, e_max)
@@ -155,7 +157,7 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
         if not physics.aerodynamic:
             return p_now
         area = fk.node_area_vectors(s.x, physics.periodic)
-        norm = fk.safe_norm(area)
+        norm = safe_norm(area)
         normal = area / jnp.where(norm > 0, norm, 1.0)[..., None]
         factor = 1.0 - params.aerodynamic_damping * jnp.sum(s.v * normal, axis=-1)
         w = ref.free[..., 0] * norm
@@ -165,7 +167,7 @@ def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence
         return {
             "time": s.t,
             "kinetic_energy": kinetic(s),
-            "peak_displacement": jnp.max(fk.safe_norm(s.x - ref.nodes) * ref.free[..., 0]),
+            "peak_displacement": jnp.max(safe_norm(s.x - ref.nodes) * ref.free[..., 0]),
             "pressure": effective_pressure(s),
         }
 

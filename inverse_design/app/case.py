@@ -96,6 +96,7 @@ class Case:
             two ribs take one rib shape and one cut field, as `inverse_design.optimise_pressure`'s).
         notes: the warnings raised while the case was read (a section renormalised to unit chord, ...):
             the run shows them with its own and records them in the summary.
+        law: the fibre law fitted to ``--fabric-test`` (a `model.biaxial.FittedLaw`), or None (eq. 10).
     """
 
     options: Options
@@ -104,6 +105,7 @@ class Case:
     variables: tuple
     from_ribs: bool
     notes: tuple = ()
+    law: object = None
 
     @classmethod
     def from_arguments(cls, argv: list[str] | None = None) -> "Case":
@@ -119,12 +121,13 @@ class Case:
         variables = _variables(options, sources)
         _check_combinations(options, sources, variables)
         _check_values(options, sources)
+        law = _fabric_law(options)
         with warnings.catch_warnings(record=True) as caught:  # (a section renormalised, a field per bay on one)
             warnings.simplefilter("always")
             ribs = _ribs(options, sources)
             _check_rib_spacings(options, ribs)
             case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
-                       from_ribs=options.wing is not None)
+                       from_ribs=options.wing is not None, law=law)
             case._check_fields()
         return dataclasses.replace(case, notes=tuple(dict.fromkeys(str(w.message) for w in caught)))
 
@@ -363,6 +366,16 @@ def _check_values(o: Options, sources: Mapping) -> None:
             where = f"{o.config}: {name.replace('_', '-')}" if sources.get(name) == "config" else f"--{name.replace('_', '-')}"
             raise InputError(f"{where} {low:g} {high:g}: the lower bound must lie below the upper; give LOW HIGH "
                              "with LOW < HIGH")
+    if not o.shear_stiffness >= 0:
+        raise InputError(f"{_given('shear_stiffness', sources)} must be 0 N/m or more (0: no shear stiffness, as the "
+                         f"paper takes it), got {o.shear_stiffness:g}")
+    if o.fabric_test is not None:
+        for name in ("stiffness_span", "stiffness_chord", "poisson"):
+            if name in sources:
+                raise InputError(f"{_given(name, sources)} is eq. 10's, and {_given('fabric_test', sources)} "
+                                 f"{o.fabric_test} gives the fabric's law (its nominal stiffnesses and coupling are "
+                                 "fitted to the test): give one or the other (a lot's scatter: --tolerance "
+                                 f"{name}=...)")
     if not o.seam_allowance >= 0:
         raise InputError(f"--seam-allowance must be 0 mm or more (the cut line lies outside the sewing line), "
                          f"got {o.seam_allowance:g}: give 0 or a positive number of mm")
@@ -378,6 +391,25 @@ def _check_values(o: Options, sources: Mapping) -> None:
 MAX_SPACING_OVER_CHORD = 5.0
 #: Largest seam allowance, mm (`--seam-allowance`): beyond it a value in metres or micrometres is likelier.
 MAX_SEAM_ALLOWANCE_MM = 1000.0
+
+
+def _fabric_law(o: Options):
+    """The fibre law fitted to ``--fabric-test`` (`forward_solver.model.biaxial`: read, checked and fitted), or None.
+
+    Raises:
+        InputError: the test file's own line (it names the file, where and what to change; docs/errors.md).
+    """
+    if o.fabric_test is None:
+        return None
+    from forward_solver.model.biaxial import TestFileError, fit_law, read_test  # (worker: imported through cli by every report worker)
+
+    if not str(o.fabric_test).strip():
+        raise InputError("--fabric-test: the test file is an empty name (an unset shell variable?); give the CSV of "
+                         "the fabric's biaxial test")
+    try:
+        return fit_law(read_test(o.fabric_test))
+    except TestFileError as exc:
+        raise InputError(str(exc)) from None
 
 
 def _check_rib_spacings(o: Options, ribs: tuple) -> None:

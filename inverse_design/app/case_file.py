@@ -2,8 +2,10 @@
 
 A case file's keys are the long option names (`options.OPTIONS`, with ``-``
 or ``_``); ``[[rib]]`` tables describe a wing (`read_ribs`; a single bay is
-the wing of its two ribs) and a ``[tolerances]`` table the manufacturing
-tolerances (`read_tolerances`). A section is a NACA code or a
+the wing of its two ribs), a ``[tolerances]`` table the manufacturing
+tolerances (`read_tolerances`) and a ``[fabric]`` table the fabric
+(`read_fabric`: its biaxial ``test`` file, ``warp``, ``shear-stiffness``,
+...; a test file's relative path is relative to the case file's folder). A section is a NACA code or a
 Selig/Lednicer ``.dat`` file, a relative path being relative to the case
 file's folder (`case_path`). `case.Case.from_arguments` merges what
 `read_config` returns between the defaults and the command line.
@@ -21,12 +23,17 @@ from pathlib import Path
 
 from .options import OPTION_SPECS, PROG, InputError
 
-__all__ = ["EXAMPLE_CASE", "RIB_KEYS", "case_path", "read_config", "read_ribs", "read_tolerances"]
+__all__ = ["EXAMPLE_CASE", "EXAMPLE_FABRIC_TEST", "FABRIC_KEYS", "RIB_KEYS", "case_path", "read_config", "read_fabric",
+           "read_ribs", "read_tolerances"]
 
+#: Keys of a ``[fabric]`` table: ``test`` is ``--fabric-test``, the others the options of their names.
+FABRIC_KEYS = ("test", "warp", "shear-stiffness", "stiffness-span", "stiffness-chord", "poisson")
 #: Keys of a ``[[rib]]`` table: required, then optional.
 RIB_KEYS = (("section", "chord", "station"), ("target",))
 #: The built-in example: a 3-bay tapered NACA 2412 wing.
 EXAMPLE_CASE = Path(__file__).parents[1] / "cases" / "wing_taper.toml"
+#: The example biaxial test of a fabric (synthetic: `model.biaxial.synthetic.example_readings`; docs/fabric_test.md).
+EXAMPLE_FABRIC_TEST = Path(__file__).parents[1] / "cases" / "fabric_test_example.csv"
 
 
 def _toml_value(path: str, key: str, value):
@@ -134,15 +141,52 @@ def read_config(path) -> dict:
         if key == "tolerances" and isinstance(value, dict):
             values["tolerances"] = read_tolerances(str(path), value)
             continue
+        if key == "fabric" and isinstance(value, dict):
+            for dest, item in read_fabric(str(path), value).items():
+                if dest in values:
+                    raise InputError(f"{path}: {dest.replace('_', '-')} is given twice (at the top and in [fabric])")
+                values[dest] = item
+            continue
         if dest in values:
-            raise InputError(f"{path}: {key!r} is given twice (with - and _)")
+            raise InputError(f"{path}: {key!r} is given twice (with - and _, or at the top and in [fabric])")
         values[dest] = _toml_value(str(path), key, value)
+        if dest == "fabric_test":
+            values[dest] = _beside(path, values[dest])
         if dest == "tolerance" and isinstance(values[dest], str):
             raise InputError(f"{path}: tolerance is the optimiser's convergence tolerance, a number; give "
                              "manufacturing tolerances in a [tolerances] table (pressure = \"2%\", ...)")
         if dest in ("target", "rib"):
             values[dest] = case_path(path, values[dest])
     return values
+
+
+def read_fabric(path: str, table: dict) -> dict:
+    """A case file's ``[fabric]`` table: ``test`` (the biaxial test file, relative to the case file's folder:
+    ``--fabric-test``) and the fabric's other options under their long names without ``--``
+    (`FABRIC_KEYS`), converted and checked as the command line's.
+
+    Raises:
+        InputError: for an unknown key or a bad value, naming the file and the key.
+    """
+    values = {}
+    for key, value in table.items():
+        name = key.replace("_", "-")
+        if name not in FABRIC_KEYS:
+            raise InputError(f"{path}: [fabric] has no key {key!r}; its keys are {', '.join(FABRIC_KEYS)}")
+        option = "fabric-test" if name == "test" else name
+        dest = option.replace("-", "_")
+        if dest in values:
+            raise InputError(f"{path}: [fabric] {key!r} is given twice (with - and _)")
+        values[dest] = _toml_value(path, option, value)
+    if "fabric_test" in values:
+        values["fabric_test"] = _beside(path, values["fabric_test"])
+    return values
+
+
+def _beside(case_file, spec: str) -> str:
+    """A file named in a case file: a relative path is relative to the case file's folder."""
+    path = Path(spec)
+    return spec if path.is_absolute() else str(Path(case_file).parent / path)
 
 
 def read_tolerances(path: str, table: dict) -> list[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 __all__ = ["WROTE_NAMES", "describe", "grouped_names", "number_text", "refined_line", "sensitivity_lines",
            "start_violation_line", "tolerance_lines", "wrote_line"]
@@ -115,6 +116,15 @@ def describe(summary: dict) -> list[str]:
         lines.append(f"  rib {change['rib']} ({source}): trailing edge {'closed' if change['gap_after'] == 0 else 'opened'}"
                      f", gap {change['gap_before']:.3g} -> {change['gap_after']:.3g} chord over the last "
                      f"{change['blend']:.0%} of chord (--trailing-edge {trailing['option']})")
+    law = (case.get("fabric") or {}).get("law") or {}
+    if "fit_error_n_per_m" in law:  # (a fitted law: which, how well it fits, and the strains it was tested over)
+        rms, tested, strains = law["fit_error_n_per_m"]["rms"], law["tested_strain"], res.get("fibre_strains") or {}
+        reached = "".join(f", {d} {100 * strains[d][0]:.3g}% to {100 * strains[d][1]:.3g}%" for d in ("span", "chord")
+                          if d in strains)
+        lines.append(f"  fabric: law fitted to {Path(law['source']).name} (degree {law['degree']}, warp along the "
+                     f"{law['warp']}; fit rms warp {rms['warp']:.3g}, weft {rms['weft']:.3g} N/m; tested warp "
+                     f"{100 * tested['warp'][0]:.3g}% to {100 * tested['warp'][1]:.3g}%, weft {100 * tested['weft'][0]:.3g}%"
+                     f" to {100 * tested['weft'][1]:.3g}%); strains reached{reached or ' (not measured)'}")
     unit = "of the local chord" + (" (area-weighted)" if several else "")
     rows = _ROWS[err["objective"]]
     if summary["mode"] == "evaluate":

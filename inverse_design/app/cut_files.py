@@ -17,7 +17,8 @@ millimetres (``$INSUNITS`` 4), drawn at scale 1:1, on these layers:
   along both ribs and both seams, and at their ends; a double notch at the
   leading edge; and what the shop reads (`shop_marks.panel_marks`): the rib
   edges' notch numbers, each edge's label (its rib, or its seam and the
-  panel it is sewn to), the warp (span fibre) direction as an arrow, the
+  panel it is sewn to), the warp direction as an arrow (the span fibres, or
+  the contour rows for a fabric whose warp runs along the chord), the
   label (bay, panel, scale 1:1, seam allowance), the outside-face mark and a
   100 mm scale bar. Every text is on this layer, at least 8 mm high.
 * ``GRID``: the developed grid's span fibres (one open polyline per contour

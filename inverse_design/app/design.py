@@ -46,8 +46,14 @@ __all__ = ["aero_angles", "analyse_tolerances", "check_equilibrium_method", "che
 
 # ------------------------------------------------------------------ the library inputs of a case
 def fabric(case) -> Fabric:
+    """The case's `forward_solver.Fabric`: eq. (10) with ``--stiffness-span``, ``--stiffness-chord`` and
+    ``--poisson``, or the law fitted to ``--fabric-test`` (`case.Case.law`); its warp along ``--warp``, its
+    shear stiffness ``--shear-stiffness``."""
     o = case.options
-    return Fabric(stiffness_span=o.stiffness_span, stiffness_chord=o.stiffness_chord, poisson=o.poisson)
+    if case.law is not None:
+        return Fabric(law=case.law, warp=o.warp, shear_stiffness=o.shear_stiffness)
+    return Fabric(stiffness_span=o.stiffness_span, stiffness_chord=o.stiffness_chord, poisson=o.poisson, warp=o.warp,
+                  shear_stiffness=o.shear_stiffness)
 
 
 def wing(case) -> Wing:
@@ -270,6 +276,8 @@ def warning_lines(case) -> list[str]:
 
     least = LIMITS["n_span"]
     lines = list(physical)
+    if case.law is not None and case.law.fit_warning() is not None:
+        lines.append(case.law.fit_warning())
     if o.min_tension < 0 and not o.no_tension_constraints:
         lines.append(f"--min-tension {o.min_tension:g} N/m lets the skin wrinkle: the fabric carries no compression, "
                      "so a negative fibre tension is a wrinkle, and a wrinkled skin cures wrinkled; give 0 (the "

@@ -154,12 +154,24 @@ OPTIONS = (
                                        f"{MAX_NODES:,} nodes (hours per design); and --samples beyond their "
                                        "memory and time limits (not beyond the machine's memory)")),
     ("fabric", "--stiffness-span", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
-                                        help="tensile stiffness E11 of the span fibres per unit width, N/m "
-                                        "(default 2e5)")),
+                                        help="tensile stiffness E11 of the span fibres per unit width, N/m, of "
+                                        "eq. 10 (default 2e5; with --fabric-test, the test's law gives it)")),
     ("fabric", "--stiffness-chord", dict(type=_number("N/m", positive=True), default=2e5, metavar="N/M",
                                          help="tensile stiffness E22 of the contour fibres, N/m (default 2e5)")),
     ("fabric", "--poisson", dict(type=_number(), default=0.25, metavar="NU",
                                  help="Poisson coupling nu12 = nu21, in [0, 1) (default 0.25)")),
+    ("fabric", "--fabric-test", dict(default=None, metavar="FILE",
+                                     help="the fabric's biaxial test, a CSV of readings (strain_warp, strain_weft, "
+                                     "tension_warp, tension_weft[, load_ratio]; strains as fractions, N/m): the "
+                                     "design takes the fibre law fitted to it instead of eq. 10's constant "
+                                     "stiffnesses (docs/fabric_test.md)")),
+    ("fabric", "--warp", dict(default="span", choices=("span", "chord"),
+                              help="which way the fabric's warp (the roll's length, the test's warp) runs on the "
+                              "wing; the patterns' WARP arrow follows it (default span)")),
+    ("fabric", "--shear-stiffness", dict(type=_number("N/m"), default=0.0, metavar="N/M",
+                                         help="shear stiffness G of the fabric, N/m, 0 or more: the T12 terms of the "
+                                         "paper's eq. 1 (textiles have about 2%% of their tensile stiffness; "
+                                         "default 0, as the paper takes it)")),
     ("fabric", "--prestrain-span", dict(type=_number("fraction"), default=defaults.PRESTRAIN_SPAN, metavar="E",
                                         help="span prestrain, fraction: the fabric is cut 1 + E times "
                                         f"shorter (start if optimised, default {defaults.PRESTRAIN_SPAN:g})")),

@@ -21,6 +21,7 @@ import time
 import warnings
 from contextlib import contextmanager
 
+from ..fabric_range import FabricRangeWarning
 from . import design, interrupts
 from .case import Case
 from .folder import ReportOptions, write_report
@@ -101,7 +102,8 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
         t = time.perf_counter()
         aero = design.compare_aero(case, result, alphas)
         timings["aero"] = time.perf_counter() - t
-    analysis = design.analyse_tolerances(case, result, tolerances, notes) if tolerances else None
+    with warnings_into(notes, o.quiet, only=FabricRangeWarning):  # (the samples' strains beyond the test)
+        analysis = design.analyse_tolerances(case, result, tolerances, notes) if tolerances else None
     if analysis is not None:
         timings["tolerance"] = analysis.timings["tolerance"]
         timings["samples"] = analysis.timings.get("samples", 0.0)
@@ -149,10 +151,15 @@ def warn(case: Case) -> list[str]:
 
 
 @contextmanager
-def warnings_into(notes: list, quiet: bool):
-    """Within: a warning of the library (``warnings.warn``) is one ``warning:`` line on stderr (unless
-    ``quiet``), whole, and is appended to ``notes``, the summary's warnings."""
+def warnings_into(notes: list, quiet: bool, only: type | None = None):
+    """Within: a warning of the library (``warnings.warn``; ``only``: of that category alone, the others
+    shown as before) is one ``warning:`` line on stderr (unless ``quiet``), whole, and is appended to
+    ``notes``, the summary's warnings."""
+    before = warnings.showwarning
+
     def show(message, category, filename, lineno, file=None, line=None):
+        if only is not None and not issubclass(category, only):
+            return before(message, category, filename, lineno, file, line)
         text = " ".join(str(message).split())
         if text not in notes:
             notes.append(text)

@@ -180,10 +180,17 @@ def panel_marks(panel, flat, sew, grid, normal, seam_allowance_mm: float) -> tup
             options = [_beside(sew[q], -normal[q], str(numbers[j]), TEXT_HEIGHT, NOTCH_IN + _GAP + stagger)
                        for stagger in (0.0, 1.5 * TEXT_HEIGHT, 3.0 * TEXT_HEIGHT)]  # (crowded: further in)
             texts.append(options[layout.place(np.array([text_box(t) for t in options]), margin=0.0)])
-    # the warp: an arrow midway between the two middle span fibres, from a quarter to three quarters
-    k = max(m // 2 - 1, 0)
-    between = 0.5 * (flat[:, k] + flat[:, min(k + 1, m - 1)])
-    tail, head = between[n // 4], between[(3 * (n - 1)) // 4 + (n == 2)]
+    # the warp (the roll's length): along the span fibres, an arrow midway between the two middle ones
+    # from a quarter to three quarters of the span; along the contour rows (warp "chord"), midway
+    # between the two middle rows over the middle half of the contour
+    if panel.warp == "span":
+        k = max(m // 2 - 1, 0)
+        between = 0.5 * (flat[:, k] + flat[:, min(k + 1, m - 1)])
+        tail, head = between[n // 4], between[(3 * (n - 1)) // 4 + (n == 2)]
+    else:
+        i = max(n // 2 - 1, 0)
+        between = 0.5 * (flat[i] + flat[min(i + 1, n - 1)])
+        tail, head = between[m // 4], between[(3 * (m - 1)) // 4 + (m == 2)]
     d = (head - tail) / np.linalg.norm(head - tail)
     side = np.array([-d[1], d[0]])
     arrow = [np.array([tail, head]), np.array([head, head - 6.0 * d + 3.0 * side]),

@@ -21,6 +21,7 @@ import numpy as np
 
 from forward_solver.model.cut_field import field_values
 
+from ..fabric_range import strain_range
 from ..objectives import same_section
 from ..rib_design import cut_lengths
 from .measures import chords_and_stations, le_recessions, mid_bay_errors
@@ -108,7 +109,9 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
                              "gap_before": c["gap_before"], "gap_after": c["gap_after"], "blend": c["blend"]}
                             for c in wing.trailing_edge_changes]},
             "fabric": {"stiffness_span_n_per_m": fabric.stiffness_span,
-                       "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson},
+                       "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson,
+                       "warp": fabric.warp, "shear_stiffness_n_per_m": fabric.shear_stiffness,
+                       "law": _law(fabric)},
         },
         "results": {
             "success": bool(result.success), "message": result.message,
@@ -130,6 +133,8 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
             "wall_time_s": result.wall_time,
             "grid_change": result.grid_change,  # after --refine: both grids and how far the design moved
             "equilibrium": _equilibrium(solutions),
+            # a fitted law's: the strains the design reaches, against the test's range (case.fabric.law)
+            "fibre_strains": None if fabric.law is None else strain_range(result),
         },
         "errors": {
             "unit": "fraction of the local chord", "objective": result.objective,
@@ -160,6 +165,16 @@ def summarise(result, *, inputs: dict | None = None, timings: dict | None = None
     if rib is not None:
         summary["rib"] = rib
     return jsonable(summary)
+
+
+def _law(fabric) -> dict:
+    """``case.fabric.law``: eq. (10), or the fitted law's record (`model.biaxial.FittedLaw.as_dict`: its
+    coefficients, fit errors, tested strains) with the tested strains in the wing's directions."""
+    if fabric.law is None:
+        return {"kind": "linear, eq. 10", "stiffness_span_n_per_m": fabric.stiffness_span,
+                "stiffness_chord_n_per_m": fabric.stiffness_chord, "poisson": fabric.poisson}
+    return {**fabric.law.as_dict(), "warp": fabric.warp,
+            "tested_strain_wing": {k: list(v) for k, v in fabric.strain_range.items()}}
 
 
 def _labelled(where: dict) -> dict:

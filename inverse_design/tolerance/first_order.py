@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import jax
@@ -36,6 +37,7 @@ from scipy.optimize import brentq
 
 from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
 
+from ..fabric_range import FabricRangeWarning, outside_tested_range
 from .inputs import SOURCE_UNITS, as_tolerances
 from .model import ToleranceModel, summary_of
 from .monte_carlo import SAMPLE_RTOL, check_samples, monte_carlo
@@ -330,6 +332,11 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samplin
         analysis.samples, analysis.failures, analysis.sampled, analysis.sampled_rms = monte_carlo(
             model, nominal, sampling, rtol)
         analysis.timings["samples"] = time.perf_counter() - t
+        if "fibre_strains" in analysis.sampled:
+            line = outside_tested_range(model.scenes[0].fabric, analysis.sampled["fibre_strains"],
+                                        "the Monte Carlo samples")
+            if line is not None:
+                warnings.warn(line, FabricRangeWarning, stacklevel=2)
     return analysis
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from forward_solver import solve_equilibrium
 
+from ..fabric_range import bay_strains
 from ..memory import physical_memory, sample_memory
 from .model import ToleranceModel, summary_of
 
@@ -100,9 +101,10 @@ def sample_draws(model: ToleranceModel, seed: int, samples: int, chunk: int = CH
         yield first, unit * model.spread[None, :]
 
 
-def solve_wing(model: ToleranceModel, e: np.ndarray, starts, rtol: float) -> tuple:
+def solve_wing(model: ToleranceModel, e: np.ndarray, starts, rtol: float, strains: list | None = None) -> tuple:
     """Every bay at the deviations ``e``: ``(distances, tensions, failures)`` (NaN where a bay failed;
-    failures ``[(bay, message)]``)."""
+    failures ``[(bay, message)]``); ``strains``: a list that gets each solved bay's fibre strain range
+    (`inverse_design.fabric_range.bay_strains`), for a fabric with a fitted law."""
     distances, tensions, failures = [], [], []
     with jax.enable_x64(True):
         for k in range(model.n_bays):
@@ -116,6 +118,8 @@ def solve_wing(model: ToleranceModel, e: np.ndarray, starts, rtol: float) -> tup
                 ok, message = False, str(exc)
             if ok:
                 y = np.asarray(model.outputs(k, jnp.asarray(sol.nodes), p))
+                if strains is not None:
+                    strains.append(bay_strains(model.scenes[k], p, sol.nodes))
             else:
                 y = np.full(model.n_distances + model.scenes[k].bay.n_contour * 2 * (model.scenes[k].bay.n_span - 1),
                             np.nan)
@@ -126,10 +130,20 @@ def solve_wing(model: ToleranceModel, e: np.ndarray, starts, rtol: float) -> tup
 
 
 def _measured(model: ToleranceModel, e: np.ndarray, starts, rtol: float) -> tuple[dict, list]:
-    """A sample's measures (`model.ToleranceModel.measures`, one float each) and failures (`solve_wing`)."""
-    distances, tensions, failures = solve_wing(model, e, starts, rtol)
+    """A sample's measures (`model.ToleranceModel.measures`, one float each) and failures (`solve_wing`);
+    with a fitted law, ``strains`` too: the sample's ``((span least, largest), (chord least, largest))``."""
+    if model.scenes[0].fabric.law is None:
+        distances, tensions, failures = solve_wing(model, e, starts, rtol)
+        strains = None
+    else:
+        strains = []
+        distances, tensions, failures = solve_wing(model, e, starts, rtol, strains)
     measured = model.measures([x[None] for x in distances], [x[None] for x in tensions])
-    return {key: value[0] for key, value in measured.items()}, failures
+    measured = {key: value[0] for key, value in measured.items()}
+    if strains:
+        measured["strains"] = ((min(s[0][0] for s in strains), max(s[0][1] for s in strains)),
+                               (min(s[1][0] for s in strains), max(s[1][1] for s in strains)))
+    return measured, failures
 
 
 def _row(model: ToleranceModel, index: int, e: np.ndarray, measured: dict, converged: bool) -> dict:
@@ -149,18 +163,23 @@ def monte_carlo(model: ToleranceModel, nominal, sampling, nominal_rtol: float) -
         ``(rows, failures, sampled, rms)``: one dict per sample where ``sampling.keep_rows`` (the CSV's
         rows, each also given to ``sampling.on_sample`` as it is solved, in sample order; else empty),
         ``[{"sample", "bay", "message"}]`` of the first `FAILURES_KEPT` failed solves, the samples'
-        statistics (`model.summary_of`, with ``count`` and ``failed``: every failed sample) and each
+        statistics (`model.summary_of`, with ``count`` and ``failed``: every failed sample; with a fitted
+        law ``fibre_strains``, the least and largest strain any sample reached per direction) and each
         sample's wing rms, mm (NaN where it failed).
     """
     count, n = sampling.samples, model.n_bays
     kept = {key: np.empty(count) for key in ("rms", "max", "min_tension")}
     kept.update({key: np.empty((count, n)) for key in ("bay_rms", "bay_max", "bay_min_tension")})
-    rows, failures, failed = [], [], 0
+    rows, failures, failed, reached = [], [], 0, None
     solved = (_solve_here(model, nominal, sampling) if sampling.scheduler is None
               else _solve_on_cluster(model, sampling, nominal_rtol))
     for m, e, (measured, failed_bays) in solved:
         for key, values in kept.items():
             values[m] = measured[key]
+        if "strains" in measured:  # (a fitted law: the strains every sample reached, kept as four floats)
+            (a, b), (c, d) = measured["strains"]
+            reached = ([a, b], [c, d]) if reached is None else (
+                [min(reached[0][0], a), max(reached[0][1], b)], [min(reached[1][0], c), max(reached[1][1], d)])
         row = _row(model, m, e, measured, not failed_bays)
         if sampling.keep_rows:
             rows.append(row)
@@ -172,6 +191,8 @@ def monte_carlo(model: ToleranceModel, nominal, sampling, nominal_rtol: float) -
             sampling.on_sample(row)
     sampled = summary_of(kept)
     sampled.update(count=count, failed=failed)
+    if reached is not None:
+        sampled["fibre_strains"] = {"span": reached[0], "chord": reached[1]}
     return rows, failures, sampled, kept["rms"]
 
 

@@ -43,7 +43,8 @@ from support.command import environment, launch
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 #: The pages whose code blocks run here: the README, then the docs pages with examples.
-PAGES = (README, ROOT / "docs" / "command.md", ROOT / "docs" / "patterns.md", ROOT / "docs" / "compilation.md")
+PAGES = (README, ROOT / "docs" / "command.md", ROOT / "docs" / "patterns.md", ROOT / "docs" / "compilation.md",
+         ROOT / "docs" / "fabric_test.md")
 SMALL = {"n_span": 5, "n_contour": 32}
 SMALL_ARGS = ["--n-span", str(SMALL["n_span"]), "--n-contour", str(SMALL["n_contour"])]
 TIMEOUT = 300

@@ -76,6 +76,18 @@ def _nested(a: str, b: str) -> bool:
     return a.startswith(b + ".") or b.startswith(a + ".")
 
 
+def test_the_biaxial_fit_is_numpy_alone():
+    # A fabric's test is read and fitted before any solve, to Python floats that the programs take as static
+    # values: the fit imports neither JAX nor the rest of the project (the bottom of the model layer).
+    folder = ROOT / "forward_solver" / "model" / "biaxial"
+    imports = [node for path in sorted(folder.rglob("*.py")) for node in ast.walk(ast.parse(path.read_text()))
+               if isinstance(node, (ast.Import, ast.ImportFrom))]
+    names = {alias.name.split(".")[0] for node in imports if isinstance(node, ast.Import) for alias in node.names}
+    names |= {node.module.split(".")[0] for node in imports if isinstance(node, ast.ImportFrom) and node.module
+              and not node.level}
+    assert "jax" not in names and names <= {"numpy", "csv", "hashlib", "math", "dataclasses", "pathlib", "__future__"}
+
+
 def test_no_import_circle():
     graph = {m: set() for m in MODULES}
     for module, target, _, _, _ in IMPORTS:

@@ -2,6 +2,10 @@
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
+
+from forward_solver.model.biaxial import fit_law
+from forward_solver.model.biaxial.synthetic import example_readings
 
 from forward_solver import Bay, Fabric, Scene, solve_equilibrium
 from forward_solver.reference.closed_forms import cylinder_radius, hoop_tension
@@ -34,6 +38,36 @@ def test_long_cylinder_obeys_laplace_law():
     hoop = sol.tension_chord[mid - 1 : mid + 1].mean()
     assert abs(hoop / hoop_tension(pressure, r) - 1) < 0.005
     assert not sol.wrinkled.any()
+
+
+def test_long_cylinder_with_a_fitted_law_obeys_laplace_law():
+    # The same bay with the example test's fitted law (nonlinear, warp along the axis): the hoop tension
+    # is still p r, and the radius is where the law's hoop tension at the axial strain e11 and the hoop
+    # strain r (1 + pc) / R - 1 equals p r (the law's inverse, by brentq). Tolerance 0.5%, as above.
+    radius, pressure, ps, pc = 0.05, 5e4, 0.005, 0.005
+    law = fit_law(example_readings())
+    bay = Bay.from_airfoil(circle(), chord=2 * radius, rib_spacing=20 * radius, n_span=33,
+                           n_contour=64, fix_trailing_edge=False)
+    sol = solve_equilibrium(Scene(bay, Fabric(law=law)), pressure, (ps, pc), rtol=1e-10)
+    mid = bay.n_span // 2
+    ring = sol.nodes[mid]
+    r = np.hypot(ring[:, 0] - radius, ring[:, 2])
+    assert np.ptp(r) < 1e-9 * radius
+    r = r.mean()
+    cut = bay.rib_spacing / (bay.n_span - 1) / (1 + ps)
+    e11 = np.linalg.norm(sol.nodes[mid + 1] - ring, axis=-1).mean() / cut - 1
+    assert abs(e11 - ps) < 1e-4
+
+    def hoop_balance(rho):
+        return law.tensions(e11, rho * (1 + pc) / radius - 1)[1] - hoop_tension(pressure, rho)
+
+    r_closed = brentq(hoop_balance, radius, 1.5 * radius, xtol=1e-14)
+    assert abs((r - radius) / (r_closed - radius) - 1) < 0.005
+    hoop = sol.tension_chord[mid - 1 : mid + 1].mean()
+    assert abs(hoop / hoop_tension(pressure, r) - 1) < 0.005
+    # and the law is not eq. (10): the linear law of the same nominal stiffness gives another radius
+    linear = cylinder_radius(radius, pressure, law.stiffness_warp, law.stiffness_weft, law.poisson, pc, e11)
+    assert abs((linear - radius) / (r_closed - radius) - 1) > 0.05
 
 
 GRIDS = [(9, 64), (17, 128), (33, 256)]
