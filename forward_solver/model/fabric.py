@@ -138,6 +138,13 @@ class Fabric:
         return SurfaceLaw.of(self.law.surface, self.warp == "span", self.law.stiffness_warp, self.law.stiffness_weft)
 
     @property
+    def wave_speed(self) -> float:
+        """Speed of small in-plane disturbances ``c = sqrt(E_max / rho0)`` of eq. (16), m/s: ``E_max`` the
+        law's stiffest plane-strain modulus (eq. 10's ``max(E11, E22) / (1 - nu^2)``; a fitted law's largest
+        tangent over its tested range)."""
+        return math.sqrt(float(self.fibre_law.modulus(self)) / self.areal_density)
+
+    @property
     def strain_range(self) -> dict | None:
         """``{"span": (least, largest), "chord": (...)}``: the strains the law's test covered in the wing's
         directions, or None for eq. (10)."""
