@@ -28,6 +28,7 @@ from functools import cached_property
 from pathlib import Path
 
 from ..defaults import VARIABLES
+from ..marker import MAX_MARKER_SECONDS, MAX_ROLL_WIDTH_MM, MarkerRequest, NesterUnavailable, require_nester
 from .case_file import read_config
 from .options import InputError, build_parser
 
@@ -51,6 +52,7 @@ _NEVER = {
     "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
     "no_tolerances": r"tolerance\.png|tolerance_samples\.csv",
     "no_samples": r"tolerance_samples\.csv",
+    "no_marker": r"marker\.(dxf|svg|png)",
 }
 
 
@@ -97,6 +99,8 @@ class Case:
         notes: the warnings raised while the case was read (a section renormalised to unit chord, ...):
             the run shows them with its own and records them in the summary.
         law: the fibre law fitted to ``--fabric-test`` (a `biaxial.FittedLaw`), or None (eq. 10).
+        marker: the shop's marker asked for (``--roll-width``: an `inverse_design.marker.MarkerRequest` with
+            the gap, the warp and the time limit), or None.
     """
 
     options: Options
@@ -106,6 +110,7 @@ class Case:
     from_ribs: bool
     notes: tuple = ()
     law: object = None
+    marker: object = None
 
     @classmethod
     def from_arguments(cls, argv: list[str] | None = None) -> "Case":
@@ -121,13 +126,14 @@ class Case:
         variables = _variables(options, sources)
         _check_combinations(options, sources, variables)
         _check_values(options, sources)
+        marker = _marker(options, sources)
         law = _fabric_law(options)
         with warnings.catch_warnings(record=True) as caught:  # (a section renormalised, a field per bay on one)
             warnings.simplefilter("always")
             ribs = _ribs(options, sources)
             _check_rib_spacings(options, ribs)
             case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
-                       from_ribs=options.wing is not None, law=law)
+                       from_ribs=options.wing is not None, law=law, marker=marker)
             case._check_fields()
         return dataclasses.replace(case, notes=tuple(dict.fromkeys(str(w.message) for w in caught)))
 
@@ -171,7 +177,8 @@ class Case:
         o = self.options
         kinds = {"any": True, "several_bays": self.n_bays > 1, "evaluate": o.evaluate,
                  "unshaped": "rib_shape" not in self.variables, "no_aero": not o.aero, "no_patterns": o.no_patterns,
-                 "no_tolerances": not o.tolerances, "no_samples": bool(o.tolerances) and not o.samples}
+                 "no_tolerances": not o.tolerances, "no_samples": bool(o.tolerances) and not o.samples,
+                 "no_marker": self.marker is None}
         return re.compile("|".join(f"(?:{_NEVER[kind]})" for kind, never in kinds.items() if never))
 
     def ignored_options(self) -> list[str]:
@@ -372,6 +379,29 @@ def _check_values(o: Options, sources: Mapping) -> None:
         raise InputError(f"--seam-allowance {o.seam_allowance:g} mm puts the cut line more than "
                          f"{MAX_SEAM_ALLOWANCE_MM / 1000:g} m outside the sewing line: give the allowance in "
                          "millimetres (a seam takes 5-20 mm)")
+
+
+def _marker(o: Options, sources: Mapping):
+    """The marker of ``--roll-width`` (`inverse_design.marker.MarkerRequest`), or None; its values that make
+    no sense, and a missing nester, refused here (before any solve; the widest panel after the design)."""
+    if o.roll_width is None:
+        return None
+    width, gap, roll = o.roll_width, o.marker_gap, _given("roll_width", sources)
+    if width > MAX_ROLL_WIDTH_MM:
+        raise InputError(f"{roll} {width:g} mm is wider than any roll ({MAX_ROLL_WIDTH_MM / 1000:g} m at most; "
+                         "looms weave up to about 5 m): give the roll's width in millimetres")
+    if not 0 <= gap < width:
+        raise InputError(f"{_given('marker_gap', sources)} must be 0 mm or more and less than {roll} {width:g} mm "
+                         f"(the least distance between two cut outlines), got {gap:g}")
+    seconds = o.marker_seconds
+    if seconds is not None and not 1 <= seconds <= MAX_MARKER_SECONDS:
+        raise InputError(f"{_given('marker_seconds', sources)} is the nesting's time limit, from 1 to "
+                         f"{MAX_MARKER_SECONDS:g} s, got {seconds:g}")
+    try:
+        require_nester()
+    except NesterUnavailable as exc:
+        raise InputError(f"{roll}: {exc}") from None
+    return MarkerRequest(roll_width_mm=width, gap_mm=gap, warp=o.warp, seconds=seconds)
 
 
 #: Largest rib spacing over the bay's mean chord: ribs further apart no longer shape the skin between them,
