@@ -52,7 +52,7 @@ from .flat_layout import offset_outline, panel_outline
 from .progress import nesting_bar
 
 __all__ = ["CLEARANCE_MM", "MAX_MARKER_SECONDS", "MAX_ROLL_WIDTH_MM", "NEST_WORKERS", "ROTATIONS", "Marker",
-           "MarkerRequest", "NesterUnavailable", "Piece", "cut_outline", "default_seconds", "estimate_seconds",
+           "MarkerRequest", "NesterUnavailable", "Piece", "cut_outline", "default_seconds",
            "convex_hull", "nest_panels", "nesting_outline", "panel_label", "require_nester", "widest_panel"]
 
 #: mm per m: panels are laid out in metres (`flat_layout.Panel.flat`), markers drawn in millimetres.
@@ -66,19 +66,18 @@ CLEARANCE_MM = 0.05
 #: come 1.1-1.6 m wide); a width beyond 10 m is more likely given in another unit.
 MAX_ROLL_WIDTH_MM = 10_000.0
 #: Seconds: the longest time limit accepted for one nesting (a time limit is a cap: the search usually ends
-#: on its own before it, `estimate_seconds`).
+#: on its own before it).
 MAX_MARKER_SECONDS = 3600.0
 #: sparrow's worker threads (its separator's parallel samplers), fixed so that the marker does not depend
 #: on the machine (module docstring): two, the development machine's cores.
 NEST_WORKERS = 2
-#: Measured time of a sparrow nesting that ends on its own, ``a * panels ** b`` seconds on the 2-core
-#: development machine (`benchmarks/marker.py`): 2 panels 3.5 s, 6 panels 11 s, 80 panels 80-110 s
-#: (under load) for the default bay, the built-in wing and the 40-cell wing.
-_SECONDS_FIT = (2.0, 0.85)
-#: The default time limit over the estimate: room for a slower or busier machine, so that the search
-#: ends on its own (the same marker every run), and at least `_LEAST_SECONDS`.
-_SECONDS_MARGIN = 3.0
-_LEAST_SECONDS = 30.0
+#: The default time limit, s: ``_SECONDS_BASE + _SECONDS_PER_PANEL * panels`` (`default_seconds`): 21 s for
+#: a bay's 2 panels, 23 s for the 3-bay wing's 6, 60 s for the 40-cell wing's 80, the issue's goal on 2
+#: cores. Measured on the 2-core development machine under a load of 1.5-5 (`benchmarks/marker.py`): the
+#: search ended on its own in 5.5-7.5 s on 2 panels, 22-30 s on 6 and 66 s on 80; one stopped by the limit
+#: returns its best marker then (`Marker.ended`).
+_SECONDS_BASE = 20.0
+_SECONDS_PER_PANEL = 0.5
 #: Seconds between two looks at a running nesting (its progress, a stop).
 _POLL_S = 0.1
 
@@ -273,15 +272,9 @@ def widest_panel(panels, request: MarkerRequest, seam_allowance_mm: float = 10.0
 
 
 def default_seconds(panels: int) -> float:
-    """The default time limit of a nesting of ``panels`` panels, s: `_SECONDS_MARGIN` times
-    `estimate_seconds`, at least `_LEAST_SECONDS`, at most `MAX_MARKER_SECONDS`."""
-    return float(min(max(_SECONDS_MARGIN * estimate_seconds(panels), _LEAST_SECONDS), MAX_MARKER_SECONDS))
-
-
-def estimate_seconds(panels: int) -> float:
-    """The estimated time of a sparrow nesting of ``panels`` panels that ends on its own, s (`_SECONDS_FIT`)."""
-    a, b = _SECONDS_FIT
-    return float(a * max(int(panels), 1) ** b)
+    """The default time limit of a nesting of ``panels`` panels, s (`_SECONDS_BASE`), at most
+    `MAX_MARKER_SECONDS`."""
+    return float(min(_SECONDS_BASE + _SECONDS_PER_PANEL * max(int(panels), 1), MAX_MARKER_SECONDS))
 
 
 def nest_panels(panels, request: MarkerRequest, *, seam_allowance_mm: float = 10.0, progress: bool = False,

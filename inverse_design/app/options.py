@@ -309,9 +309,9 @@ OPTIONS = (
                                     help="with --roll-width: the least distance between two cut outlines, and "
                                     "half of it from the roll's edges, mm (default 5)")),
     ("marker", "--marker-seconds", dict(type=_number("s", positive=True), default=None, metavar="S",
-                                        help="with --roll-width: the nesting's time limit, s (default: grows with "
-                                        "the panel count, 30 s for a bay, about 4 minutes for 80 panels; the "
-                                        "search usually ends on its own well before it)")),
+                                        help="with --roll-width: the nesting's time limit, s (default: 20 s and half a "
+                                        "second per panel, 21 s for a bay, 60 s for 80 panels; a search that ends "
+                                        "on its own before it gives the same marker every run)")),
     ("output", "--config", dict(default=None, metavar="CASE.TOML",
                                 help="read options from a TOML file (keys: the long option names); "
                                 "command-line options override it")),
@@ -379,6 +379,8 @@ left by a killed run are removed by the next run to DIR:
                         a quick look; rib_K.dxf the rib templates (SEW the rib itself, CUT
                         its seam allowance; a successful design only; not with
                         --no-patterns)
+  marker.dxf, .svg, .png  with --roll-width: every panel nested on the roll, grain-true
+                        (docs/patterns.md; summary.json's marker: length, utilisation)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
 it are relative to the case file's folder; options on the command line override it):
