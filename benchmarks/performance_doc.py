@@ -44,6 +44,8 @@ EXPECTED = {
                            "python benchmarks/fabric_law.py"),
     "design_solves": ("solves and time of a design, SLSQP against Gauss-Newton, up to the 40-cell wing",
                       "python benchmarks/design_solves.py --cases bay,wing3,wing40"),
+    "marker": ("the shop's marker: every panel nested by sparrow against a shelf layout",
+               "PYTHONPATH=. python benchmarks/marker.py"),
     "optimise_default_command": ("the default case through the command, cold and cached",
                                  "python benchmarks/optimise_default.py --skip-grids"),
     "optimise_default_grids": ("the default case on 9x64, 17x64, 17x128 and 33x256",

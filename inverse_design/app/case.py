@@ -29,18 +29,12 @@ from pathlib import Path
 
 from ..defaults import VARIABLES
 from .case_file import read_config
+from .option_checks import (check_combinations, check_rib_spacings, check_values, fabric_law, given,
+                            marker_request)
 from .options import InputError, build_parser
 
-__all__ = ["NOT_FOR_A_WING", "Case", "Options", "Rib", "load_section"]
+__all__ = ["Case", "Options", "Rib", "load_section"]
 
-#: Options that a wing's case file gives per rib instead, and where.
-NOT_FOR_A_WING = {
-    "chord": "give each rib's chord in its [[rib]] table",
-    "rib_spacing": "give each rib's station in its [[rib]] table",
-    "rib": "give each rib's section in its [[rib]] table",
-}
-#: The fields a design can take that ``--evaluate`` (one equilibrium at the given values) has no values for.
-_DESIGNED_FIELDS = ("rib_shape", "cut_pattern")
 #: Names of `output_folder.REPORT_FILES` that a kind of run never writes (`Case.may_write`).
 _NEVER = {
     "any": r"cut_pattern\.csv|mid_bay_section\.png|aero\.png",  # (an earlier layout's names)
@@ -51,6 +45,7 @@ _NEVER = {
     "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
     "no_tolerances": r"tolerance\.png|tolerance_samples\.csv",
     "no_samples": r"tolerance_samples\.csv",
+    "no_marker": r"marker\.(dxf|svg|png)",
 }
 
 
@@ -96,7 +91,9 @@ class Case:
             two ribs take one rib shape and one cut field, as `inverse_design.optimise_pressure`'s).
         notes: the warnings raised while the case was read (a section renormalised to unit chord, ...):
             the run shows them with its own and records them in the summary.
-        law: the fibre law fitted to ``--fabric-test`` (a `model.biaxial.FittedLaw`), or None (eq. 10).
+        law: the fibre law fitted to ``--fabric-test`` (a `forward_solver.FittedLaw`), or None (eq. 10).
+        marker: the shop's marker asked for (``--roll-width``: an `inverse_design.marker.MarkerRequest` with
+            the gap, the warp and the time limit), or None.
     """
 
     options: Options
@@ -106,6 +103,7 @@ class Case:
     from_ribs: bool
     notes: tuple = ()
     law: object = None
+    marker: object = None
 
     @classmethod
     def from_arguments(cls, argv: list[str] | None = None) -> "Case":
@@ -119,15 +117,16 @@ class Case:
         """
         options, sources = _merged_options(sys.argv[1:] if argv is None else list(argv))
         variables = _variables(options, sources)
-        _check_combinations(options, sources, variables)
-        _check_values(options, sources)
-        law = _fabric_law(options)
+        check_combinations(options, sources, variables)
+        check_values(options, sources)
+        marker = marker_request(options, sources)
+        law = fabric_law(options)
         with warnings.catch_warnings(record=True) as caught:  # (a section renormalised, a field per bay on one)
             warnings.simplefilter("always")
             ribs = _ribs(options, sources)
-            _check_rib_spacings(options, ribs)
+            check_rib_spacings(options, ribs)
             case = cls(options=options, sources=sources, ribs=ribs, variables=variables,
-                       from_ribs=options.wing is not None, law=law)
+                       from_ribs=options.wing is not None, law=law, marker=marker)
             case._check_fields()
         return dataclasses.replace(case, notes=tuple(dict.fromkeys(str(w.message) for w in caught)))
 
@@ -171,7 +170,8 @@ class Case:
         o = self.options
         kinds = {"any": True, "several_bays": self.n_bays > 1, "evaluate": o.evaluate,
                  "unshaped": "rib_shape" not in self.variables, "no_aero": not o.aero, "no_patterns": o.no_patterns,
-                 "no_tolerances": not o.tolerances, "no_samples": bool(o.tolerances) and not o.samples}
+                 "no_tolerances": not o.tolerances, "no_samples": bool(o.tolerances) and not o.samples,
+                 "no_marker": self.marker is None}
         return re.compile("|".join(f"(?:{_NEVER[kind]})" for kind, never in kinds.items() if never))
 
     def ignored_options(self) -> list[str]:
@@ -185,14 +185,14 @@ class Case:
         if not o.tolerances:
             for name in ("shape_spec", "samples", "seed", "scheduler"):
                 if name in sources:
-                    lines.append(f"{_given(name, sources)} is ignored without tolerances (--tolerance NAME=VALUE or "
+                    lines.append(f"{given(name, sources)} is ignored without tolerances (--tolerance NAME=VALUE or "
                                  "a [tolerances] table), which turn on the tolerance analysis")
         elif "scheduler" in sources and not o.samples:
-            lines.append(f"{_given('scheduler', sources)} is ignored without --samples: the first-order analysis "
+            lines.append(f"{given('scheduler', sources)} is ignored without --samples: the first-order analysis "
                          "runs here; the cluster solves Monte Carlo wings")
         if o.evaluate and "variables" in sources:
-            lines.append(f"{_given('variables', sources)} {o.variables} is ignored with "
-                         f"{_given('evaluate', sources)}, which solves the equilibrium at the given values "
+            lines.append(f"{given('variables', sources)} {o.variables} is ignored with "
+                         f"{given('evaluate', sources)}, which solves the equilibrium at the given values "
                          "(--pressure, --prestrain-span, ...) and optimises nothing")
         return lines
 
@@ -282,12 +282,6 @@ def _merged_options(argv: list[str]) -> tuple[Options, dict]:
     return Options(merged), sources
 
 
-def _given(name: str, sources: Mapping) -> str:
-    """How an option was given, for a message: ``--min-tension`` or ``min-tension (case file)``."""
-    flag = name.replace("_", "-")
-    return f"--{flag}" if sources.get(name) != "config" else f"{flag} (case file)"
-
-
 def _variables(o: Options, sources: Mapping) -> tuple:
     """``--variables`` as names, each one a design variable (`inverse_design.defaults.VARIABLES`)."""
     names = tuple(v.strip() for v in o.variables.split(",") if v.strip())
@@ -297,131 +291,6 @@ def _variables(o: Options, sources: Mapping) -> tuple:
         what = f"unknown design variable {unknown[0]!r}" if unknown else "no design variable given"
         raise InputError(f"{where}: {what}; choose among {', '.join(VARIABLES)}")
     return names
-
-
-def _check_combinations(o: Options, sources: Mapping, variables: tuple) -> None:
-    """Refuse options that contradict each other (exit 2, one line each; docs/errors.md).
-
-    * ``--no-tension-constraints`` with ``--min-tension`` or ``--max-tension``
-      given: the limit would be dropped.
-    * ``--evaluate`` with ``--refine``: one equilibrium has no design to refine.
-    * ``--evaluate`` with ``rib_shape`` or ``cut_pattern`` among ``--variables``:
-      it solves at the given values, and those fields have none to give (it
-      would solve the unshaped rib and the uniform cut).
-    * ``--objective robust`` with ``--evaluate`` (nothing is designed) or
-      with a ``--method`` other than auto or gauss_newton.
-    * ``--method root`` on a bay given by options with variables other than
-      the pressure alone: root finding (brentq) solves for the pressure alone.
-    * A wing's case file with an option it gives per rib (`NOT_FOR_A_WING`),
-      or ``--method root`` on several bays.
-    """
-    if o.no_tension_constraints:
-        for name in ("min_tension", "max_tension"):
-            if name in sources:
-                raise InputError(f"{_given(name, sources)} {getattr(o, name):g} N/m contradicts "
-                                 f"{_given('no_tension_constraints', sources)}, which drops both tension limits: "
-                                 "give one or the other")
-    if o.objective == "robust" and o.evaluate:
-        raise InputError(f"{_given('objective', sources)} robust designs for the tolerances, and "
-                         f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: drop --evaluate, "
-                         "or give --objective average with --tolerance for the analysis of that equilibrium")
-    if o.objective == "robust" and o.method not in ("auto", "gauss_newton"):
-        raise InputError(f"{_given('objective', sources)} robust is minimised by gauss_newton (a sum of squares "
-                         f"with the tolerance Jacobian's derivatives), got {_given('method', sources)} "
-                         f"{o.method}: give --method auto or gauss_newton")
-    if o.evaluate and o.refine:
-        raise InputError(f"{_given('refine', sources)} polishes a design on a finer grid, and "
-                         f"{_given('evaluate', sources)} solves one equilibrium and designs nothing: give one or "
-                         "the other")
-    fields = [name for name in variables if name in _DESIGNED_FIELDS]
-    if o.evaluate and "variables" in sources and fields:
-        raise InputError(f"{_given('evaluate', sources)} solves at the given values, and {', '.join(fields)} "
-                         f"of {_given('variables', sources)} has no value to give (it would solve the unshaped "
-                         "rib and the uniform cut): drop --evaluate to design it, or drop it from --variables")
-    if o.method == "root" and o.wing is None and variables != ("pressure",):
-        raise InputError(f"{_given('method', sources)} root solves for the pressure alone (brentq on one scalar "
-                         f"condition at mid-bay, --root-condition), got --variables {','.join(variables)}: give "
-                         "--variables pressure, or another --method")
-    if o.wing is not None:
-        for option, why in NOT_FOR_A_WING.items():
-            if option in sources:
-                raise InputError(f"{option.replace('_', '-')} does not apply to a wing ([[rib]] tables in "
-                                 f"{o.config}): {why}")
-        if o.method == "root" and len(o.wing) > 2 and not o.evaluate:
-            raise InputError(f"method root does not apply to a wing of {len(o.wing) - 1} bays ([[rib]] tables in "
-                             f"{o.config}): root finding solves one scalar condition at one bay's mid-bay "
-                             "section: use slsqp, gauss_newton, least_squares or optax")
-
-
-#: The options that are a (lower, upper) pair of bounds.
-BOUND_OPTIONS = ("pressure_bounds", "prestrain_bounds", "rib_thickness_bounds", "rib_chord_bounds", "rib_shape_bounds",
-                 "cut_pattern_bounds")
-
-
-def _check_values(o: Options, sources: Mapping) -> None:
-    """Refuse the values that the option types leave open (before any solve)."""
-    for name in BOUND_OPTIONS:  # (whether its variable is designed or not: a reversed pair is a slip)
-        low, high = getattr(o, name)
-        if not low < high:
-            where = f"{o.config}: {name.replace('_', '-')}" if sources.get(name) == "config" else f"--{name.replace('_', '-')}"
-            raise InputError(f"{where} {low:g} {high:g}: the lower bound must lie below the upper; give LOW HIGH "
-                             "with LOW < HIGH")
-    if not o.shear_stiffness >= 0:
-        raise InputError(f"{_given('shear_stiffness', sources)} must be 0 N/m or more (0: no shear stiffness, as the "
-                         f"paper takes it), got {o.shear_stiffness:g}")
-    if o.fabric_test is not None:
-        for name in ("stiffness_span", "stiffness_chord", "poisson"):
-            if name in sources:
-                raise InputError(f"{_given(name, sources)} is eq. 10's, and {_given('fabric_test', sources)} "
-                                 f"{o.fabric_test} gives the fabric's law (its nominal stiffnesses and coupling are "
-                                 "fitted to the test): give one or the other (a lot's scatter: --tolerance "
-                                 f"{name}=...)")
-    if not o.seam_allowance >= 0:
-        raise InputError(f"--seam-allowance must be 0 mm or more (the cut line lies outside the sewing line), "
-                         f"got {o.seam_allowance:g}: give 0 or a positive number of mm")
-    if o.seam_allowance > MAX_SEAM_ALLOWANCE_MM:
-        raise InputError(f"--seam-allowance {o.seam_allowance:g} mm puts the cut line more than "
-                         f"{MAX_SEAM_ALLOWANCE_MM / 1000:g} m outside the sewing line: give the allowance in "
-                         "millimetres (a seam takes 5-20 mm)")
-
-
-#: Largest rib spacing over the bay's mean chord: ribs further apart no longer shape the skin between them,
-#: which inflates towards a cylinder (the model is validated to 0.5 chords, `inverse_design.plausibility`,
-#: and warns beyond; a bay 1000 m long on a 1 m chord was reported as a design of rms 0.15 chord).
-MAX_SPACING_OVER_CHORD = 5.0
-#: Largest seam allowance, mm (`--seam-allowance`): beyond it a value in metres or micrometres is likelier.
-MAX_SEAM_ALLOWANCE_MM = 1000.0
-
-
-def _fabric_law(o: Options):
-    """The fibre law fitted to ``--fabric-test`` (`forward_solver.model.biaxial`: read, checked and fitted), or None.
-
-    Raises:
-        InputError: the test file's own line (it names the file, where and what to change; docs/errors.md).
-    """
-    if o.fabric_test is None:
-        return None
-    from forward_solver.model.biaxial import TestFileError, fit_law, read_test  # (worker: imported through cli by every report worker)
-
-    if not str(o.fabric_test).strip():
-        raise InputError("--fabric-test: the test file is an empty name (an unset shell variable?); give the CSV of "
-                         "the fabric's biaxial test")
-    try:
-        return fit_law(read_test(o.fabric_test))
-    except TestFileError as exc:
-        raise InputError(str(exc)) from None
-
-
-def _check_rib_spacings(o: Options, ribs: tuple) -> None:
-    """Refuse a bay whose ribs lie more than `MAX_SPACING_OVER_CHORD` mean chords apart (before any solve)."""
-    for k in range(len(ribs) - 1):
-        spacing = ribs[k + 1].station - ribs[k].station
-        chord = 0.5 * (ribs[k].chord + ribs[k + 1].chord)
-        if spacing > MAX_SPACING_OVER_CHORD * chord:
-            where = (f"{o.config}: ribs {k} and {k + 1}" if o.wing is not None else f"--rib-spacing {o.rib_spacing:g}")
-            raise InputError(f"{where}: the ribs lie {spacing:g} m apart on a {chord:g} m chord, more than "
-                             f"{MAX_SPACING_OVER_CHORD:g} chords: ribs so far apart no longer shape the skin between "
-                             "them (the model is validated up to 0.5 chords); place the ribs closer, or add ribs")
 
 
 def _ribs(o: Options, sources: Mapping) -> tuple:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-__all__ = ["WROTE_NAMES", "describe", "grouped_names", "number_text", "refined_line", "sensitivity_lines",
+__all__ = ["WROTE_NAMES", "describe", "grouped_names", "marker_line", "number_text", "refined_line", "sensitivity_lines",
            "start_violation_line", "tolerance_lines", "wrote_line"]
 
 #: Units of the amounts in ``constraints.violated`` (tension limits: N/m).
@@ -181,6 +181,8 @@ def describe(summary: dict) -> list[str]:
                          f"(confidence >= {aero['min_confidence']['mid_bay']:.2f})")
     if summary.get("tolerance"):
         lines += tolerance_lines(summary["tolerance"])
+    if summary.get("marker"):
+        lines.append(marker_line(summary["marker"]))
     wrinkled = res["equilibrium"]["wrinkled_fraction"]
     if wrinkled:
         lines.append(f"  wrinkled cells: {100 * wrinkled:.1f}% of the skin")
@@ -190,6 +192,13 @@ def describe(summary: dict) -> list[str]:
     lines.append(f"  {timings['total']:.1f} s (report {timings['report']:.1f} s{memory})")
     lines.append(wrote_line(summary))
     return lines
+
+
+def marker_line(marker: dict) -> str:
+    """The marker's line (``summary["marker"]``): the roll, the length used, the utilisation, the nesting."""
+    return (f"  marker: {marker['panels']} panels on a {marker['roll_width_mm']:g} mm roll (warp along the "
+            f"{marker['warp']}), {marker['length_mm'] / 1000:.3f} m used, utilisation {marker['utilisation']:.1%}, "
+            f"nested by {marker['nester']} in {marker['seconds']:.0f} s ({marker['ended']}; marker.dxf)")
 
 
 #: Most file names the "wrote" line lists; beyond, it gives their count (summary.json lists them all).

@@ -53,8 +53,8 @@ import numpy as np
 from ..flat_layout import offset_outline, panel_outline
 from .shop_marks import MARK_EVERY, NOTCH_IN, TEXT_HEIGHT, panel_marks, rib_mark_nodes, rib_marks
 
-__all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "MM", "rib_mark_nodes", "write_panel_dxf", "write_panel_svg",
-           "write_rib_dxf"]
+__all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "MM", "rib_mark_nodes", "write_dxf", "write_panel_dxf",
+           "write_panel_svg", "write_rib_dxf", "write_svg"]
 
 #: Layer name -> AutoCAD colour index (red, blue, green, grey).
 LAYERS = {"CUT": 1, "SEW": 5, "MARK": 3, "GRID": 8}
@@ -116,7 +116,10 @@ def _panel_drawing(panel, seam_allowance_mm: float) -> dict:
     return {"SEW": [sew], "CUT": [cut], "MARK": marks + lines, "GRID": fibres, "text": text}
 
 
-def _write_dxf(path, drawing: dict) -> Path:
+def write_dxf(path, drawing: dict) -> Path:
+    """Write a drawing as DXF, 1:1 in millimetres: ``drawing`` is ``{"SEW": [closed polylines], "CUT":
+    [closed], "MARK": [open], "GRID": [open] (optional), "text": [mark_layout.Text]}``, points in mm, on
+    the layers of those names (`LAYERS`; texts on MARK). The panels, the ribs and the marker are drawn so."""
     from ezdxf.enums import TextEntityAlignment
 
     doc = _document()
@@ -137,15 +140,19 @@ def _write_dxf(path, drawing: dict) -> Path:
 
 def write_panel_dxf(path, panel, seam_allowance_mm: float = 10.0) -> Path:
     """Write one flat panel (`flat_layout.Panel`) as DXF, 1:1 in millimetres (module docstring)."""
-    return _write_dxf(path, _panel_drawing(panel, seam_allowance_mm))
+    return write_dxf(path, _panel_drawing(panel, seam_allowance_mm))
 
 
 def write_panel_svg(path, panel, seam_allowance_mm: float = 10.0) -> Path:
     """Write one flat panel as SVG for a quick look (the DXF's lines, 1 user unit = 1 mm; a text's
     font size is its capitals' height over `_CAP_HEIGHT`, so that its capitals are as high as the DXF's)."""
+    return write_svg(path, _panel_drawing(panel, seam_allowance_mm))
+
+
+def write_svg(path, drawing: dict) -> Path:
+    """Write a drawing (`write_dxf`'s) as SVG for a quick look: 1 user unit = 1 mm, y up as in the DXF."""
     from xml.sax.saxutils import escape
 
-    drawing = _panel_drawing(panel, seam_allowance_mm)
     points = np.concatenate([np.concatenate(drawing[k]) for k in ("CUT", "MARK")])
     lo, hi = points.min(axis=0) - 2 * TEXT_HEIGHT, points.max(axis=0) + 2 * TEXT_HEIGHT
     width, height = hi - lo
@@ -157,7 +164,7 @@ def write_panel_svg(path, panel, seam_allowance_mm: float = 10.0) -> Path:
     body = []
     for layer in ("GRID", "SEW", "CUT", "MARK"):
         closed = layer in ("SEW", "CUT")
-        for line in drawing[layer]:
+        for line in drawing.get(layer, []):
             tag = "polygon" if closed else "polyline"
             body.append(f'<{tag} class="{layer}" points="{" ".join(xy(p) for p in line)}" fill="none" '
                         f'stroke="{colours[layer]}" stroke-width="0.5"/>')
@@ -204,4 +211,4 @@ def write_rib_dxf(path, outline, nodes, label: str, seam_allowance_mm: float = 1
              "numbers: each tick meets the panels' notches of the same number"]
     lines, text = rib_marks(sew, cut, attach, normal_at, seam_allowance_mm,
                             label.split(",")[0] if title is None else title, notes)
-    return _write_dxf(path, {"SEW": [sew], "CUT": [cut], "MARK": marks + lines, "text": text})
+    return write_dxf(path, {"SEW": [sew], "CUT": [cut], "MARK": marks + lines, "text": text})

@@ -16,6 +16,7 @@ tolerances (`tolerances`, `analyse_tolerances`), the aerodynamic comparison
 from __future__ import annotations
 
 import csv
+import math
 import os
 import sys
 import tempfile
@@ -28,6 +29,7 @@ from .. import methods
 from ..aero import AeroUnavailable, aerodynamic_cost, alpha_range, require_neuralfoil
 from ..constraints import Constraints
 from ..flat_panels import bay_panels
+from ..marker import nest_panels, panel_label, widest_panel
 from ..memory import design_memory, design_tangents
 from ..optimise import evaluate_design, optimise_wing, refine_design
 from ..plausibility import LIMITS, check_plausibility
@@ -40,8 +42,8 @@ from .measures import mid_bay_targets
 from .options import PROG, InputError
 
 __all__ = ["aero_angles", "analyse_tolerances", "check_equilibrium_method", "check_flat_panels", "check_wing",
-           "compare_aero", "evaluate", "fabric", "layout", "limits", "method", "optimise", "refine", "solver_settings", "start",
-           "tolerances", "warning_lines", "wing"]
+           "compare_aero", "evaluate", "fabric", "layout", "limits", "marker", "method", "optimise", "refine",
+           "solver_settings", "start", "tolerances", "warning_lines", "wing"]
 
 
 # ------------------------------------------------------------------ the library inputs of a case
@@ -389,3 +391,28 @@ def analyse_tolerances(case, result, parsed: dict, notes: list):
     analysis.samples_file = stream.get("path")
     return analysis
 
+
+
+def marker(case, result, *, progress: bool = False, callback=None):
+    """The shop's marker of a design (``--roll-width``, `case.Case.marker`): every bay's panels
+    (`inverse_design.flat_panels.bay_panels` at the designed cut lengths) nested on the roll
+    (`inverse_design.marker.nest_panels`).
+
+    Raises:
+        InputError: the roll is narrower than the widest panel (named, with the width it needs): checked
+            here, after the design and before the nesting, since a panel's width follows its designed
+            cut lengths.
+    """
+    sol, request, allowance = result.wing_solution, case.marker, case.options.seam_allowance
+    panels = []
+    for k in range(result.n_bays):
+        scene = sol.scene(k) if sol.fabric is not None else result.per_bay.scenes[k]
+        panels += bay_panels(scene, sol.bay_solution(k).parameters, bay=k)
+    widest, needs = widest_panel(panels, request, allowance)
+    if needs > request.roll_width_mm:
+        given = "roll-width (case file)" if case.sources.get("roll_width") == "config" else "--roll-width"
+        raise InputError(f"{given} {request.roll_width_mm:g} mm is narrower than the {panel_label(widest)}, which "
+                         f"needs {needs:.1f} mm across the roll (its cut outline, warp along the {request.warp}, with "
+                         f"the {request.gap_mm:g} mm gap): give {given} {math.ceil(needs)} or more (checked after the "
+                         "design, whose cut lengths set the panels' widths; nothing was written)")
+    return nest_panels(panels, request, seam_allowance_mm=allowance, progress=progress, callback=callback)

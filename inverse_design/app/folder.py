@@ -45,6 +45,7 @@ from forward_solver import rib_section
 from ..optimise import DesignResult
 from ..rib_design import cut_lengths
 from .bay_figures import plot_deviation, plot_rib_design, plot_section, plot_tensions
+from .marker_files import write_marker_files
 from .patterns import write_bay_patterns
 from .formats import bay_arrays, wing_arrays, write_cut_pattern, write_npz, write_obj, write_selig, write_stl
 from .measures import chords_and_stations, mid_bay_targets, wing_deviation, wing_nodes
@@ -115,7 +116,8 @@ class ReportOptions:
                              f"line), got {self.seam_allowance_mm!r} mm: give --seam-allowance 0 or a positive number")
 
 
-def write_report(out, result: DesignResult, *, options: ReportOptions | None = None, workers=None) -> dict:
+def write_report(out, result: DesignResult, *, options: ReportOptions | None = None, workers=None,
+                 marker=None) -> dict:
     """Write the output folder of a design (or of a single equilibrium) of N >= 1 bays; return its summary.
 
     Args:
@@ -132,6 +134,9 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
             write the DXF patterns while this process writes the other
             files; what they do not write is written here. Default none:
             every file is written here.
+        marker: the design's marker (`inverse_design.marker.Marker`, the command's ``--roll-width``) or
+            None: ``marker.dxf``, ``.svg``, ``.png`` (`marker_files`) and ``summary["marker"]``; its
+            panels are the pattern files' (laid out once).
 
     Returns:
         The summary (as written to ``summary.json``), with ``files`` (names in
@@ -176,8 +181,12 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
                     files.append("tolerance_samples.csv")
             with saved_after(built, _save):
                 _write_data(staging, bays, files, skipped)
+                if marker is not None:
+                    files += write_marker_files(staging, marker)
+                    summary["marker"] = marker.summary()
                 if _patterns_wanted(options.patterns, summary, skipped):
-                    names, panels = _write_patterns(staging, bays, options.seam_allowance_mm, workers, sent)
+                    laid = {} if marker is None else {(p.bay, p.name): p.panel for p in marker.pieces}
+                    names, panels = _write_patterns(staging, bays, options.seam_allowance_mm, workers, sent, laid)
                     files += names
                     summary["patterns"] = _pattern_entry(names, panels, options.seam_allowance_mm)
             if sent:  # the workers' files; any they did not write is written here
@@ -291,17 +300,20 @@ def _write_data(staging: Path, bays: _Bays, files: list, skipped: dict) -> None:
         files.append(name)
 
 
-def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, workers, sent: list) -> tuple:
-    """Every bay's flat panels and rib templates (`patterns.write_bay_patterns`): ``(names, panels)``.
+def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, workers, sent: list, laid: dict) -> tuple:
+    """Every bay's flat panels and rib templates (`patterns.write_bay_patterns`): ``(names, panels)``; the
+    panels already laid out for the marker (``laid``: ``{(bay, name): Panel}``) are not laid out again.
     With workers that took the figures (``sent``, their tasks so far, extended here), each bay's DXF
     files are handed to them at once: they write them while this process lays out the next bays' panels."""
     dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
     writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
     names, panels = [], []
     for k in range(bays.n):
+        known = [panel for (bay, _), panel in laid.items() if bay == k] or None
         more, bay_panels = write_bay_patterns(staging, bays.scenes[k], bays.solutions[k].parameters, bay=k,
                                               ribs=(k if k == 0 else None, k + 1),
-                                              seam_allowance_m=seam_allowance_mm / 1000.0, writer=writer)
+                                              seam_allowance_m=seam_allowance_mm / 1000.0, writer=writer,
+                                              panels=known)
         names += more
         panels += bay_panels
         if dxf and workers.submit(dxf):

@@ -117,6 +117,7 @@ _GROUPS = {
     "cut": "cut pattern (--variables ...,cut_pattern)",
     "optimiser": "optimiser",
     "aero": "aerodynamics",
+    "marker": "the shop's marker (--roll-width: every panel nested on the fabric roll)",
     "output": "input and output",
 }
 OPTIONS = (
@@ -298,6 +299,19 @@ OPTIONS = (
                                    metavar=("START", "STOP", "STEP"),
                                    help="angles of attack of --aero, deg, stop included, within +-20 "
                                    "(default -4 10 1)")),
+    ("marker", "--roll-width", dict(type=_number("mm", positive=True), default=None, metavar="MM",
+                                    help="nest every bay's panels (their cut outlines) on a fabric roll this wide, "
+                                    "mm, each turned by 0 or 180 degrees so that its warp runs along the roll (90 "
+                                    "or 270 with --warp chord), never mirrored: marker.dxf, .svg, .png and "
+                                    "summary.json's marker (the marker extra: pip install "
+                                    "\"inflatable-wing[marker]\"; docs/patterns.md)")),
+    ("marker", "--marker-gap", dict(type=_number("mm"), default=5.0, metavar="MM",
+                                    help="with --roll-width: the least distance between two cut outlines, and "
+                                    "half of it from the roll's edges, mm (default 5)")),
+    ("marker", "--marker-seconds", dict(type=_number("s", positive=True), default=None, metavar="S",
+                                        help="with --roll-width: the nesting's time limit, s (default: 20 s and half a "
+                                        "second per panel, 21 s for a bay, 60 s for 80 panels; a search that ends "
+                                        "on its own before it gives the same marker every run)")),
     ("output", "--config", dict(default=None, metavar="CASE.TOML",
                                 help="read options from a TOML file (keys: the long option names); "
                                 "command-line options override it")),
@@ -365,6 +379,8 @@ left by a killed run are removed by the next run to DIR:
                         a quick look; rib_K.dxf the rib templates (SEW the rib itself, CUT
                         its seam allowance; a successful design only; not with
                         --no-patterns)
+  marker.dxf, .svg, .png  with --roll-width: every panel nested on the roll, grain-true
+                        (docs/patterns.md; summary.json's marker: length, utilisation)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
 it are relative to the case file's folder; options on the command line override it):

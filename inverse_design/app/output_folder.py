@@ -48,7 +48,7 @@ REPORT_FILES = re.compile(r"summary\.json|equilibrium\.npz|wing\.npz|skin\.(obj|
                           r"pattern_bay_[0-9]+_(upper|lower|panel)\.(dxf|svg)|rib_[0-9]+\.dxf|"
                           r"rib(_[0-9]+)?\.dat|(bay_[0-9]+_)?mid_bay_section\.png|"
                           r"(bay_[0-9]+_)?aero\.png|(deviation|tensions|history|rib_design|wing_overview|tolerance|cut_pattern_overview)\.png|"
-                          r"tolerance_samples\.csv")
+                          r"tolerance_samples\.csv|marker\.(dxf|svg|png)")
 #: The summary of a report, whose ``files`` list the files that report wrote.
 SUMMARY = "summary.json"
 #: The summary's entry ``{name: {"bytes": size, "sha256": hex digest}}`` of the files it lists (`file_checksums`).

@@ -17,7 +17,8 @@ __all__ = ["write_bay_patterns"]
 
 
 def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
-                       seam_allowance_m: float = 0.01, rib_templates: bool = True, writer=None) -> list[str]:
+                       seam_allowance_m: float = 0.01, rib_templates: bool = True, writer=None,
+                       panels=None) -> list[str]:
     """Write one bay's panels (DXF and SVG) and its two ribs' templates into ``folder``.
 
     Args:
@@ -31,6 +32,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         writer: ``writer(path, function, *args)`` writes each DXF file, as
             ``function(path, *args)`` does (the default); the report's may hand
             it to its `workers.ReportWorkers` instead.
+        panels: the bay's panels already laid out (the marker's), or None: laid out here.
 
     Returns:
         ``(names, panels)``: the names of the files written and the `flat_layout.Panel` objects.
@@ -41,7 +43,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         def writer(path, function, *args):
             function(path, *args)
     names = []
-    panels = bay_panels(scene, parameters, bay=bay)
+    panels = bay_panels(scene, parameters, bay=bay) if panels is None else panels
     for panel in panels:
         for suffix, write in (("dxf", write_panel_dxf), ("svg", write_panel_svg)):
             name = f"pattern_bay_{bay}_{panel.name}.{suffix}"

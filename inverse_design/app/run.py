@@ -97,6 +97,13 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
             if o.refine:
                 result = design.refine(case, result)
             timings["optimisation"] = time.perf_counter() - t
+    marker = None
+    if case.marker is not None and result.success:  # (the widest panel checked first, then nested)
+        t = time.perf_counter()
+        marker = design.marker(case, result, progress=progress, callback=safe_point)
+        timings["marker"] = time.perf_counter() - t
+    elif case.marker is not None:
+        notes.append("no marker (--roll-width): a failed design is not to be cut")
     aero = None
     if alphas is not None:
         t = time.perf_counter()
@@ -115,7 +122,7 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
     samples_file = analysis.samples_file if analysis is not None else None
     try:
         with interrupts.undo_if_abandoned(lambda: samples_file and os.unlink(samples_file)):
-            return write_report(out, result, options=report, workers=workers)
+            return write_report(out, result, options=report, workers=workers, marker=marker)
     finally:
         if samples_file and os.path.exists(samples_file):  # (a stop that abandoned the work removed it)
             os.unlink(samples_file)
