@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse
 
 from forward_solver import solve_bays
+from forward_solver.programs import mounted_compiled
 from forward_solver.derivatives.forward import value_and_jacobian
 from forward_solver.solution import BaysConvergenceError, BaysSolution
 from forward_solver.solvers.bays import default_strategy
@@ -45,6 +46,10 @@ from .tolerance.robust import RobustTerms, check_robust_tolerances
 from .variables import DesignVariables, concrete_rows, key_of
 
 __all__ = ["DesignProblem", "check_field_terms"]
+
+
+#: The design variables that move the ribs, and with them every bay's mounted shape.
+RIB_VARIABLES = ("rib_thickness_scale", "rib_chord_scale", "rib_shape")
 
 
 @jax.jit
@@ -113,6 +118,9 @@ class DesignProblem:
         self.sequencing = self.scenes[0].bay.n_contour > 128
         self.previous: BaysSolution | None = None  # warm start (and its LU factors)
         self._previous_key = None
+        # The displacements' tangents along the seeds at the last linearisation: ``(key_of(u), u, tangents)``,
+        # ``tangents`` ``(n_bays, n_seeds, n_span, n_contour, 3)`` (`predicted_start`).
+        self._tangents = None
         self.solves = 0
         self.history = History(variables)
         # The last evaluation with its derivatives, by ``(kind, key_of(u))``: `evaluate`'s, `nominal_linearised`'s
@@ -192,7 +200,8 @@ class DesignProblem:
         """
         # The chain retries cold itself; a named method is retried cold here.
         retry = self.previous is not None and self.method != "auto"
-        for initial in ([self.previous, None] if retry else [self.previous]):
+        warm = self.predicted_start(u)
+        for initial in ([warm, None] if retry else [warm]):
             held = {}
 
             def wrapped(v):
@@ -223,6 +232,35 @@ class DesignProblem:
         self.previous, self._previous_key = sol, key_of(u)
         self._solved[key_of(u)] = sol.without_factors()
         return sol
+
+    def predicted_start(self, u) -> BaysSolution | None:
+        """The warm start of a solve at ``u``: the last solution, its displacements moved by their first-order
+        change ``(dx/du) (u - u_last)`` where the last solve was linearised (the tangents a Gauss-Newton
+        iterate's Jacobian computed anyway: no extra back-solve), so that the chord Newton iteration with its
+        LU factor starts within the step's second-order error (Panetta et al., 2021, warm-start each design
+        iterate the same way). Otherwise the last solution itself, or None before the first."""
+        previous = self.previous
+        if (previous is None or previous.solutions is None or self._tangents is None
+                or self._tangents[0] != self._previous_key):
+            return previous
+        _, u_last, tangents = self._tangents
+        step = np.asarray(u, np.float64) - u_last
+        _, columns = self.seeds
+        moved = []
+        # A solve starts from its warm start's displacement on its own mounted shape (`solution.initial_nodes`):
+        # where the ribs move, the nodes' tangents hold the mounted shape's change, which that adds again.
+        ribs_move = any(name in RIB_VARIABLES for name in self.variables.names)
+        for k, sol in enumerate(previous.solutions):
+            nodes = np.asarray(sol.extra.get("primal_nodes", sol.nodes)) + np.tensordot(step[columns[k]], tangents[k],
+                                                                                         axes=1)
+            if ribs_move:
+                scene = self.scenes[k]
+                with jax.enable_x64(True):
+                    mounted = mounted_compiled(scene.bay.geometry(),
+                                               scene.params(self.variables.bay_parameters(np.asarray(u), k)))
+                nodes = nodes - (np.asarray(mounted) - np.asarray(previous.mounted[k]))
+            moved.append(sol.replace(nodes=nodes, extra={**sol.extra, "primal_nodes": nodes}))
+        return dataclasses.replace(previous, solutions=moved)
 
     def final_solution(self, u) -> BaysSolution:
         """`solve` at ``u``, with each bay's LU factor when ``u`` was the last point solved (the
@@ -358,8 +396,11 @@ class DesignProblem:
         if key not in self._cache:
             seeds, columns = self.seeds
             (y, compressed), sol = self._transformed(partial(value_and_jacobian, basis=seeds),
-                                                     self._linearised_outputs, u)
-            y = np.asarray(y)
+                                                     self._outputs_and_displacements, u)
+            n_out = y.size - sol.nodes.size
+            y, compressed, moved = np.asarray(y[:n_out]), compressed[:n_out], compressed[n_out:]
+            self._tangents = (key_of(u), np.array(u, np.float64),
+                              np.moveaxis(moved.reshape(*sol.nodes.shape, -1), -1, 1))
             n = self.targets.residual_size
             jac = decompress(compressed, self._row_bays(y.size), columns, self.variables.size)
             r, jr, g, jg = y[:n], jac[:n], y[n:], jac[n:]
@@ -373,6 +414,11 @@ class DesignProblem:
                                     constraints=recorded,
                                     jacobian=f"{len(self.scenes)} bay blocks x {seeds.shape[0]} tangents")
         return self._cache[key]
+
+    def _outputs_and_displacements(self, v, sol):
+        """`_linearised_outputs`, then every bay's displacement from its mounted shape (flat): their
+        tangents are the next solve's first-order warm start (`predicted_start`)."""
+        return jnp.concatenate([self._linearised_outputs(v, sol), (sol.nodes - sol.mounted).reshape(-1)])
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""

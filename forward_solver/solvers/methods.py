@@ -15,7 +15,7 @@ only the relaxation and the paper's scheme have a ``precision``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import ClassVar, NamedTuple
 
@@ -34,7 +34,7 @@ from .newton import NewtonOptions, chord_newton, newton
 from .relax import RELAX_CHUNK, traced_solution
 from .sequencing import COARSE_RTOL, Relaxation, compile_ahead, sequenced_start, use_half
 
-__all__ = ["Relax", "Newton", "RelaxNewton", "Explicit", "NEWTON_SWITCH_RTOL", "HostOnly"]
+__all__ = ["Relax", "Newton", "RelaxNewton", "Explicit", "NEWTON_SWITCH_RTOL", "WARM_NEWTON_ITERATIONS", "HostOnly"]
 
 #: Where "relax+newton" hands over from relaxation to Newton: loose enough that relaxation's slow
 #: tail is skipped, tight enough that Newton starts in its quadratic basin (no line search or
@@ -192,6 +192,11 @@ class Newton(NewtonOptions, HostOnly):
                                     extra=host.extra)
 
 
+#: Newton iterations tried from a warm start whose chord iteration did not converge, before relaxing
+#: (`RelaxNewton`): a nearby equilibrium converges in 2-5.
+WARM_NEWTON_ITERATIONS = 8
+
+
 @dataclass(frozen=True)
 class RelaxNewton(HostOnly):
     """Relaxation to ``switch_rtol``, then Newton to ``rtol``: the fast, accurate host method.
@@ -235,6 +240,15 @@ class RelaxNewton(HostOnly):
                 if chord is not None:
                     host.extra["warm_start"] = "chord Newton with the initial solution's factor"
                     return finish(chord, steps, extra=dict(host.extra, relax_steps=0))
+                # Beyond the chord iteration's reach (a design step's change of the Jacobian): Newton proper
+                # from the warm start, without load continuation and with few iterations, before any
+                # relaxation (which from a nearby shape still takes about as many steps as from the mounted one).
+                near = newton(x_init, host.geometry, host.params, host.physics, rtol,
+                              replace(self.newton, continuation=False, max_iterations=WARM_NEWTON_ITERATIONS),
+                              divergence_bound=host.bay.divergence_bound)
+                if near.result == Result.converged:
+                    host.extra["warm_start"] = "Newton from the initial solution"
+                    return finish(near, steps, extra=dict(host.extra, relax_steps=0))
             ahead.ready(prepared.get(tuple(x_init.shape)))
             out, _, nodes = relax(x_init, host.geometry, relax_rtol, with_forces=False)
             jax.block_until_ready(out)

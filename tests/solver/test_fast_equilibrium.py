@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from forward_solver import Fabric, PressureRamp, Relax, Scene, simulate, solve_equilibrium
+from forward_solver.solvers.methods import WARM_NEWTON_ITERATIONS
 from support.solver import default_bay
 
 PRESSURE = 2e4
@@ -72,6 +73,20 @@ def test_warm_start_after_one_percent_pressure_change(wing_bay):
     relaxed = solve_equilibrium(scene, 1.01 * PRESSURE, PRESTRAIN, rtol=1e-9, initial=base)
     assert relaxed.steps < cold_relax.steps
     assert np.abs(relaxed.nodes - cold.nodes).max() < 1e-7
+
+
+def test_a_warm_start_beyond_the_chord_iteration_takes_newton_not_relaxation(wing_bay):
+    # A design step's change (pressure -40%, prestrain +1%): the old factor no longer halves the residual
+    # each chord iteration, and Newton proper from the old shape converges without a relaxation step, to
+    # the cold solve's shape (both at rtol 1e-9: within 1e-8 chord).
+    scene = Scene(wing_bay, Fabric())
+    base = solve_equilibrium(scene, PRESSURE, PRESTRAIN, rtol=1e-9, method="relax+newton")
+    step = (0.6 * PRESSURE, (PRESTRAIN[0] + 0.01, PRESTRAIN[1]))
+    cold = solve_equilibrium(scene, *step, rtol=1e-9, method="relax+newton")
+    warm = solve_equilibrium(scene, *step, rtol=1e-9, method="relax+newton", initial=base)
+    assert warm.extra["warm_start"] == "Newton from the initial solution" and warm.extra["relax_steps"] == 0
+    assert warm.extra["newton_iterations"] <= WARM_NEWTON_ITERATIONS < cold.extra["relax_steps"]
+    assert np.abs(warm.nodes - cold.nodes).max() < 1e-8
 
 
 def test_equilibrium_does_not_depend_on_the_starting_shape(wing_bay, wing_reference):
