@@ -58,6 +58,8 @@ EXPECTED = {
                          "python benchmarks/runtime_vs_error.py"),
     "stability_map_panel": ("stability of the paper's explicit scheme: Courant coefficient against viscosity",
                             "python benchmarks/stability_map.py"),
+    "wing_solves_*": ("a design's wing solves one by one against an earlier checkout",
+                      "python benchmarks/wing_solves.py --base /tmp/base --case wing40"),
     "wing_batch": ("one jit(vmap) batch of bays against a loop of bays", "python benchmarks/wing_batch.py"),
     "wing_batch_design": ("the built-in 3-bay wing designed with SLSQP, with and without rib shapes",
                           "python benchmarks/wing_batch.py --no-batch --design --rib-shapes"),
