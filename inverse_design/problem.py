@@ -43,9 +43,9 @@ from .methods.blocks import compressed_seeds, decompress
 from .objectives import WingTargets
 from .settings import SolverSettings
 from .tolerance.robust import RobustTerms, check_robust_tolerances
-from .variables import DesignVariables, concrete_rows, key_of
+from .variables import DesignVariables, check_field_terms, concrete_rows, key_of
 
-__all__ = ["DesignProblem", "check_field_terms"]
+__all__ = ["DesignProblem"]
 
 
 #: The design variables that move the ribs, and with them every bay's mounted shape.
@@ -490,20 +490,3 @@ class DesignProblem:
         return {**self.targets.errors(d), "min_tension": np.array([x.min() for x in t]),
                 "max_tension": np.array([x.max() for x in t]), "tensions": t}
 
-
-def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
-    """Refuse a cut field with more terms per fibre direction than the bay's ``n_contour`` contour nodes:
-    beyond one term per node a term's B-spline spans no node (`forward_solver.model.cut_field`), so it moves
-    nothing and the design's Jacobian is singular in it.
-
-    Raises:
-        ValueError: naming the terms, the nodes and what to change.
-    """
-    if "cut_pattern" not in variables.names:
-        return
-    width = variables.sizes["cut_pattern"] if variables.cut_patterns is None else variables.cut_patterns.shape[1]
-    terms = width // 2
-    if terms > n_contour:
-        raise ValueError(f"a cut pattern of {terms} terms per fibre direction on {n_contour} contour nodes: at "
-                         f"most one term per contour node moves the skin; give a cut pattern of {n_contour} terms "
-                         "or fewer per fibre direction, or more contour nodes (n_contour)")

@@ -47,7 +47,7 @@ from . import defaults
 
 __all__ = ["VARIABLES", "VECTOR_VARIABLES", "RIB_SHAPE_LAYOUTS", "CUT_PATTERN_LAYOUTS", "DEFAULT_START",
            "DEFAULT_BOUNDS", "DEFAULT_RIB_SHAPE_TERMS", "DEFAULT_CUT_PATTERN_TERMS", "SCALES", "DesignVariables",
-           "concrete_rows", "key_of"]
+           "check_field_terms", "concrete_rows", "key_of"]
 
 #: Names an engineer may optimise (fields of `Parameters`; the fabric's
 #: stiffnesses are material data, not manufacturing choices).
@@ -408,3 +408,21 @@ def _uniform(parameters: Parameters, size: int) -> np.ndarray:
     half = size // 2
     return np.concatenate([np.full(half, float(parameters.prestrain_span)),
                            np.full(size - half, float(parameters.prestrain_chord))])
+
+
+def check_field_terms(variables: DesignVariables, n_contour: int) -> None:
+    """Refuse a cut field with more terms per fibre direction than the bay's ``n_contour`` contour nodes:
+    beyond one term per node a term's B-spline spans no node (`forward_solver.model.cut_field`), so it moves
+    nothing and the design's Jacobian is singular in it.
+
+    Raises:
+        ValueError: naming the terms, the nodes and what to change.
+    """
+    if "cut_pattern" not in variables.names:
+        return
+    width = variables.sizes["cut_pattern"] if variables.cut_patterns is None else variables.cut_patterns.shape[1]
+    terms = width // 2
+    if terms > n_contour:
+        raise ValueError(f"a cut pattern of {terms} terms per fibre direction on {n_contour} contour nodes: at "
+                         f"most one term per contour node moves the skin; give a cut pattern of {n_contour} terms "
+                         "or fewer per fibre direction, or more contour nodes (n_contour)")
