@@ -181,8 +181,9 @@ def test_the_next_solve_starts_from_the_first_order_prediction(linearised):
     problem, u, *_ = linearised
     step = 1e-3 * np.cos(np.arange(u.size))
     old = problem.previous
-    predicted = problem.predicted_start(u + step)
-    after = problem.solve(u + step)
+    with jax.enable_x64(True):
+        predicted = problem.predicted_start(u + step)
+        after = problem.solve(u + step)
     for k, sol in enumerate(predicted.solutions):
         actual = np.asarray(after.nodes[k]) - np.asarray(after.mounted[k])
         first = np.abs(np.asarray(sol.nodes) - np.asarray(old.mounted[k]) - actual).max()
