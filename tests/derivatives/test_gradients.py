@@ -16,12 +16,12 @@ from forward_solver.model.parameters import PARAMETER_NAMES as DIFFERENTIABLE  #
 from forward_solver.derivatives.implicit import SparseLU, forward_only
 from inverse_design.objectives import objective_residuals
 from targets import naca
-from support.solver import default_scene
+from support.solver import TIGHT_RTOL, default_scene, tight_solve
 
 THETA = Parameters(pressure=2e4, prestrain_span=0.004, prestrain_chord=0.006, stiffness_span=2e5,
                    stiffness_chord=2e5, rib_thickness_scale=0.95, rib_chord_scale=1.0)
 FD_RELATIVE_STEP = 1e-4
-RTOL = 1e-12
+RTOL = TIGHT_RTOL
 
 
 @pytest.fixture(scope="module")
@@ -34,19 +34,16 @@ def weights():
     return np.random.default_rng(0).normal(size=(9, 32, 3))
 
 
-def _solve(scene, parameters, initial=None):
-    return solve_equilibrium(scene, parameters, rtol=RTOL, method="relax+newton", initial=initial)
-
 
 @pytest.fixture(scope="module")
 def reference(scene):
-    return _solve(scene, THETA)
+    return tight_solve(scene, THETA)
 
 
 @pytest.fixture(scope="module")
 def implicit_gradient(scene, weights, reference):
     def loss(q):
-        sol = _solve(scene, q, initial=reference)
+        sol = tight_solve(scene, q, initial=reference)
         return jnp.sum(weights * sol.nodes), sol
 
     with jax.enable_x64(True):
@@ -57,8 +54,8 @@ def implicit_gradient(scene, weights, reference):
 def _central_difference(scene, weights, reference, name):
     value = getattr(THETA, name)
     h = FD_RELATIVE_STEP * abs(value)
-    plus = _solve(scene, THETA.replace(**{name: value + h}), reference).nodes
-    minus = _solve(scene, THETA.replace(**{name: value - h}), reference).nodes
+    plus = tight_solve(scene, THETA.replace(**{name: value + h}), reference).nodes
+    minus = tight_solve(scene, THETA.replace(**{name: value - h}), reference).nodes
     return float(np.sum(weights * (plus - minus)) / (2 * h))
 
 
@@ -88,7 +85,7 @@ def test_loose_pressure_keyword_is_differentiable(scene, weights):
     with jax.enable_x64(True):
         loose = jax.grad(lambda p: jnp.sum(weights * solve_equilibrium(
             scene, pressure=p, prestrain=THETA.prestrain, rtol=RTOL, method="relax+newton").nodes))(THETA.pressure)
-        whole = jax.grad(lambda p: jnp.sum(weights * _solve(scene, at.replace(pressure=p)).nodes))(THETA.pressure)
+        whole = jax.grad(lambda p: jnp.sum(weights * tight_solve(scene, at.replace(pressure=p)).nodes))(THETA.pressure)
     assert float(loose) == pytest.approx(float(whole), rel=1e-9)
     for name, value in (("stiffness", THETA.stiffness), ("rib_thickness_scale", 0.95), ("rib_chord_scale", 1.0)):
         with pytest.raises(TypeError, match=f"takes no {name}= any more: give it in the Parameters"):
@@ -100,7 +97,7 @@ def test_loose_pressure_keyword_is_differentiable(scene, weights):
 def test_tensions_are_differentiable(scene, reference):
     """The returned tensions are functions of the traced nodes and parameters."""
     def largest(p):
-        return jnp.max(_solve(scene, THETA.replace(pressure=p), reference).tension_chord)
+        return jnp.max(tight_solve(scene, THETA.replace(pressure=p), reference).tension_chord)
 
     h = FD_RELATIVE_STEP * THETA.pressure
     with jax.enable_x64(True):
@@ -111,7 +108,7 @@ def test_tensions_are_differentiable(scene, reference):
 
 def test_forward_mode_matches_reverse_mode(scene, weights, reference, implicit_gradient):
     with jax.enable_x64(True):
-        jac = jax.jacfwd(lambda q: jnp.sum(weights * _solve(scene, q, reference).nodes))(THETA)
+        jac = jax.jacfwd(lambda q: jnp.sum(weights * tight_solve(scene, q, reference).nodes))(THETA)
     for name in DIFFERENTIABLE:
         # Same linear algebra, two directions of the same factor: rounding only.
         rev = float(getattr(implicit_gradient[0], name))
@@ -122,7 +119,7 @@ def test_forward_only_tangents_match_the_transposable_ones(scene, weights, refer
     """`forward_only`: the batch of tangents back-solved on the host (``jax.jacfwd``) and one tangent
     by the traced callback solve (``jax.jvp``) against the reverse-mode gradient: rounding only."""
     def loss(q):
-        return jnp.sum(weights * _solve(scene, q, reference).nodes)
+        return jnp.sum(weights * tight_solve(scene, q, reference).nodes)
 
     with jax.enable_x64(True), forward_only():
         jac = jax.jacfwd(loss)(THETA)
@@ -138,7 +135,7 @@ def test_forward_only_tangents_match_the_transposable_ones(scene, weights, refer
 
 def test_reverse_mode_within_forward_only_is_refused(scene, weights, reference):
     with jax.enable_x64(True), forward_only(), pytest.raises(NotImplementedError, match="Transpose rule"):
-        jax.grad(lambda q: jnp.sum(weights * _solve(scene, q, reference).nodes))(THETA)
+        jax.grad(lambda q: jnp.sum(weights * tight_solve(scene, q, reference).nodes))(THETA)
 
 
 def test_implicit_gradient_matches_unrolled_relaxation(scene, weights):
@@ -165,7 +162,7 @@ def test_objective_gradient_matches_central_differences(scene, reference):
     target = naca("2412")
 
     def objective(p):
-        nodes = _solve(scene, THETA.replace(pressure=p), reference).nodes
+        nodes = tight_solve(scene, THETA.replace(pressure=p), reference).nodes
         r = objective_residuals(nodes, target, 1.0, "average")
         return jnp.sum(r * r)
 
@@ -276,7 +273,7 @@ def test_a_pullback_finds_its_lu_factor_and_released_factors_stay_within_their_b
     from forward_solver.derivatives import implicit
 
     with jax.enable_x64(True):
-        _, pullback = jax.vjp(lambda q: jnp.sum(weights * _solve(scene, q, initial=reference).nodes), THETA)
+        _, pullback = jax.vjp(lambda q: jnp.sum(weights * tight_solve(scene, q, initial=reference).nodes), THETA)
     gc.collect()
     with jax.enable_x64(True):
         (grad,) = pullback(1.0)
@@ -291,7 +288,7 @@ def test_a_pullback_finds_its_lu_factor_and_released_factors_stay_within_their_b
     monkeypatch.setattr(implicit, "RELEASED_FACTOR_BYTES", implicit._factor_bytes(one))
     for _ in range(3):
         with jax.enable_x64(True):
-            jax.grad(lambda q: jnp.sum(weights * _solve(scene, q, initial=reference).nodes))(THETA)
+            jax.grad(lambda q: jnp.sum(weights * tight_solve(scene, q, initial=reference).nodes))(THETA)
         gc.collect()
     assert len(implicit._RELEASED) == 1
     assert sum(implicit._factor_bytes(f) for f in implicit._RELEASED.values()) <= implicit.RELEASED_FACTOR_BYTES

@@ -1,9 +1,10 @@
-"""What the solver's tests share: the default bay and its scene, the circle section, a row's outward bulge."""
+"""What the solver's tests share: the default bay and its scene, a tight solve, the circle section, a row's
+outward bulge."""
 
 import jax
 import numpy as np
 
-from forward_solver import Bay, Fabric, Scene
+from forward_solver import Bay, Fabric, Scene, solve_equilibrium
 from forward_solver import forces as fk
 from forward_solver.reference.closed_forms import circle_contour
 from targets import Airfoil, naca
@@ -19,6 +20,15 @@ def default_bay(n_span: int = 9, n_contour: int = 32, **options) -> Bay:
 def default_scene(n_span: int = 9, n_contour: int = 32, fabric: Fabric | None = None) -> Scene:
     """The default bay (`default_bay`) in the default fabric (2e5 N/m, Poisson 0.25), or ``fabric``."""
     return Scene(default_bay(n_span, n_contour), Fabric() if fabric is None else fabric)
+
+
+#: The residual of the derivative tests' solves: their central differences resolve 1e-5 relative.
+TIGHT_RTOL = 1e-12
+
+
+def tight_solve(scene: Scene, parameters, initial=None):
+    """``solve_equilibrium`` at `TIGHT_RTOL` by relax+newton (whose LU factor the implicit derivative reuses)."""
+    return solve_equilibrium(scene, parameters, rtol=TIGHT_RTOL, method="relax+newton", initial=initial)
 
 
 def circle(n_points: int = 257) -> Airfoil:
