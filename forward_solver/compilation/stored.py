@@ -108,9 +108,10 @@ class _Stored:
         leaves, tree = jax.tree_util.tree_flatten(dynamic)
         if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves):
             return None, leaves
+        # (dtype objects, not their names: naming them was a tenth of a warm 40-cell design's dispatch)
         key = (static, tree, jax.config.jax_enable_x64, tuple(
-            (tuple(leaf.shape), str(leaf.dtype), bool(getattr(leaf, "weak_type", False)))
-            if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else type(leaf).__name__ for leaf in leaves))
+            (leaf.shape, leaf.dtype, getattr(leaf, "weak_type", False))
+            if hasattr(leaf, "shape") and hasattr(leaf, "dtype") else type(leaf) for leaf in leaves))
         entry = self._calls.get(key)
         if entry is None:
             with self._lock:  # (the compile-ahead thread and the solve may ask at once)
@@ -144,7 +145,9 @@ class _Stored:
     def _load(self, key, static, tree, leaves):
         """``(jitted exported call, output structure)`` for ``key``, loaded or exported; False if the
         program cannot be exported."""
-        digest = hashlib.sha256(f"{_version()}\0{self._name}\0{key!r}".encode()).hexdigest()[:32]
+        named = key[:3] + (tuple((tuple(a[0]), str(a[1]), bool(a[2])) if isinstance(a, tuple) else a.__name__
+                                 for a in key[3]),)  # (the key as the digest of its file names it)
+        digest = hashlib.sha256(f"{_version()}\0{self._name}\0{named!r}".encode()).hexdigest()[:32]
         path = _FOLDER / f"{self._name.rsplit('.', 1)[-1]}-{digest}.bin"
         try:
             blob, out_tree = pickle.loads(path.read_bytes())
