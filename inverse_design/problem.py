@@ -58,14 +58,16 @@ def _prepend(f, g):
     return jnp.concatenate([f[None], g])
 
 
-@partial(jax.jit, static_argnames=("k",))
+@jax.jit
 def _bay_nodes(nodes, k):
-    return nodes[k]
+    return jax.lax.dynamic_index_in_dim(nodes, k, keepdims=False)
 
 
 def _of_bay(nodes, k: int):
     """Bay ``k``'s nodes of the wing's stacked ``nodes``: under an eager transformation one program
-    (`_bay_nodes`), not an eager slice, squeeze and transpose of the primal and tangent apiece."""
+    (`_bay_nodes`), not an eager slice, squeeze and transpose of the primal and tangent apiece; the
+    index is an argument of that program, not a constant of it, so that a wing of 40 bays compiles it
+    once, not 40 times (`benchmarks/design_programs.py`)."""
     return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
