@@ -39,15 +39,18 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from forward_solver import Parameters, solve_equilibrium
+from forward_solver import Parameters, Solution, solve_equilibrium
 from forward_solver.derivatives.forward import value_and_jacobian
+from forward_solver.programs import mounted_compiled
 
 from ..constraints import cell_tensions
 from ..objectives import WingTargets
 from .inputs import SOURCE_SCOPE, SOURCES
 
-__all__ = ["CLASS_RMS", "Column", "ToleranceModel", "summary_of"]
+__all__ = ["CLASS_RMS", "MOUNTING_SOURCES", "Column", "ToleranceModel", "summary_of"]
 
+#: The sources that move a bay's mounted shape (its ribs' outline): `ToleranceModel.predicted_start`.
+MOUNTING_SOURCES = ("rib_profile",)
 #: rms over x in [0, 1] of the rib shape's class function sqrt(x) (1 - x) (`forward_solver.model.rib_shape`).
 CLASS_RMS = 1.0 / math.sqrt(12.0)
 
@@ -77,6 +80,10 @@ class ToleranceModel:
             (standard deviation or half-width) and standard deviation in its source's unit, and
             whether it is uniform.
         touching: per bay, the indices of the columns its equilibrium depends on.
+        start_tangents: per bay, the tangents ``(len(touching[k]), n_span, n_contour, 3)`` of its
+            nodes in its touching columns, m per unit, kept by
+            `bay_jacobian` (None before): a sample's first-order warm start (`predicted_start`). They
+            hold as many numbers per bay as its tension rows' Jacobian and half again.
     """
 
     def __init__(self, sol, targets: WingTargets, tolerances: dict, stations=None):
@@ -115,6 +122,7 @@ class ToleranceModel:
         self.uniform = np.array([self.tolerances[c.source].uniform for c in self.columns])
         self.std = np.where(self.uniform, self.spread / math.sqrt(3.0), self.spread)
         self.touching = [self._touching(k) for k in range(n)]
+        self.start_tangents = [None] * n
         self.targets = targets
         self.weights = np.asarray(targets.weights, np.float64)
 
@@ -213,23 +221,47 @@ class ToleranceModel:
         """Bay ``k``'s `outputs` and their ``(n_outputs, size)`` Jacobian in the columns (zero outside
         ``touching[k]``): forward mode, one solve warm from ``start`` (a `Solution` with its factor, or
         nodes), then one back-solve per touching column with the kept factor
-        (`forward_solver.derivatives.forward.value_and_jacobian`)."""
+        (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the displacement's
+        nodes' tangents (``start_tangents[k]``)."""
         cols = self.touching[k]
         e0 = jnp.zeros(self.size, jnp.float64)
+        scene = self.scenes[k]
 
         def outputs(e):
             p = self.bay_parameters(k, e)
-            sol = solve_equilibrium(self.scenes[k], p, rtol=rtol, method="auto", initial=start, throw=True)
-            return self.outputs(k, sol.nodes, p), ()
+            sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
+            return jnp.concatenate([self.outputs(k, sol.nodes, p), sol.nodes.reshape(-1)]), ()
 
         if cols.size == 0:
-            return np.asarray(outputs(e0)[0]), np.zeros((0, 0))
+            return np.asarray(outputs(e0)[0])[:-3 * math.prod(scene.bay.shape)], np.zeros((0, 0))
         basis = np.zeros((cols.size, self.size))
         basis[np.arange(cols.size), cols] = 1.0
         y, dy, _ = value_and_jacobian(outputs, e0, basis)
-        jac = np.zeros((np.size(y), self.size))
-        jac[:, cols] = dy
-        return np.asarray(y), jac
+        n_out = np.size(y) - 3 * math.prod(scene.bay.shape)
+        self.start_tangents[k] = np.asarray(dy[n_out:]).T.reshape((cols.size,) + scene.bay.shape + (3,))
+        jac = np.zeros((n_out, self.size))
+        jac[:, cols] = dy[:n_out]
+        return np.asarray(y)[:n_out], jac
+
+    def predicted_start(self, k: int, e, nominal):
+        """Bay ``k``'s warm start at the deviations ``e``: its ``nominal`` `Solution` (with its LU factor),
+        its nodes moved by their first-order change (``start_tangents[k]``, where `bay_jacobian` kept
+        them), so that the chord Newton iteration with the nominal factor starts within the deviations'
+        second-order error; otherwise ``nominal`` as it is. (A solve starts from its warm start's
+        displacement on its own mounted shape, `forward_solver.solution.initial_nodes`: where the ribs
+        move, the tangents hold the mounted shape's change, which that adds again, so it is taken off.)"""
+        tangents = self.start_tangents[k]
+        if tangents is None or not isinstance(nominal, Solution):
+            return nominal
+        e = np.asarray(e, np.float64)
+        nodes = np.asarray(nominal.extra.get("primal_nodes", nominal.nodes)) + np.tensordot(
+            e[self.touching[k]], tangents, axes=1)
+        if any(self.columns[c].source in MOUNTING_SOURCES and e[c] != 0.0 for c in self.touching[k]):
+            scene = self.scenes[k]
+            geometry = scene.bay.geometry()
+            moved = np.asarray(mounted_compiled(geometry, scene.params(self.bay_parameters(k, e))))
+            nodes = nodes - (moved - np.asarray(mounted_compiled(geometry, scene.params(nominal.parameters))))
+        return nominal.replace(nodes=nodes, extra={**nominal.extra, "primal_nodes": nodes})
 
     def nominal_solutions(self, rtol: float) -> list:
         """Each bay's equilibrium at the design with a Newton factor: the design's own solution where it

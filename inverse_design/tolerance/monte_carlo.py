@@ -1,8 +1,9 @@
 """The Monte Carlo check of a tolerance analysis: wings drawn from the stated distributions, solved.
 
 Monte Carlo (`first_order.Sampling`'s ``samples``): draws wings from the stated distributions and
-solves each bay warm from the nominal equilibrium (chord Newton with its
-kept factor, the fallbacks of `forward_solver.solvers.chain` where not) to
+solves each bay warm from the nominal equilibrium moved by its first-order change
+(`model.ToleranceModel.predicted_start`: chord Newton with the nominal's kept factor, the
+fallbacks of `forward_solver.solvers.chain` where not) to
 `SAMPLE_RTOL`, in this process, or on a Dask cluster (its ``scheduler``: the
 samples in chunks, each worker making the nominal factor once by the same
 solve as here, so the same seed gives the same numbers). A sample whose solve
@@ -111,7 +112,8 @@ def solve_wing(model: ToleranceModel, e: np.ndarray, starts, rtol: float, strain
             p = model.bay_parameters(k, e)
             try:
                 sol = solve_equilibrium(model.scenes[k], p, rtol=rtol, method="auto",
-                                        initial=None if starts is None else starts[k], throw=False)
+                                        initial=None if starts is None else model.predicted_start(k, e, starts[k]),
+                                        throw=False)
                 ok = sol.converged
                 message = "" if ok else sol.message
             except ValueError as exc:  # a drawn value outside the physical range (e.g. a negative stiffness)
