@@ -40,27 +40,25 @@ so a few floats a sample for the statistics' percentiles), over the design's own
 estimate; their time is the samples times the bays times a bay's warm solve
 (`SAMPLE_TIME_FIT`). That fit is ``benchmarks/sample_cost.py``
 (``benchmarks/results/sample_cost.json``) on a 2-core AMD EPYC machine shared
-with other jobs (load 2-3 on the small grids, 6 at the end; Python 3.11.7, JAX
-0.10.2 on the CPU): one bay, NACA 2412, chord 1 m, ribs 0.25 m apart, solved
-warm from the nominal equilibrium to the samples' 1e-8, after 2 samples that
-compile; seconds per sample and bay::
+with other jobs (2026-11-28; Python 3.11.7, JAX 0.10.2 on the CPU): one bay,
+NACA 2412, chord 1 m, ribs 0.25 m apart, solved warm from the nominal
+equilibrium moved by its first-order change to the samples' 1e-8, after 2
+samples that compile; seconds per sample and bay::
 
     grid (span x contour)   nodes   default tolerances   pressure=2% alone
-    5 x 32                    160        0.0069               0.0031
-    9 x 64                    576        0.0166               0.0052
-    17 x 64                  1088        0.039                0.0067
-    17 x 128                 2176        0.063                0.0115
-    33 x 128                 4224        0.247                0.028
-    33 x 256                 8448        0.530                0.055
-    65 x 256                16640        2.10                 0.136
+    5 x 32                    160        0.0058               0.0029
+    9 x 64                    576        0.0122               0.0048
+    17 x 64                  1088        0.021                0.0067
+    17 x 128                 2176        0.039                0.0108
+    33 x 128                 4224        0.108                0.0213
+    33 x 256                 8448        0.178                0.0565
+    65 x 256                16640        0.393                0.0755
 
 The fit ``b * nodes**p`` of the default tolerances (the costlier: each bay's
-stiffnesses, cuts and ribs move, where a pressure scatter alone takes 2-15 times
-less) is 8.1e-6 s * nodes**1.235, within a factor 1.7 of every row (0.62 to
-1.70 times the measured: a shared machine), enough to tell minutes from hours.
-A sample costs its bays' solves: a bay of a 3-bay wing on 17 x 64 took 0.072 s
-a sample at the end of that run; in another, at load 10, a bay of a 3-bay and
-of a 2-bay wing took 0.078 and 0.067 s, one bay alone 0.061-0.069 s. The samples are refused when their memory exceeds
+stiffnesses, cuts and ribs move, where a pressure scatter alone takes 2-5 times
+less) is 3.7e-5 s * nodes**0.937, within 27% of every row, enough to tell
+minutes from hours. A sample costs its bays' solves: a bay of a 3-bay wing on
+17 x 64 took 0.022 s a sample in that run. The samples are refused when their memory exceeds
 `MEMORY_FRACTION` of the available memory less the design's, when they would take
 more than `MAX_SAMPLE_SECONDS` in this process, or, whatever the options, when
 their memory exceeds the machine's (`inverse_design.memory.physical_memory`: the
@@ -108,7 +106,7 @@ TIME_FIT = {"evaluate": (10.1, 2.5e-4, 1.115), "optimise": (20.3, 4.2e-5, 1.237)
 #: Forward solves of an optimisation, as the default case takes (14).
 TYPICAL_SOLVES = 15
 #: ``(b s, p)`` of a Monte Carlo sample's seconds per bay, ``b * nodes**p`` (see the module docstring).
-SAMPLE_TIME_FIT = (8.1e-6, 1.235)
+SAMPLE_TIME_FIT = (3.7e-5, 0.937)
 #: Most seconds of Monte Carlo samples run in this process without ``--allow-large-grid`` or
 #: ``--scheduler``: an hour, about an optimisation at the grid cap (`MAX_NODES`).
 MAX_SAMPLE_SECONDS = 3600.0
