@@ -351,9 +351,10 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
     factor; after an unshifted iteration it first tries a chord step with
     that factor, kept when it divides the residual by at least
     ``1 / CHORD_CONTRACTION`` (close to the solution J has hardly changed:
-    measured on the 40-cell wing's warm design solves, it saves the third
-    assembly and LU of 8.5e-4 -> 1.9e-8 -> 7e-13). If the factorisation fails or no step descends, it retries with
-    the Levenberg shifts ``J - mu D`` of `SHIFTS` (``D`` the mean
+    on the 40-cell wing's warm design solves one assembly and LU and four
+    chord steps now do what three assemblies and LUs did). If the
+    factorisation fails or no step descends, it retries with the Levenberg
+    shifts ``J - mu D`` of `SHIFTS` (``D`` the mean
     ``|diag J|`` of each node). If Newton from ``x_init`` does not converge
     (iteration cap, stall, or, when continuation is on, a residual that has
     not halved in `STAGNATION_WINDOW` iterations) and ``continuation`` is on,
