@@ -14,6 +14,7 @@ only: the report's workers import it without JAX.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -46,8 +47,10 @@ class Text(NamedTuple):
     rotation: float = 0.0
 
 
+@functools.lru_cache(maxsize=4096)
 def text_width(string: str, height: float) -> float:
-    """The width of ``string`` at ``height`` (mm), estimated (module docstring)."""
+    """The width of ``string`` at ``height`` (mm), estimated (module docstring; kept for the strings met
+    last: a label's places in turn each ask it twice)."""
     return height * sum(_NARROW.get(c) or _WIDE.get(c) or (0.9 if c.isupper() else 0.8) for c in string)
 
 

@@ -130,16 +130,33 @@ def _seam_names(name: str) -> tuple[str, str]:
 def _edge_label(layout: Layout, points, string: str, gap: float, centre, turned: bool = False) -> Text:
     """An edge's label inside the panel beside the edge, at its middle or, where that is taken, near it;
     ``turned``: along the edge, reading upward, where it fits (a seam), else level."""
-    options = []
-    for along in ((True, False) if turned else (False,)):
-        for fraction, extra in _ALONG:
-            point, inward = _along(points, fraction, centre)
-            rotation = 0.0
-            if along:  # the edge's direction that points up the span: read from the root
-                u = (-inward[1], inward[0]) if inward[0] >= 0 else (inward[1], -inward[0])
-                rotation = float(np.degrees(np.arctan2(u[1], u[0])))
-            options.append(_beside(point, inward, string, TITLE_HEIGHT, gap + extra, rotation))
-    return options[layout.place(np.array([text_box(t) for t in options]))]
+    places = {}  # fraction -> (point, inward normal): each fraction serves four options
+
+    def option(along: bool, fraction: float, extra: float) -> Text:
+        if fraction not in places:
+            places[fraction] = _along(points, fraction, centre)
+        point, inward = places[fraction]
+        rotation = 0.0
+        if along:  # the edge's direction that points up the span: read from the root
+            u = (-inward[1], inward[0]) if inward[0] >= 0 else (inward[1], -inward[0])
+            rotation = float(np.degrees(np.arctan2(u[1], u[0])))
+        return _beside(point, inward, string, TITLE_HEIGHT, gap + extra, rotation)
+
+    # The places in order of preference, built a few at a time (most labels take one of the first): the
+    # first free one is kept, as `Layout.place` keeps it; where none is, the one that clashes least.
+    preferred = [(along, fraction, extra) for along in ((True, False) if turned else (False,))
+                 for fraction, extra in _ALONG]
+    options, boxes = [], []
+    for end in (1, 17, len(preferred)):
+        new = [option(*p) for p in preferred[len(options):end]]
+        new_boxes = [text_box(t) for t in new]
+        free = layout.free(np.array(new_boxes)) if new else np.zeros(0, bool)
+        options, boxes = options + new, boxes + new_boxes
+        if free.any():
+            k = len(options) - len(new) + int(np.argmax(free))
+            layout.add(boxes[k])
+            return options[k]
+    return options[layout.place(np.array(boxes))]
 
 
 def _group(layout: Layout, items: list, outline) -> list:
