@@ -59,6 +59,19 @@ def _prepend(f, g):
 
 
 @jax.jit
+def _joined(*parts):
+    """``concatenate(parts)`` of flat vectors (one program under the design's transformation; a dtype
+    conversion and a concatenation compiled apiece before)."""
+    return jnp.concatenate([jnp.asarray(part, jnp.float64).reshape(-1) for part in parts])
+
+
+@jax.jit
+def _displacements(nodes, mounted):
+    """The bays' displacements from their mounted shapes, flat (one program, as `_joined`)."""
+    return (nodes - mounted).reshape(-1)
+
+
+@jax.jit
 def _bay_nodes(nodes, k):
     return jax.lax.dynamic_index_in_dim(nodes, k, keepdims=False)
 
@@ -422,15 +435,15 @@ class DesignProblem:
     def _outputs_and_displacements(self, v, sol):
         """`_linearised_outputs`, then every bay's displacement from its mounted shape (flat): their
         tangents are the next solve's first-order warm start (`predicted_start`)."""
-        return jnp.concatenate([self._linearised_outputs(v, sol), (sol.nodes - sol.mounted).reshape(-1)])
+        return _joined(self._linearised_outputs(v, sol), _displacements(sol.nodes, sol.mounted))
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
         shape = self.targets.residuals(self.distances(sol.nodes))
         if self.tension is None:
             return shape
-        t = jnp.concatenate(self.tensions(sol.nodes, v))
-        return jnp.concatenate([shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale)])
+        t = _joined(*self.tensions(sol.nodes, v))
+        return _joined(shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale))
 
     def _row_bays(self, n_rows: int) -> np.ndarray:
         """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
