@@ -42,6 +42,7 @@ from .history import History
 from .methods.blocks import compressed_seeds, decompress
 from .objectives import WingTargets
 from .settings import SolverSettings
+from .stacked import bay_nodes, displacements, joined, prepend
 from .tolerance.robust import RobustTerms, check_robust_tolerances
 from .variables import DesignVariables, check_field_terms, concrete_rows, key_of
 
@@ -50,38 +51,6 @@ __all__ = ["DesignProblem"]
 
 #: The design variables that move the ribs, and with them every bay's mounted shape.
 RIB_VARIABLES = ("rib_thickness_scale", "rib_chord_scale", "rib_shape")
-
-
-@jax.jit
-def _prepend(f, g):
-    """``[f, *g]`` (one small program; two eager operations compiled apiece before)."""
-    return jnp.concatenate([f[None], g])
-
-
-@jax.jit
-def _joined(*parts):
-    """``concatenate(parts)`` of flat vectors (one program under the design's transformation; a dtype
-    conversion and a concatenation compiled apiece before)."""
-    return jnp.concatenate([jnp.asarray(part, jnp.float64).reshape(-1) for part in parts])
-
-
-@jax.jit
-def _displacements(nodes, mounted):
-    """The bays' displacements from their mounted shapes, flat (one program, as `_joined`)."""
-    return (nodes - mounted).reshape(-1)
-
-
-@jax.jit
-def _bay_nodes(nodes, k):
-    return jax.lax.dynamic_index_in_dim(nodes, k, keepdims=False)
-
-
-def _of_bay(nodes, k: int):
-    """Bay ``k``'s nodes of the wing's stacked ``nodes``: under an eager transformation one program
-    (`_bay_nodes`), not an eager slice, squeeze and transpose of the primal and tangent apiece; the
-    index is an argument of that program, not a constant of it, so that a wing of 40 bays compiles it
-    once, not 40 times (`benchmarks/design_programs.py`)."""
-    return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
 
 
 def _aux(sol) -> dict:
@@ -160,12 +129,12 @@ class DesignProblem:
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
         """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
-        return self._record("distances", [self.targets.distances(k, _of_bay(nodes, k))
+        return self._record("distances", [self.targets.distances(k, bay_nodes(nodes, k))
                                           for k in range(len(self.scenes))])
 
     def tensions(self, nodes, u) -> list:
         """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
-        return self._record("tensions", [cell_tensions(scene, _of_bay(nodes, k), self.variables.bay_parameters(u, k))
+        return self._record("tensions", [cell_tensions(scene, bay_nodes(nodes, k), self.variables.bay_parameters(u, k))
                                          for k, scene in enumerate(self.scenes)])
 
     def _record(self, name: str, values: list) -> list:
@@ -339,8 +308,8 @@ class DesignProblem:
             def outputs(v, sol):
                 f = self.targets.objective_value(self.distances(sol.nodes))
                 if self.tension is None:
-                    return _prepend(f, jnp.zeros(0, f.dtype))
-                return _prepend(f, constraint_functions(self.tension, self.tensions(sol.nodes, v),
+                    return prepend(f, jnp.zeros(0, f.dtype))
+                return prepend(f, constraint_functions(self.tension, self.tensions(sol.nodes, v),
                                                         self.fabric, self.tension_scale))
 
             if self.variables.size <= 1 + self._limit_rows():
@@ -435,15 +404,15 @@ class DesignProblem:
     def _outputs_and_displacements(self, v, sol):
         """`_linearised_outputs`, then every bay's displacement from its mounted shape (flat): their
         tangents are the next solve's first-order warm start (`predicted_start`)."""
-        return _joined(self._linearised_outputs(v, sol), _displacements(sol.nodes, sol.mounted))
+        return joined(self._linearised_outputs(v, sol), displacements(sol.nodes, sol.mounted))
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
         shape = self.targets.residuals(self.distances(sol.nodes))
         if self.tension is None:
             return shape
-        t = _joined(*self.tensions(sol.nodes, v))
-        return _joined(shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale))
+        t = joined(*self.tensions(sol.nodes, v))
+        return joined(shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale))
 
     def _row_bays(self, n_rows: int) -> np.ndarray:
         """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
