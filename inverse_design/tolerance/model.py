@@ -123,6 +123,7 @@ class ToleranceModel:
         self.std = np.where(self.uniform, self.spread / math.sqrt(3.0), self.spread)
         self.touching = [self._touching(k) for k in range(n)]
         self.start_tangents = [None] * n
+        self.start_mounted = [None] * n  # (the nominal's mounted shape, beside its tangents)
         self.targets = targets
         self.weights = np.asarray(targets.weights, np.float64)
 
@@ -221,8 +222,8 @@ class ToleranceModel:
         """Bay ``k``'s `outputs` and their ``(n_outputs, size)`` Jacobian in the columns (zero outside
         ``touching[k]``): forward mode, one solve warm from ``start`` (a `Solution` with its factor, or
         nodes), then one back-solve per touching column with the kept factor
-        (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the displacement's
-        nodes' tangents (``start_tangents[k]``)."""
+        (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the nodes'
+        tangents (``start_tangents[k]``) and the nominal's mounted shape (``start_mounted[k]``)."""
         cols = self.touching[k]
         e0 = jnp.zeros(self.size, jnp.float64)
         scene = self.scenes[k]
@@ -239,6 +240,7 @@ class ToleranceModel:
         y, dy, _ = value_and_jacobian(outputs, e0, basis)
         n_out = np.size(y) - 3 * math.prod(scene.bay.shape)
         self.start_tangents[k] = np.asarray(dy[n_out:]).T.reshape((cols.size,) + scene.bay.shape + (3,))
+        self.start_mounted[k] = np.asarray(mounted_compiled(scene.bay.geometry(), scene.params(self.nominal[k])))
         jac = np.zeros((n_out, self.size))
         jac[:, cols] = dy[:n_out]
         return np.asarray(y)[:n_out], jac
@@ -260,7 +262,7 @@ class ToleranceModel:
             scene = self.scenes[k]
             geometry = scene.bay.geometry()
             moved = np.asarray(mounted_compiled(geometry, scene.params(self.bay_parameters(k, e))))
-            nodes = nodes - (moved - np.asarray(mounted_compiled(geometry, scene.params(nominal.parameters))))
+            nodes = nodes - (moved - self.start_mounted[k])
         return nominal.replace(nodes=nodes, extra={**nominal.extra, "primal_nodes": nodes})
 
     def nominal_solutions(self, rtol: float) -> list:
