@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from forward_solver import Parameters, Solution, solve_equilibrium
+from forward_solver.derivatives.custom_jvp import nodes_only
 from forward_solver.derivatives.forward import value_and_jacobian
 from forward_solver.programs import mounted_compiled
 
@@ -230,7 +231,8 @@ class ToleranceModel:
 
         def outputs(e):
             p = self.bay_parameters(k, e)
-            sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
+            with nodes_only():  # (the tensions are the outputs' own, from the nodes: no traced force program)
+                sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
             return jnp.concatenate([self.outputs(k, sol.nodes, p), sol.nodes.reshape(-1)]), ()
 
         if cols.size == 0:
