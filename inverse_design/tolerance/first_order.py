@@ -371,10 +371,13 @@ def _linear_measures(model: ToleranceModel, d0, t0, jd, jt, draws: np.ndarray) -
             "min_tension": least.min(axis=1)}
 
 
-def _least(t: np.ndarray, k: np.ndarray, ec: np.ndarray, reach: np.ndarray, block: int = 64) -> np.ndarray:
+def _least(t: np.ndarray, k: np.ndarray, ec: np.ndarray, reach: np.ndarray, block: int = 512) -> np.ndarray:
     """``min(t + ec @ k.T, axis=1)``: each draw's least row. The rows are visited in blocks by their
     lowest reach ``t - reach``, and the visit stops once no row left can go below every draw's least so
-    far (on a bay whose tensions are near-uniform most of its cells can reach the floor, but few do)."""
+    far (on a bay whose tensions are near-uniform most of its cells can reach the floor, but few do).
+    Blocks of 512 rows: on the 40-cell wing (4000 draws, 2048 cells a bay, every cell within reach of
+    the floor) the 40 bays took 2.6 s in blocks of 64 rows, 1.0 s in 512, 0.9 s in one product, the
+    same numbers to the bit."""
     low = t - reach
     order = np.argsort(low, kind="stable")
     bound = np.min(t + reach)  # (no draw's least lies above it)
