@@ -136,6 +136,7 @@ class GaussNewton(Method):
         radius = GN_RADIUS
         solves = 1
         restored = False  # whether a restoring step (below) failed to lower the violation since the last accepted step
+        rows = None  # the limit rows that bound at the last step: the next QP's working set starts with them
         while True:
             lo = np.maximum(lower - u, -radius)
             hi = np.minimum(upper - u, radius)
@@ -143,8 +144,9 @@ class GaussNewton(Method):
             # slack, a skin the report finds wrinkled: there the QP's step, which aims at g >= 0, is taken at
             # a would-be stop whatever it costs the fit, and kept while it lowers the violation.
             may_restore = violation(g) > FLOOR_MARGIN and not restored and solves < max_iterations
-            d, predicted, reachable, kept = trust_region_step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi,
-                                                              penalty, GN_QP_PENALTY, restore=may_restore)
+            d, predicted, reachable, kept, rows = trust_region_step(r / np.sqrt(f0), jr / np.sqrt(f0), g, jg, lo, hi,
+                                                                    penalty, GN_QP_PENALTY, restore=may_restore,
+                                                                    rows=rows)
             entry = problem.history.at(u)
             if entry is not None:  # the limit rows the step's QP kept and could reach (of g.size), in the history
                 entry["qp_rows"] = max(int(kept), int(entry.get("qp_rows", 0)))
@@ -212,25 +214,31 @@ def merit_model(r, jr, g, jg, penalty):
     return model
 
 
-def trust_region_step(r, jr, g, jg, lo, hi, penalty, qp_penalty, restore=False):
+def trust_region_step(r, jr, g, jg, lo, hi, penalty, qp_penalty, restore=False, rows=None):
     """The step ``d`` in ``[lo, hi]`` minimising ``|r + jr d|^2 + qp_penalty * max(0, max -(g + jg d))``
     (the linearised limits all but hard), the fall of the model with ``penalty`` (the merit's)
-    from ``d = 0``, how many limit rows a step in the box can reach (the QP's rows) and how many
-    of them the QP's working set kept. A step the model counts as a loss is zero, unless ``restore``.
+    from ``d = 0``, how many limit rows a step in the box can reach (the QP's rows), how many
+    of them the QP's working set kept, and those of the set that bind at the step (a boolean mask
+    of the rows of ``g``: the next step's ``rows``). A step the model counts as a loss is zero,
+    unless ``restore``.
 
     ``jr`` and ``jg`` are dense or ``scipy.sparse``. Rows that no step in the box can bring below zero
     cannot bind and are dropped (`step_qp.reachable_rows`); the QP with one slack for the largest
     violation is solved sparse by Clarabel on a working set of the rest (`step_qp.solve_working_set`:
-    the rows at their limit and those a step breaks), without forward solves.
+    the rows at their limit, those of ``rows`` (a mask of ``g``'s rows: where the last step bound)
+    and those a step breaks), without forward solves.
     """
     n = jr.shape[1]
     near = reachable_rows(g, jg, lo, hi)
+    start = None if rows is None or np.size(rows) != np.size(g) else np.asarray(rows, bool)[near]
     g, jg = g[near], jg[near]
     model = merit_model(r, jr, g, jg, penalty)
-    d, _, _, kept = solve_working_set(r, jr, g, jg, lo, hi, levenberg_damping(jr), qp_penalty)
+    d, _, _, kept, binding = solve_working_set(r, jr, g, jg, lo, hi, levenberg_damping(jr), qp_penalty, start=start)
+    used = np.zeros(near.size, bool)
+    used[np.flatnonzero(near)[binding]] = True
     if d is None:
-        return np.zeros(n), 0.0, int(g.size), kept
+        return np.zeros(n), 0.0, int(g.size), kept, used
     predicted = model(np.zeros(n)) - model(d)
     if not predicted > 0.0 and not restore:
-        return np.zeros(n), 0.0, int(g.size), kept
-    return d, predicted, int(g.size), kept
+        return np.zeros(n), 0.0, int(g.size), kept, used
+    return d, predicted, int(g.size), kept, used
