@@ -1,8 +1,13 @@
 """The study notebooks run top to bottom in their small mode and show what they claim.
 
 Each notebook is read into memory (the committed file, with its full-study
-outputs, is never written), run in a fresh kernel with ``WING_FULL_STUDY=0``,
-and a cell appended at the end prints the notebook's ``summary`` dict as JSON.
+outputs, is never written) and run with ``WING_FULL_STUDY=0``, and a cell
+appended at the end prints the notebook's ``summary`` dict as JSON. The four
+run in one kernel, its namespace emptied (``%reset -f``), its figures closed
+and matplotlib's settings restored before each: a name a notebook forgets to
+define or import still fails it, while the kernel's start and the imports are
+paid once (the file alone, in one process with a fresh compilation cache:
+39.6 s with a kernel each, 35.0 s so).
 The checks below are on those small-mode results: each could fail if the
 physics or the solvers changed.
 
@@ -14,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -40,14 +46,43 @@ print({MARK!r} + _json.dumps(summary, default=_plain))
 """
 
 
-def run_small(name: str, monkeypatch) -> dict:
-    """Execute ``notebooks/<name>`` in small mode; return its ``summary`` dict."""
-    monkeypatch.setenv("WING_FULL_STUDY", "0")  # the kernel inherits the environment
+#: Run first in the shared kernel before each notebook: an empty namespace, no figures, matplotlib's defaults.
+FRESH = """
+get_ipython().run_line_magic("reset", "-f")
+import matplotlib as _matplotlib
+import matplotlib.pyplot as _plt
+_plt.close("all")
+_matplotlib.rcdefaults()
+del _matplotlib, _plt
+"""
+
+
+@pytest.fixture(scope="module")
+def kernel():
+    """One small-mode kernel (``WING_FULL_STUDY=0``, started in notebooks/) for the module's notebooks."""
+    from jupyter_client.manager import KernelManager
+
+    manager = KernelManager(kernel_name="python3")
+    manager.start_kernel(cwd=str(NOTEBOOKS), env={**os.environ, "WING_FULL_STUDY": "0"})
+    try:
+        yield manager
+    finally:
+        manager.shutdown_kernel(now=True)
+
+
+def run_small(name: str, kernel) -> dict:
+    """Execute ``notebooks/<name>`` in small mode in the module's kernel (emptied first); return its
+    ``summary`` dict."""
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    nb.cells.insert(0, nbformat.v4.new_code_cell(FRESH))
     nb.cells.append(nbformat.v4.new_code_cell(REPORT))
-    client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+    client = nbclient.NotebookClient(nb, km=kernel, timeout=600, kernel_name="python3",
                                      resources={"metadata": {"path": str(NOTEBOOKS)}})
-    client.execute()  # raises CellExecutionError if any cell fails
+    try:
+        client.execute()  # raises CellExecutionError if any cell fails
+    finally:
+        if client.kc is not None:
+            client.kc.stop_channels()
     text = "".join(out.get("text", "") for out in nb.cells[-1].outputs if out.output_type == "stream")
     line = next(line for line in text.splitlines() if line.startswith(MARK))
     summary = json.loads(line[len(MARK):])
@@ -55,8 +90,8 @@ def run_small(name: str, monkeypatch) -> dict:
     return summary
 
 
-def test_pressurisation_dynamics(monkeypatch):
-    s = run_small("01_pressurisation_dynamics.ipynb", monkeypatch)
+def test_pressurisation_dynamics(kernel):
+    s = run_small("01_pressurisation_dynamics.ipynb", kernel)
     energy = s["kinetic_energy_at_0.1s"]
     # Viscosity (eq. 10) and aerodynamic damping (eq. 11) each take energy out of the oscillation.
     assert energy["eta = 5 N s/m"] < 0.1 * energy["no damping"]
@@ -73,8 +108,8 @@ def test_pressurisation_dynamics(monkeypatch):
     assert all(b2 > b1 > 0 for b1, b2 in zip(bulges, bulges[1:]))
 
 
-def test_runtime_vs_error(monkeypatch):
-    s = run_small("02_runtime_vs_error.ipynb", monkeypatch)
+def test_runtime_vs_error(kernel):
+    s = run_small("02_runtime_vs_error.ipynb", kernel)
     assert s["all_finite"] and s["runs"] >= 5
     # Nested grids converge at second order in the grid spacing.
     assert 1.5 < s["observed_order"] < 2.5
@@ -86,8 +121,8 @@ def test_runtime_vs_error(monkeypatch):
     assert all(ratio > 1 for _, _, ratio, _ in s["paper_over_relax"])
 
 
-def test_stability_map(monkeypatch):
-    s = run_small("03_stability_map.ipynb", monkeypatch)
+def test_stability_map(kernel):
+    s = run_small("03_stability_map.ipynb", kernel)
     counts = s["map_counts"]
     assert counts["converged"] >= 1
     assert counts["diverged"] + counts["nonfinite"] >= 1
@@ -101,8 +136,8 @@ def test_stability_map(monkeypatch):
     assert s["undamped"]["compression 0.9"][0] == "max_steps_reached"
 
 
-def test_inverse_design_study(monkeypatch):
-    s = run_small("04_inverse_design_study.ipynb", monkeypatch)
+def test_inverse_design_study(kernel):
+    s = run_small("04_inverse_design_study.ipynb", kernel)
     ref, bounds = s["reference"], s["bounds"]
     assert ref["success"]
     assert bounds["pressure"][0] <= ref["pressure"] <= bounds["pressure"][1]
