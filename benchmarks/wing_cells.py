@@ -24,6 +24,11 @@ Run:
     PYTHONPATH=. python benchmarks/wing_cells.py                       # every case and design, 17x64
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --refine
     PYTHONPATH=. python benchmarks/wing_cells.py --cases elliptic --designs per_bay_ribs --cells 10,20,40 --out F
+    PYTHONPATH=. python benchmarks/wing_cells.py --designs per_bay_ribs --base /tmp/base --base-label cf33329
+
+``--base DIR`` runs each design from that checkout too (an earlier commit: ``git worktree add /tmp/base
+cf33329``), in turns with this tree's, and writes ``wing_cells_<label>.json``: a row per run, the ratio of
+the two times per design in its notes.
 
 The LE recession (the mid-bay nose behind its target's, `app.measures.le_recessions`) is the largest over the
 bays.
@@ -57,6 +62,24 @@ DESIGNS = {
 COLUMNS = ["case", "bays", "design", "variables", "success", "wing solves", "rms", "max", "worst bay",
            "worst bay rms", "LE recession, largest (mm)", "QP rows kept (max)", "seconds", "peak MB", "load start/end",
            "33x64 rms", "33x64 move", "33x64 seconds", "peak MB with 33x64"]
+#: The notes of every results file of this benchmark.
+NOTES = ["grid 17x64 per bay unless the row says otherwise; the command's defaults (objective "
+         "average, min_tension 0, max_iterations 50, start 1e4 Pa and 2% prestrain)",
+         "designs: prestrains = pressure + uniform prestrains; shared_field = pressure + one "
+         "cut field (12 coefficients); per_bay = pressure + a cut field per bay; per_bay_ribs = "
+         "that + a shape per rib (8 coefficients each)",
+         "rms, max: normal distance from the target, fractions of the local chord; worst bay: "
+         "the bay of the largest rms; QP rows kept: the most tension and rib rows any step QP's "
+         "working set held (step_qp.solve_working_set), of 2,048 tension rows per bay at 17x64 (the "
+         "span and chord tensions of 1,024 cells against the floor) and about 500 rows per rib",
+         "seconds: wall time of the design in its own process, compilation included; peak MB: "
+         "ru_maxrss of that process; load: the 1-minute load average at its start and end "
+         "(2-core machine shared with other work)",
+         "33x64: the design re-solved on 33x64 (refine_design): its rms and how far the "
+         "variables moved (pressure relative, others absolute, largest component)",
+         "LE recession, largest: the largest over the bays of how far the mid-bay section's nose "
+         "lies behind its target's (summary.json bays[K].le_recession), mm; rows without it were "
+         "measured before it was recorded"]
 
 
 def _load() -> float:
@@ -113,12 +136,14 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     return record
 
 
-def run_subprocess(case: str, design: str, cells, refine: bool, grid, max_iterations=None) -> dict:
-    """`run_design` in a fresh Python (its own peak memory), or the failure as a record."""
+def run_subprocess(case: str, design: str, cells, refine: bool, grid, max_iterations=None, root: Path = ROOT) -> dict:
+    """`run_design` in a fresh Python (its own peak memory), from the checkout ``root`` (its own copy of
+    this script and its package), or the failure as a record."""
     spec = json.dumps({"case": case, "design": design, "cells": cells, "refine": refine, "grid": grid,
                        "max_iterations": max_iterations})
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, __file__, "--one", spec], capture_output=True, text=True, env=env)
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    proc = subprocess.run([sys.executable, str(root / "benchmarks" / "wing_cells.py"), "--one", spec],
+                          capture_output=True, text=True, env=env)
     for line in reversed(proc.stdout.splitlines()):
         if line.startswith("{"):
             return json.loads(line)
@@ -135,7 +160,12 @@ def main(argv=None) -> int:
     parser.add_argument("--refine", action="store_true", help="re-solve each design on 33x64")
     parser.add_argument("--max-iterations", type=int, default=None,
                         help="cap on wing solves (peak-memory runs: the peak comes with the first Jacobians)")
-    parser.add_argument("--out", type=Path, default=RESULTS / "wing_cells.json")
+    parser.add_argument("--base", type=Path, default=None,
+                        help="a checkout of an earlier commit: each design runs from it too, alternating")
+    parser.add_argument("--base-label", default="base", help="its name in the results (e.g. a commit)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results JSON (default: benchmarks/results/wing_cells.json, with --base "
+                             "wing_cells_<label>.json)")
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     options = parser.parse_args(argv)
     if options.one is not None:
@@ -144,6 +174,9 @@ def main(argv=None) -> int:
                                     spec.get("max_iterations"))))
         return 0
     cells = [None] if options.cells is None else [int(c) for c in options.cells.split(",")]
+    if options.base is not None:
+        return compare(options, cells, argv)
+    options.out = options.out or RESULTS / "wing_cells.json"
     records = []
     if options.out.exists():  # runs of other cases and designs are kept, the same ones replaced
         old = json.loads(options.out.read_text())
@@ -166,26 +199,40 @@ def main(argv=None) -> int:
                                             "Jacobian, sparse QP)" + (", re-solved on 33x64" if options.refine else ""),
                     command="PYTHONPATH=. python benchmarks/wing_cells.py " + " ".join(argv if argv is not None
                                                                                       else sys.argv[1:]),
-                    columns=COLUMNS, rows=rows,
-                    notes=["grid 17x64 per bay unless the row says otherwise; the command's defaults (objective "
-                           "average, min_tension 0, max_iterations 50, start 1e4 Pa and 2% prestrain)",
-                           "designs: prestrains = pressure + uniform prestrains; shared_field = pressure + one "
-                           "cut field (12 coefficients); per_bay = pressure + a cut field per bay; per_bay_ribs = "
-                           "that + a shape per rib (8 coefficients each)",
-                           "rms, max: normal distance from the target, fractions of the local chord; worst bay: "
-                           "the bay of the largest rms; QP rows kept: the most tension and rib rows any step QP's "
-                           "working set held (step_qp.solve_working_set), of 2,048 tension rows per bay at 17x64 (the "
-                           "span and chord tensions of 1,024 cells against the floor) and about 500 rows per rib",
-                           "seconds: wall time of the design in its own process, compilation included; peak MB: "
-                           "ru_maxrss of that process; load: the 1-minute load average at its start and end "
-                           "(2-core machine shared with other work)",
-                           "33x64: the design re-solved on 33x64 (refine_design): its rms and how far the "
-                           "variables moved (pressure relative, others absolute, largest component)",
-                           "LE recession, largest: the largest over the bays of how far the mid-bay section's nose "
-                           "lies behind its target's (summary.json bays[K].le_recession), mm; rows without it were "
-                           "measured before it was recorded",
-                           *[f"failed: {line}" for line in failed]],
+                    columns=COLUMNS, rows=rows, notes=[*NOTES, *[f"failed: {line}" for line in failed]],
                     machine=machine_description(), folder=options.out.parent)
+    return 0
+
+
+def compare(options, cells, argv) -> int:
+    """Each design from this checkout and from ``--base``, alternating, in fresh processes: one row per
+    run, the ratio of their times in the notes."""
+    trees = [("this tree", ROOT), (options.base_label, options.base.resolve())]
+    out = options.out or RESULTS / f"wing_cells_{options.base_label}.json"
+    records, ratios = [], []
+    for case in options.cases.split(","):
+        for design in options.designs.split(","):
+            for n in cells:
+                pair = {}
+                for label, root in trees:
+                    record = {"tree": label, **run_subprocess(case, design, n, options.refine, options.grid,
+                                                              options.max_iterations, root)}
+                    print(json.dumps(record), flush=True)
+                    records.append(record)
+                    pair[label] = record
+                new, old = (pair[label].get("seconds") for label, _ in trees)
+                if new and old:
+                    ratios.append(f"{case} {design} ({pair['this tree'].get('bays')} bays): this tree "
+                                  f"{new} s in {pair['this tree'].get('wing solves')} wing solves, "
+                                  f"{options.base_label} {old} s in {pair[options.base_label].get('wing solves')}: "
+                                  f"ratio {new / old:.2f}")
+                save_result(
+                    out.stem, title=f"Designs of 40-cell wings cut cell by cell, this tree against "
+                                    f"{options.base_label}, alternating runs",
+                    command="PYTHONPATH=. python benchmarks/wing_cells.py " + " ".join(
+                        a for a in (argv if argv is not None else sys.argv[1:])),
+                    columns=["tree", *COLUMNS], rows=[[r.get(c) for c in ["tree", *COLUMNS]] for r in records],
+                    notes=[*ratios, *NOTES], machine=machine_description(), folder=out.parent)
     return 0
 
 
