@@ -23,6 +23,7 @@ from inverse_design import Constraints, DesignRequest, Layout, SolverSettings, o
 from inverse_design.constraints import cell_tensions
 from inverse_design.methods.blocks import compressed_seeds
 from inverse_design.methods.gauss_newton import GN_PENALTY, GN_QP_PENALTY, trust_region_step
+from inverse_design.methods.step_qp import BINDING_TOLERANCE
 from inverse_design.objectives import WingTargets, distance_residuals
 from inverse_design.problem import DesignProblem
 from inverse_design.variables import DesignVariables
@@ -112,6 +113,28 @@ def test_sparse_qp_step_equals_the_dense_qp_step(linearised):
     assert sparse[2] == dense[2] > 0  # the same rows kept
     assert sparse[1] == pytest.approx(dense[1], rel=1e-6)  # the model's predicted fall
     np.testing.assert_allclose(sparse[0], dense[0], rtol=0, atol=1e-4 * np.max(np.abs(dense[0])))
+
+
+def test_a_qp_started_from_the_last_steps_binding_rows_takes_the_same_step(linearised):
+    """A working set started with more rows (`step_qp.solve_working_set`'s ``start``: Gauss-Newton passes
+    the rows that bound at the last step) solves the same QP: a row of the set that does not bind changes
+    nothing. The rows said to bind are at their limit at the step."""
+    problem, u, (r, jr, g, jg, _), _, _ = linearised
+    g = g - np.quantile(g, 0.02)  # some rows broken at the start, others binding in the step (as above)
+    lo = np.maximum(problem.variables.lower - u, -1.0)
+    hi = np.minimum(problem.variables.upper - u, 1.0)
+    scale = 1.0 / np.sqrt(r @ r)
+    cold = trust_region_step(r * scale, jr * scale, g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY)
+    binding = cold[4]
+    assert binding.shape == g.shape and binding.any()
+    assert np.all(g[binding] + jg[binding] @ cold[0] <= BINDING_TOLERANCE)
+    # The binding rows and the 40 least rows still above their limit, most of which do not bind.
+    start = binding | (g <= np.sort(g[g > 0.0])[39]) & (g > 0.0)
+    warm = trust_region_step(r * scale, jr * scale, g, jg, lo, hi, GN_PENALTY, GN_QP_PENALTY, rows=start)
+    assert warm[3] >= cold[3] + 40 - binding.sum()  # the set held them
+    assert warm[1] == pytest.approx(cold[1], rel=1e-6)
+    np.testing.assert_allclose(warm[0], cold[0], rtol=0, atol=1e-4 * np.max(np.abs(cold[0])))
+    np.testing.assert_array_equal(warm[4], binding)
 
 
 @pytest.fixture(scope="module")
