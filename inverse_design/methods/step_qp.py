@@ -99,15 +99,27 @@ def solve_step_qp(r, jr, g, jg, lo, hi, damping: float, qp_penalty: float):
         string (``"Solved"``, ``"AlmostSolved"``, ...); ``d`` is None where the solver
         found no usable point.
     """
-    import clarabel
+    return _solve(_objective(r, jr, damping, qp_penalty), g, jg, lo, hi)
 
+
+def _objective(r, jr, damping: float, qp_penalty: float):
+    """Clarabel's ``P`` (the upper triangle of ``J^T J + damping I``, and a zero for the slack) and ``q`` of the
+    QP: the same for every working set of a step."""
     jr = scipy.sparse.csc_matrix(jr)
-    jg = scipy.sparse.csc_matrix(jg)
     n = jr.shape[1]
-    k = jg.shape[0]
     hessian = (jr.T @ jr + damping * scipy.sparse.identity(n, format="csc")).tocsc()
     P = scipy.sparse.block_diag([scipy.sparse.triu(hessian), scipy.sparse.csc_matrix((1, 1))], format="csc")
-    q = np.concatenate([jr.T @ r, [0.5 * qp_penalty]])
+    return P, np.concatenate([jr.T @ r, [0.5 * qp_penalty]])
+
+
+def _solve(objective, g, jg, lo, hi):
+    """`solve_step_qp` with its objective's ``(P, q)`` (`_objective`)."""
+    import clarabel
+
+    P, q = objective
+    jg = scipy.sparse.csc_matrix(jg)
+    n = P.shape[0] - 1
+    k = jg.shape[0]
     eye = scipy.sparse.identity(n, format="csc")
     zero_column = scipy.sparse.csc_matrix((n, 1))
     # A x + slack = b, slack >= 0: d <= hi, -d <= -lo, -(G d + s) <= g, -s <= 0
@@ -153,11 +165,12 @@ def solve_working_set(r, jr, g, jg, lo, hi, damping: float, qp_penalty: float, s
         boolean mask of the rows).
     """
     g = np.asarray(g, np.float64)
+    objective = _objective(r, jr, damping, qp_penalty)  # (formed once: 14% of the QPs' time when it was not)
     working = g <= 0.0
     if start is not None:
         working |= np.asarray(start, bool)
     for _ in range(WORKING_SET_ROUNDS):
-        d, s, status = solve_step_qp(r, jr, g[working], jg[working], lo, hi, damping, qp_penalty)
+        d, s, status = _solve(objective, g[working], jg[working], lo, hi)
         if d is None:
             return d, s, status, int(working.sum()), working
         held = g + jg @ d + s
@@ -165,5 +178,5 @@ def solve_working_set(r, jr, g, jg, lo, hi, damping: float, qp_penalty: float, s
         if not broken.any():
             return d, s, status, int(working.sum()), working & (held <= BINDING_TOLERANCE)
         working |= broken
-    d, s, status = solve_step_qp(r, jr, g, jg, lo, hi, damping, qp_penalty)
+    d, s, status = _solve(objective, g, jg, lo, hi)
     return d, s, status, int(g.size), np.ones(g.size, bool) if d is None else g + jg @ d + s <= BINDING_TOLERANCE
