@@ -49,8 +49,7 @@ import numpy as np
 import scipy.sparse
 
 __all__ = ["reachable_rows", "solve_step_qp", "solve_working_set", "BINDING_TOLERANCE", "QP_TOLERANCE",
-           "WORKING_SET_TOLERANCE",
-           "WORKING_SET_ROUNDS"]
+           "WORKING_SET_TOLERANCE", "WORKING_SET_ROUNDS"]
 
 #: Clarabel's relative gap and feasibility tolerances: far below the model falls that
 #: `gauss_newton.GaussNewton` compares (1e-3 of the merit at least for a step to count), and as tight
@@ -156,8 +155,8 @@ def solve_working_set(r, jr, g, jg, lo, hi, damping: float, qp_penalty: float, s
         r, jr, g, jg, lo, hi, damping, qp_penalty: as `solve_step_qp` (``g`` and ``jg``
             every candidate row, the reachable ones of `reachable_rows`).
         start: None, or a boolean mask of the rows to begin with besides those at their limit
-            (`gauss_newton.GaussNewton` passes the last step's set: along a limit that the
-            iterates follow, its rows break again, each round a solve).
+            (`gauss_newton.GaussNewton` passes the rows that bound at the last step: along a limit
+            that the iterates follow, they break again, each round a solve).
 
     Returns:
         ``(d, s, status, rows, binding)``: `solve_step_qp`'s step, slack and status, how many rows
