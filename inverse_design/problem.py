@@ -39,7 +39,7 @@ from forward_solver.solvers.bays import default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .history import History
-from .methods.blocks import compressed_seeds, decompress
+from .methods.blocks import compressed_seeds, decompress, rib_columns
 from .objectives import WingTargets
 from .settings import SolverSettings
 from .stacked import bay_nodes, displacements, joined, prepend
@@ -124,7 +124,13 @@ class DesignProblem:
                                                     else parameters.replace(rib_shape=shapes[k]))
                                         for k, g in self.ribs])
 
-            self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
+            if variables.rib_shapes is None:  # a shared shape (few rows): every column, dense
+                self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.jacfwd(rib_rows)(u)))
+            else:  # a shape per rib: along the bays' seeds, each rib's rows in its own columns (`rib_columns`)
+                seeds = jnp.asarray(self.seeds[0], jnp.float64)
+                self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.vmap(
+                    lambda t: jax.jvp(rib_rows, (u,), (t,))[1], out_axes=1)(seeds)))
+                self._rib_columns = rib_columns(variables, len(self.scenes))
 
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
@@ -282,9 +288,12 @@ class DesignProblem:
         if not self.ribs:
             return g, jg, recorded
         g_rib, jac_rib = (np.asarray(a) for a in self._rib_rows(jnp.asarray(u, jnp.float64)))
-        jg = (scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)], format="csr") if scipy.sparse.issparse(jg)
-              else np.vstack([jg, jac_rib]))
         per_rib = g_rib.reshape(len(self.ribs), -1)
+        if self.variables.rib_shapes is not None:  # compressed: each rib's rows in its own columns
+            row_ribs = np.repeat([k for k, _ in self.ribs], per_rib.shape[1])
+            jac_rib = decompress(jac_rib, row_ribs, self._rib_columns, self.variables.size)
+        jg = (scipy.sparse.vstack([jg, scipy.sparse.csr_matrix(jac_rib)], format="csr") if scipy.sparse.issparse(jg)
+              else np.vstack([jg, jac_rib.toarray() if scipy.sparse.issparse(jac_rib) else jac_rib]))
         n_thick = self.ribs[0][1].upper.size
         recorded = np.concatenate([recorded, [per_rib[:, :n_thick].min(), per_rib[:, n_thick:].min()]])
         return np.concatenate([g, g_rib]), jg, recorded

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
-__all__ = ["compressed_seeds", "decompress"]
+__all__ = ["compressed_seeds", "decompress", "rib_columns"]
 
 
 def _layout(variables):
@@ -83,6 +83,34 @@ def compressed_seeds(variables, n_bays: int):
                 rib = np.where(bays % 2 == parity, bays, bays + 1)  # the bay's root or tip rib of this parity
                 columns.append(start + rib * width + i)
     return np.array(seeds).reshape(-1, n), np.array(columns, dtype=np.int64).T.reshape(n_bays, -1)
+
+
+def rib_columns(variables, n_bays: int):
+    """Where the entries of the ribs' own rows (the rib limits, which depend on the shared variables and on
+    their rib's row of per-rib shapes alone) go, pushed along the bays' seeds (`compressed_seeds`): an
+    ``(n_bays + 1, n_seeds)`` integer array as its ``columns``, one row per rib, for `decompress`. A
+    tangent that moves no column of the rib (a per-bay coefficient, a per-rib one of the other parity)
+    gives it a zero, placed in a column that no other tangent of the rib uses (and then dropped).
+
+    Raises:
+        ValueError: for variables without per-rib shapes (the ribs then share every column).
+    """
+    shared, per_bay, per_rib = _layout(variables)
+    if per_rib is None:
+        raise ValueError("rib_columns needs per-rib shapes (variables.rib_shapes); without them every rib "
+                         "row moves with the shared columns alone")
+    n_ribs = n_bays + 1
+    ribs = np.arange(n_ribs)
+    columns = [np.full(n_ribs, c) for c in shared]
+    if per_bay is not None:
+        start, width = per_bay
+        columns += [start + np.minimum(ribs, n_bays - 1) * width + i for i in range(width)]
+    start, width = per_rib
+    other = np.where(ribs + 1 < n_ribs, ribs + 1, ribs - 1)  # a rib of the other parity
+    for parity in (0, 1):
+        own = np.where(ribs % 2 == parity, ribs, other)
+        columns += [start + own * width + i for i in range(width)]
+    return np.array(columns, dtype=np.int64).T.reshape(n_ribs, -1)
 
 
 def decompress(compressed, row_bays, columns, n_columns: int) -> scipy.sparse.csr_matrix:

@@ -19,13 +19,14 @@ import pytest
 
 from forward_solver import Fabric, Wing, solve_equilibrium
 from forward_solver.derivatives.forward import value_and_jacobian
-from inverse_design import Constraints, DesignRequest, Layout, SolverSettings, optimise_wing
+from inverse_design import Constraints, DesignRequest, Layout, RibLimits, SolverSettings, optimise_wing
 from inverse_design.constraints import cell_tensions
 from inverse_design.methods.blocks import compressed_seeds
 from inverse_design.methods.gauss_newton import GN_PENALTY, GN_QP_PENALTY, trust_region_step
 from inverse_design.methods.step_qp import BINDING_TOLERANCE
 from inverse_design.objectives import WingTargets, distance_residuals
 from inverse_design.problem import DesignProblem
+from inverse_design.rib_design import RibGeometry
 from inverse_design.variables import DesignVariables
 from support.design import bay_columns, dense_linearised, dense_step
 from targets import naca
@@ -113,6 +114,33 @@ def test_sparse_qp_step_equals_the_dense_qp_step(linearised):
     assert sparse[2] == dense[2] > 0  # the same rows kept
     assert sparse[1] == pytest.approx(dense[1], rel=1e-6)  # the model's predicted fall
     np.testing.assert_allclose(sparse[0], dense[0], rtol=0, atol=1e-4 * np.max(np.abs(dense[0])))
+
+
+def test_the_rib_rows_along_the_bays_seeds_are_their_dense_jacobian(linearised):
+    """The rib limits' rows of a shape per rib, pushed along the bays' compressed seeds and decompressed
+    (`blocks.rib_columns`), against forward mode in every variable of the same rows (`RibGeometry.functions`):
+    the wing's four ribs, a per-bay cut field and the rib thickness scale beside them."""
+    problem, u, _, _, _ = linearised
+    af = naca("2412")
+    variables = problem.variables
+    with jax.enable_x64(True):
+        ribbed = DesignProblem(problem.scenes, problem.targets, variables, tension=problem.tension,
+                               ribs=[(k, RibGeometry(af, RibLimits())) for k in range(4)],
+                               solver=problem.solver)
+        ribbed.remember(problem.previous, u)
+        *_, g, jg, _ = ribbed.linearised(u)
+
+        def rows(w):
+            parameters, shapes = variables.parameters(w), variables.rib_shapes_at(w)
+            return jnp.concatenate([geometry.functions(parameters.replace(rib_shape=shapes[k]))
+                                    for k, geometry in ribbed.ribs])
+
+        w = jnp.asarray(u, jnp.float64)
+        expected_g, expected = np.asarray(rows(w)), np.asarray(jax.jacfwd(rows)(w))
+    n = expected_g.size
+    np.testing.assert_allclose(g[-n:], expected_g, rtol=0, atol=1e-14 * np.max(np.abs(expected_g)))
+    np.testing.assert_allclose(jg[-n:].toarray(), expected, rtol=0, atol=1e-12 * np.max(np.abs(expected)))
+    assert np.count_nonzero(expected[:, variables.slices()["rib_shape"]]) > 0  # the shapes move them
 
 
 def test_a_qp_started_from_the_last_steps_binding_rows_takes_the_same_step(linearised):
