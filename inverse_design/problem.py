@@ -130,7 +130,7 @@ class DesignProblem:
                 seeds = jnp.asarray(self.seeds[0], jnp.float64)
                 self._rib_rows = jax.jit(lambda u: (rib_rows(u), jax.vmap(
                     lambda t: jax.jvp(rib_rows, (u,), (t,))[1], out_axes=1)(seeds)))
-                self._rib_columns = rib_columns(variables, len(self.scenes))
+                self._rib_columns = rib_columns(variables, self.seeds[0])
 
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:

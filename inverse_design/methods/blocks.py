@@ -85,32 +85,33 @@ def compressed_seeds(variables, n_bays: int):
     return np.array(seeds).reshape(-1, n), np.array(columns, dtype=np.int64).T.reshape(n_bays, -1)
 
 
-def rib_columns(variables, n_bays: int):
+def rib_columns(variables, seeds):
     """Where the entries of the ribs' own rows (the rib limits, which depend on the shared variables and on
-    their rib's row of per-rib shapes alone) go, pushed along the bays' seeds (`compressed_seeds`): an
-    ``(n_bays + 1, n_seeds)`` integer array as its ``columns``, one row per rib, for `decompress`. A
-    tangent that moves no column of the rib (a per-bay coefficient, a per-rib one of the other parity)
-    gives it a zero, placed in a column that no other tangent of the rib uses (and then dropped).
+    their rib's row of per-rib shapes alone) go, pushed along the bays' ``seeds`` (`compressed_seeds`): an
+    ``(n_ribs, n_seeds)`` integer array as its ``columns``, one row per rib, for `decompress`. Read off the
+    seeds: a seed's column among the rib's own, or for a seed that moves none of them (a per-bay
+    coefficient, a per-rib one of the other parity) the first it moves, whose derivative is a zero
+    (then dropped) in a column that no other seed moves.
 
     Raises:
         ValueError: for variables without per-rib shapes (the ribs then share every column).
     """
-    shared, per_bay, per_rib = _layout(variables)
+    shared, _, per_rib = _layout(variables)
     if per_rib is None:
         raise ValueError("rib_columns needs per-rib shapes (variables.rib_shapes); without them every rib "
                          "row moves with the shared columns alone")
-    n_ribs = n_bays + 1
-    ribs = np.arange(n_ribs)
-    columns = [np.full(n_ribs, c) for c in shared]
-    if per_bay is not None:
-        start, width = per_bay
-        columns += [start + np.minimum(ribs, n_bays - 1) * width + i for i in range(width)]
     start, width = per_rib
-    other = np.where(ribs + 1 < n_ribs, ribs + 1, ribs - 1)  # a rib of the other parity
-    for parity in (0, 1):
-        own = np.where(ribs % 2 == parity, ribs, other)
-        columns += [start + own * width + i for i in range(width)]
-    return np.array(columns, dtype=np.int64).T.reshape(n_ribs, -1)
+    moved = np.asarray(seeds) != 0.0  # (n_seeds, n_variables); the seeds move disjoint columns
+    first = np.argmax(moved, axis=1)
+    n_ribs = variables.rib_shapes.shape[0]
+    columns = np.empty((n_ribs, moved.shape[0]), np.int64)
+    for k in range(n_ribs):
+        own = np.zeros(moved.shape[1], bool)
+        own[shared] = True
+        own[start + k * width:start + (k + 1) * width] = True
+        hits = moved & own
+        columns[k] = np.where(hits.any(axis=1), np.argmax(hits, axis=1), first)
+    return columns
 
 
 def decompress(compressed, row_bays, columns, n_columns: int) -> scipy.sparse.csr_matrix:
