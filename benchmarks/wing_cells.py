@@ -95,11 +95,9 @@ def run_design(case: str, design: str, cells: int | None, refine: bool, grid, ma
     from inverse_design.app import design as command_design
     from inverse_design.app.case import Case
     from inverse_design.app.measures import le_recessions
-    from inverse_design.memory import fix_mmap_threshold
     from inverse_design.optimise import refine_design
     from inverse_design.settings import Layout
 
-    fix_mmap_threshold()  # as the command does
     load_start = _load()
     variables, extra = DESIGNS[design]
     argv = ["--config", str(ROOT / "inverse_design" / "cases" / CASES[case]), "--variables", variables,

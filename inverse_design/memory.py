@@ -20,14 +20,16 @@ A design of many iterates holds little more, once two things that grew with
 every iterate are gone (found on the same wing's first 10 and 20 bays): the
 LU factors of every earlier iterate's Jacobian, kept for pullbacks that a
 forward-mode design never calls (about 3 MB a bay and iterate, up to 512 MiB;
-now dropped, `forward_solver.derivatives.implicit.forward_only`), and glibc's heap, which
-its raised mmap threshold let grow by about 100 MB an iterate on 20 bays
-(`fix_mmap_threshold`). Measured with both: the whole 40-cell design with a
-field per bay and a shape per rib (809 variables, 21 wing solves to a Gauss-Newton
-tolerance of 1e-4) peaked at 2,053-2,080 MiB in four runs, and at 2,079 MiB in 13
-solves to the default 1e-3 (the estimate: 2,000 MiB), its resident memory
-level at 1.5-1.6 GB from the fourth iterate, where it had reached 6.7 GB
-after 60 minutes and was growing.
+now dropped, `forward_solver.derivatives.implicit.forward_only`), and the free
+memory that glibc's heap keeps after each iterate (about 100 MB an iterate on
+20 bays), which the design now gives back after each wing solve and each
+linearisation (`release_free_memory`). Measured with the dropped factors and
+the heap held down (then by a fixed mmap threshold): the whole 40-cell design
+with a field per bay and a shape per rib (809 variables, 21 wing solves to a
+Gauss-Newton tolerance of 1e-4) peaked at 2,053-2,080 MiB in four runs, and at
+2,079 MiB in 13 solves to the default 1e-3 (the estimate: 2,000 MiB), its
+resident memory level at 1.5-1.6 GB from the fourth iterate, where it had
+reached 6.7 GB after 60 minutes and was growing.
 
 A Monte Carlo check of the tolerances (`tolerance.monte_carlo`) draws and
 solves its samples a chunk at a time; what it keeps grows with the samples
@@ -54,14 +56,8 @@ import math
 import os
 import sys
 
-__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "MMAP_THRESHOLD_BYTES", "ROW_BYTES", "STATISTICS_BYTES",
-           "design_tangents", "design_memory", "fix_mmap_threshold", "physical_memory", "sample_memory"]
-
-#: The size from which glibc's ``malloc`` maps each block on its own (returned to the system when
-#: freed) under `fix_mmap_threshold`: glibc's own starting value, 128 KiB.
-MMAP_THRESHOLD_BYTES = 128 * 1024
-#: ``mallopt``'s parameter number of ``M_MMAP_THRESHOLD`` (glibc's malloc.h).
-_M_MMAP_THRESHOLD = -3
+__all__ = ["BASE_MIB", "PER_NODE_MIB", "PER_TANGENT_NODE_MIB", "ROW_BYTES", "STATISTICS_BYTES", "design_tangents",
+           "design_memory", "physical_memory", "release_free_memory", "sample_memory"]
 
 #: The interpreter, JAX, the compiled programs and one bay's work, MiB.
 BASE_MIB = 650.0
@@ -144,28 +140,33 @@ def physical_memory() -> int | None:
     return pages * size if pages > 0 and size > 0 else None
 
 
-def fix_mmap_threshold(threshold: int = MMAP_THRESHOLD_BYTES) -> bool:
-    """Keep glibc's mmap threshold at ``threshold`` bytes for this process (``mallopt``), so that the
-    resident memory of a long design stops growing once its iterates repeat.
+def release_free_memory() -> bool:
+    """Give the heap's free memory back to the system (glibc's ``malloc_trim(0)``): a design calls it
+    after each wing solve and each linearisation, so that its resident memory stays level.
 
-    By default glibc raises the threshold to the size of each mapped block a program frees (up
-    to 32 MiB): after the first iterate, every array up to that size comes from the heap, and
-    the heap, fragmented by the arrays each iterate makes and frees (the Jacobian's tangents and
-    decompression, the LU factors, the step QP), is not given back. Measured on the first 20 bays
-    of the 40-cell wing (17x64, a field per bay and a shape per rib, 409 variables; 2-core
-    machine at load 5-7) with the released factors dropped: resident 1,057 MB after the first
-    iterate and 1,756 MB after the eighth (about 100 MB an iterate, unbounded); with the threshold
-    fixed, 943 MB and 1,141 MB, level from the third, and no slower. ``MALLOC_MMAP_THRESHOLD_``
-    in the environment does the same when the process starts.
-
-    A process setting, like `forward_solver.compilation.enable_fast_compilation`: the ``optimise-pressure``
-    command calls it as it starts; a library caller running long designs may too. Nothing
-    happens outside glibc (another C library, another system).
+    glibc raises its mmap threshold to the size of each mapped block a program frees (up to 32 MiB),
+    so after the first iterate the arrays an iterate makes and frees (the Jacobian's tangents and
+    decompression, the LU factors, the step QP) come from the heap, which fragmentation keeps from
+    shrinking: measured on the first 20 bays of the 40-cell wing (17x64, a field per bay and a shape per
+    rib, 409 variables), resident 1,057 MB after the first iterate and 1,756 MB after the eighth. Fixing
+    the threshold at 128 KiB instead (``mallopt``) held it level, but every XLA program then mapped and
+    unmapped its larger buffers on each call: the 40-cell wing's Jacobian values (a bay, 36 colours)
+    4.9 ms a call against 1.7 ms, half the time in the kernel's page faults, and its designs 16.3 s
+    against 13.9 s (3 variables) and 52.7 s against 43.1 s (809 variables) with this call instead,
+    peak memory 1,104 and 1,513 MB against 1,116 and 1,640 MB (the 2-core development machine, one run
+    each). One call costs 5-20 ms on those designs. Nothing happens outside glibc.
 
     Returns:
-        Whether the threshold was set.
+        Whether memory was given back.
     """
     if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(None)
+        if not hasattr(libc, "gnu_get_libc_version"):  # glibc only
+            return False
+        return bool(libc.malloc_trim(ctypes.c_size_t(0)))
+    except (OSError, AttributeError):
         return False
     try:
         libc = ctypes.CDLL(None)

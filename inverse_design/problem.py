@@ -39,6 +39,7 @@ from forward_solver.solvers.bays import default_strategy
 
 from .constraints import cell_constraints, cell_tensions, constraint_functions, penalty_residuals, tension_scale
 from .history import History
+from .memory import release_free_memory
 from .methods.blocks import compressed_seeds, decompress, rib_columns
 from .objectives import WingTargets
 from .settings import SolverSettings
@@ -156,12 +157,16 @@ class DesignProblem:
 
     # ------------------------------------------------------------ solves
     def _solve(self, u, initial) -> BaysSolution:
+        # The last step's and this solve's freed arrays back to the system: the heap stays level
+        # (`memory.release_free_memory`; here and after each linearisation, `_transformed`).
+        release_free_memory()
         sol = solve_bays(self.scenes, self.variables.parameters(u), rtol=self.solver.rtol,
                          max_steps=self.solver.max_steps, method=self.method, initial=initial,
                          rib_shapes=self.variables.rib_shapes_at(u), cut_patterns=self.variables.cut_patterns_at(u),
                          sequencing=self.sequencing)
         # The chain's tries count as solves (of its slowest bay); a named method's solve is one.
         self.solves += max([len(s.extra.get("attempts", [None])) for s in sol.solutions or []], default=1)
+        release_free_memory()
         return sol
 
     def _concrete(self, sol: BaysSolution, aux: dict, u) -> BaysSolution:
@@ -208,6 +213,7 @@ class DesignProblem:
                 return out, aux
 
             out = transform(wrapped, jnp.asarray(u, jnp.float64))
+            release_free_memory()
             sol = self._concrete(held["sol"], out[-1], u)
             if sol.converged:
                 measured = out[-1].get("measured")

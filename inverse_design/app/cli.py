@@ -35,9 +35,7 @@ the report's worker processes, which import matplotlib and ezdxf while the
 design runs (`inverse_design.app.workers.ReportWorkers`); runs BLAS on one
 thread (``threadpoolctl``: its solves are too small to gain from threads, and
 on a busy 2-core machine OpenBLAS's waiting threads made the default case's
-panels take 29 s instead of 0.1 s); keeps glibc's mmap threshold fixed
-(`inverse_design.memory.fix_mmap_threshold`: a long design's resident memory
-levels off); and collects cyclic garbage less often (`GC_THRESHOLD`). It
+panels take 29 s instead of 0.1 s); and collects cyclic garbage less often (`GC_THRESHOLD`). It
 imports JAX once the options are read and the report's workers started, not
 when this module is imported: bad input and ``--help`` answer without it,
 and a report worker, started by ``spawn``, imports the command's module
@@ -65,7 +63,6 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
-from inverse_design.memory import fix_mmap_threshold
 
 from . import interrupts
 from .case import Case
@@ -188,7 +185,6 @@ def main(argv: list[str] | None = None) -> int:
     store = _program_store()
     config = None
     try:
-        fix_mmap_threshold()  # before the design's first large arrays (a long design's heap stays level)
         _CACHE_WARNED = False
         config = _config_without_home()
         with warnings.catch_warnings():

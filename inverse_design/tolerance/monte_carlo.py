@@ -32,7 +32,7 @@ import numpy as np
 from forward_solver import solve_equilibrium
 
 from ..fabric_range import bay_strains
-from ..memory import physical_memory, sample_memory
+from ..memory import physical_memory, release_free_memory, sample_memory
 from .model import ToleranceModel, summary_of
 
 __all__ = ["CHUNK", "CLUSTER_CHUNK", "FAILURES_KEPT", "SAMPLE_RTOL", "SCHEDULER_TIMEOUT_S", "check_samples",
@@ -203,6 +203,7 @@ def _solve_here(model: ToleranceModel, nominal, sampling):
     for first, draws in sample_draws(model, sampling.seed, sampling.samples):
         for i, e in enumerate(draws):
             yield first + i, e, _measured(model, e, nominal, sampling.rtol)
+        release_free_memory()  # a chunk's freed arrays back to the system: the heap stays level
 
 
 #: Seconds `connect_scheduler` waits for a Dask scheduler to answer.
