@@ -105,7 +105,8 @@ def main(argv=None) -> None:
     result = {
         "title": f"Start-up: the command against {args.base_label}, alternating runs",
         "command": f"python -m benchmarks.startup --base {args.base} --base-label {args.base_label} "
-                   f"--repeats {args.repeats} --cold-repeats {args.cold_repeats} --wing-repeats {args.wing_repeats}",
+                   f"--repeats {args.repeats} --cold-repeats {args.cold_repeats} --wing-repeats {args.wing_repeats}"
+                   + ("" if args.name == "startup" else f" --name {args.name}"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}; load average "
                    f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
         "date": datetime.date.today().isoformat(),

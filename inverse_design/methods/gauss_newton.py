@@ -28,10 +28,10 @@ __all__ = ["GaussNewton", "GN_TOLERANCE", "GN_PENALTY", "GN_QP_PENALTY", "GN_SLA
            "GN_DAMPING", "GN_RESOLUTION", "levenberg_damping", "merit_model", "trust_region_step"]
 
 #: Default tolerance of `GaussNewton`: the model's predicted fall of the merit, relative to it (1e-3 of
-#: the mean square is 5e-4 of the rms error, against the 1.3-3% that re-solving on 33x64 moves it). Near
-#: the optimum a step gains 0.2-0.5% of the merit per wing solve on the 40-cell wing (linear
-#: convergence: the fit's residuals do not vanish); 1e-4 spent up to 8 more solves there for 0.27% of
-#: the rms, and on the design matrix 197 solves against 165 for at most 0.11% of it.
+#: the mean square is 5e-4 of the rms error, against the 1.3-3% that re-solving on 33x64 moves it). Measured
+#: while the step QP stopped short of its minimum (`step_qp.QP_TOLERANCE`): near the optimum a step gained
+#: 0.2-0.5% of the merit per wing solve on the 40-cell wing, and 1e-4 spent up to 8 more solves there for
+#: 0.27% of the rms, and on the design matrix 197 solves against 165 for at most 0.11% of it.
 GN_TOLERANCE = 1e-3
 
 #: Gauss-Newton: weight of the largest constraint violation (beyond `GN_SLACK`) in the l-infinity merit
