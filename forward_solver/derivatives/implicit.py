@@ -40,12 +40,11 @@ from typing import ClassVar
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from .. import forces as fk
 from ..compilation import compiling, signature
 from ..programs import prepare_compiled
-from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, free_dofs
+from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, factorise, free_dofs
 from .krylov import BiCGStab
 from .rhs import batched_rhs, jacobian_matvec, kernel_tangent, parameter_rhs
 
@@ -264,7 +263,7 @@ class HostLU:
     `forward_only` is dropped then (no pullback can call it).
 
     Args:
-        factor: a ``scipy.sparse.linalg.SuperLU`` of ``J`` on the free dofs.
+        factor: the LU of ``J`` on the free dofs (`jacobian.factorise`).
         free: index of each free dof into ``x.reshape(-1)`` (its numbering).
         anchor: the equilibrium nodes ``x`` (a JAX array) the factor belongs to.
     """
@@ -350,7 +349,7 @@ class SparseLU:
         if factor is not None and factor.current:
             return HostLU(factor.lu, np.asarray(factor.free_dofs), x)
         ref = prepare_compiled(geometry, params, fk.static_physics(physics))
-        lu = spla.splu(assemble_jacobian(x, ref, params, physics), permc_spec=self.permc_spec)
+        lu = factorise(assemble_jacobian(x, ref, params, physics), permc_spec=self.permc_spec)
         return HostLU(lu, free_dofs(ref), x)
 
     def check_traceable(self, where: str) -> None:

@@ -36,13 +36,12 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .. import forces as fk
 from ..precision import float64_scope
 from ..programs import prepare_compiled, static_state
 from ..solution import Result
-from .jacobian import PERMC_SPEC, FreePattern, JacobianFactor, free_dofs, linearise, sparsity_pattern
+from .jacobian import FreePattern, JacobianFactor, factorise, free_dofs, linearise, sparsity_pattern
 from .loop import check_stop
 
 __all__ = ["NewtonOptions", "NewtonResult", "newton", "chord_newton", "warm_up"]
@@ -119,8 +118,8 @@ class NewtonResult(NamedTuple):
 
 # -------------------------------------------------------------------- newton
 def _factorise(matrix: sp.csc_matrix):
-    """SuperLU of ``matrix``; raises RuntimeError when it is exactly singular."""
-    return spla.splu(matrix, permc_spec=PERMC_SPEC)
+    """The LU of ``matrix`` (`jacobian.factorise`); raises RuntimeError when it is exactly singular."""
+    return factorise(matrix)
 
 
 def _shift_scale(jac: sp.csc_matrix) -> np.ndarray:

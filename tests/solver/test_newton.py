@@ -14,7 +14,7 @@ import pytest
 
 from forward_solver import Bay, Result, Scene, solve_equilibrium
 from forward_solver import forces as fk
-from forward_solver.solvers.jacobian import assemble_jacobian, free_dofs, jacobian_sparsity
+from forward_solver.solvers.jacobian import OrderedLU, assemble_jacobian, factorise, free_dofs, jacobian_sparsity
 from forward_solver.solvers.newton import NewtonOptions, newton
 from forward_solver.model.parameters import as_parameters
 
@@ -170,6 +170,26 @@ def test_factor_is_the_lu_of_the_jacobian_at_the_solution(panel):
     scale = np.linalg.norm(b)
     assert np.linalg.norm(jac @ out.factor.solve(b) - b) <= 1e-10 * scale
     assert np.linalg.norm(jac.T @ out.factor.solve(b, trans="T") - b) <= 1e-10 * scale
+
+
+def test_a_structure_met_again_is_factorised_in_its_first_order(panel):
+    """`factorise`: the first matrix of a structure by SuperLU's own ordering, the next of that structure
+    reordered by it (an `OrderedLU`) with the same fill; each solves J x = b and J^T x = b, and so does
+    the LU of a Levenberg-shifted matrix (the same structure, other values)."""
+    import scipy.sparse as sp
+
+    _, _, _, _, _, out = panel
+    jac = out.jacobian[:-1, :-1].tocsc()  # (a structure no solve has met)
+    first, again = factorise(jac), factorise(jac * 1.0001)
+    assert not isinstance(first, OrderedLU) and isinstance(again, OrderedLU)
+    assert again.nnz <= 1.05 * first.nnz
+    shifted = (jac - sp.diags(1e-2 * np.abs(jac.diagonal()), format="csc")).tocsc()
+    b = np.random.default_rng(2).standard_normal((jac.shape[0], 3))
+    scale = np.linalg.norm(b)
+    for matrix, lu in ((jac, first), (jac * 1.0001, again), (shifted, factorise(shifted))):
+        assert np.linalg.norm(matrix @ lu.solve(b) - b) <= 1e-10 * scale
+        assert np.linalg.norm(matrix.T @ lu.solve(b, trans="T") - b) <= 1e-10 * scale
+        assert np.linalg.norm(matrix @ lu.solve(b[:, 0]) - b[:, 0]) <= 1e-10 * scale
 
 
 def test_newton_and_relaxation_reach_the_same_shape(panel):
