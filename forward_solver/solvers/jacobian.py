@@ -287,8 +287,8 @@ class _Reordering(NamedTuple):
     indptr: np.ndarray  # ... and column pointers
 
 
-_REORDERINGS: dict = {}
-#: Structures whose reordering `factorise` keeps (the first ones met; grids of a process are few).
+_REORDERINGS: dict = {}  # (in the order last used)
+#: Structures whose reordering `factorise` keeps, the most recently used (the grids of a run are few).
 _MAX_REORDERINGS = 16
 
 
@@ -318,12 +318,14 @@ def factorise(matrix: sp.csc_matrix, permc_spec: str = PERMC_SPEC):
     matrix = sp.csc_matrix(matrix)
     matrix.sum_duplicates()  # (canonical: sorted indices, no duplicates; a no-op for the solver's matrices)
     key = (matrix.shape, matrix.indptr.tobytes(), matrix.indices.tobytes())
-    reordering = _REORDERINGS.get(key)
+    reordering = _REORDERINGS.pop(key, None)
     if reordering is None:
         lu = spla.splu(matrix, permc_spec=permc_spec)
-        if len(_REORDERINGS) < _MAX_REORDERINGS:
-            _REORDERINGS[key] = _reordering(matrix, np.argsort(lu.perm_c))
+        while len(_REORDERINGS) >= _MAX_REORDERINGS:
+            _REORDERINGS.pop(next(iter(_REORDERINGS)))  # the least recently used
+        _REORDERINGS[key] = _reordering(matrix, np.argsort(lu.perm_c))
         return lu
+    _REORDERINGS[key] = reordering  # (the most recently used now)
     reordered = sp.csc_matrix((matrix.data[reordering.gather], reordering.indices.copy(), reordering.indptr.copy()),
                               shape=matrix.shape)
     return OrderedLU(spla.splu(reordered, permc_spec="NATURAL", options=ORDERED_OPTIONS), reordering.order)
