@@ -304,11 +304,13 @@ def _reordering(matrix: sp.csc_matrix, order: np.ndarray) -> _Reordering:
 def factorise(matrix: sp.csc_matrix, permc_spec: str = PERMC_SPEC):
     """The sparse LU of ``matrix`` (CSC): ``.solve(b, trans="N" | "T")``.
 
-    With the default ordering (`PERMC_SPEC`), SuperLU orders a structure the first time it meets it; from
-    then on, a matrix of that structure is reordered by that permutation on both sides and factorised
-    without ordering again (`ORDERED_OPTIONS`, an `OrderedLU`): a Newton solve factorises the same
-    structure at every iteration, and a design every bay at every iterate. Another ``permc_spec``:
-    SuperLU's own (`scipy.sparse.linalg.splu`).
+    With the default ordering (`PERMC_SPEC`), SuperLU orders a structure the first time it meets it; every
+    matrix of that structure is then reordered by that permutation on both sides and factorised without
+    ordering again (`ORDERED_OPTIONS`, an `OrderedLU`): a Newton solve factorises the same structure at
+    every iteration, and a design every bay at every iterate. The first matrix of a structure is
+    factorised twice (ordered, then reordered), so that its factor and every later one's are the same
+    to the bit whatever the process met before. Another ``permc_spec``: SuperLU's own
+    (`scipy.sparse.linalg.splu`).
 
     Raises:
         RuntimeError: when the matrix is exactly singular (SuperLU's).
@@ -319,12 +321,11 @@ def factorise(matrix: sp.csc_matrix, permc_spec: str = PERMC_SPEC):
     matrix.sum_duplicates()  # (canonical: sorted indices, no duplicates; a no-op for the solver's matrices)
     key = (matrix.shape, matrix.indptr.tobytes(), matrix.indices.tobytes())
     reordering = _REORDERINGS.pop(key, None)
-    if reordering is None:
-        lu = spla.splu(matrix, permc_spec=permc_spec)
+    if reordering is None:  # SuperLU's ordering of this structure (its numeric factor is not used: every
+        # factor of a structure comes from the same reordered matrix, whatever the process met before)
+        reordering = _reordering(matrix, np.argsort(spla.splu(matrix, permc_spec=permc_spec).perm_c))
         while len(_REORDERINGS) >= _MAX_REORDERINGS:
             _REORDERINGS.pop(next(iter(_REORDERINGS)))  # the least recently used
-        _REORDERINGS[key] = _reordering(matrix, np.argsort(lu.perm_c))
-        return lu
     _REORDERINGS[key] = reordering  # (the most recently used now)
     reordered = sp.csc_matrix((matrix.data[reordering.gather], reordering.indices.copy(), reordering.indptr.copy()),
                               shape=matrix.shape)
