@@ -36,6 +36,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from functools import partial
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -46,14 +49,86 @@ from forward_solver.programs import mounted_compiled
 
 from ..constraints import cell_tensions
 from ..objectives import WingTargets
+from ..stacked import joined
 from .inputs import SOURCE_SCOPE, SOURCES
 
-__all__ = ["CLASS_RMS", "MOUNTING_SOURCES", "Column", "ToleranceModel", "summary_of"]
+__all__ = ["CLASS_RMS", "MOUNTING_SOURCES", "Column", "ToleranceModel", "bay_changes", "bay_values", "summary_of"]
 
 #: The sources that move a bay's mounted shape (its ribs' outline): `ToleranceModel.predicted_start`.
 MOUNTING_SOURCES = ("rib_profile",)
 #: rms over x in [0, 1] of the rib shape's class function sqrt(x) (1 - x) (`forward_solver.model.rib_shape`).
 CLASS_RMS = 1.0 / math.sqrt(12.0)
+
+
+def bay_values(nominal: list, spacing, contour, rib_chords, shape_terms: int) -> dict:
+    """The per-bay nominal values `bay_changes` reads: ``{name: (n_bays, ...) array}`` (``rib_chords``:
+    ``(n_bays + 1,)``, a rib's chord; unset rib shapes as zero coefficients)."""
+
+    def shapes(index: int) -> np.ndarray:
+        return np.stack([np.zeros(shape_terms) if p.rib_shapes[index] is None
+                         else np.asarray(p.rib_shapes[index], np.float64) for p in nominal])
+
+    return {"pressure": np.array([float(p.pressure) for p in nominal]),
+            "stiffness_span": np.array([float(p.stiffness_span) for p in nominal]),
+            "stiffness_chord": np.array([float(p.stiffness_chord) for p in nominal]),
+            "prestrain_span": np.array([float(p.prestrain_span) for p in nominal]),
+            "prestrain_chord": np.array([float(p.prestrain_chord) for p in nominal]),
+            "spacing": np.asarray(spacing, np.float64), "contour": np.asarray(contour, np.float64),
+            "rib_chords": np.asarray(rib_chords, np.float64), "rib_shape": shapes(0), "rib_shape_tip": shapes(1)}
+
+
+def bay_changes(e, k, values: dict, offsets: tuple) -> dict:
+    """The fields of bay ``k``'s `Parameters` that the deviations ``e`` change (the module docstring's
+    map), in operators and indexing alone: NumPy's arithmetic on concrete values, one program under
+    ``jax.jit`` with ``k`` traced (`ToleranceModel.bay_parameters`).
+
+    Args:
+        e: ``(size,)`` deviations, the sources' units.
+        k: the bay.
+        values: `bay_values`.
+        offsets: ``((source, first column), ...)`` of the sources present: a source's column of bay or
+            rib ``i`` is its first column plus ``i`` (one for the wing: the first).
+    """
+    first = dict(offsets)
+
+    def dev(source, index=k):
+        if source not in first:
+            return 0.0
+        return e[first[source] + (0 if SOURCE_SCOPE[source] == "wing" else index)]
+
+    changes = {}
+    if "pressure" in first:
+        changes["pressure"] = values["pressure"][k] + dev("pressure")
+    for name in ("stiffness_span", "stiffness_chord"):
+        if name in first:
+            changes[name] = values[name][k] + dev(name)
+    # (b + db) / (b / (1 + e0) + dL) - 1, written as e0 plus a change that is exactly 0 at no
+    # deviation: the nominal wing is then the design's own, to the bit (its kept factor serves)
+    if {"cut_span", "rib_station"} & first.keys():
+        b, e0 = values["spacing"][k], values["prestrain_span"][k]
+        db = 1e-3 * (dev("rib_station", k + 1) - dev("rib_station", k))
+        dl = (1.0 + e0) * 1e-3 * dev("cut_span")
+        changes["prestrain_span"] = e0 + (1.0 + e0) * (db - dl) / (b + dl)
+    if "cut_chord" in first:
+        c, e0 = values["contour"][k], values["prestrain_chord"][k]
+        dl = (1.0 + e0) * 1e-3 * dev("cut_chord")
+        changes["prestrain_chord"] = e0 - (1.0 + e0) * dl / (c + dl)
+    if "rib_profile" in first:
+        root, tip = values["rib_shape"][k], values["rib_shape_tip"][k]
+        a_root = 1e-3 * dev("rib_profile", k) / (values["rib_chords"][k] * CLASS_RMS)
+        a_tip = 1e-3 * dev("rib_profile", k + 1) / (values["rib_chords"][k + 1] * CLASS_RMS)
+        changes["rib_shape"] = root + a_root
+        changes["rib_shape_tip"] = tip + a_tip
+    return changes
+
+
+_traced_bay_changes = partial(jax.jit, static_argnames=("offsets",))(bay_changes)
+
+
+@jax.jit
+def _millimetres(distances, chords):
+    """A bay's rows' distances (fractions of their local chords) in mm, flat."""
+    return (distances * chords[:, None] * 1e3).reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -127,6 +202,12 @@ class ToleranceModel:
         self.start_mounted = [None] * n  # (the nominal's mounted shape, beside its tangents)
         self.targets = targets
         self.weights = np.asarray(targets.weights, np.float64)
+        # (`bay_changes`' operands: the first column of each source present, and each bay's nominal values)
+        firsts = {}
+        for i, c in enumerate(self.columns):
+            firsts.setdefault(c.source, i)
+        self._offsets = tuple(firsts.items())
+        self._bay_values = bay_values(self.nominal, self.spacing, self.contour, self.rib_chords, self.shape_terms)
 
     @classmethod
     def of(cls, result, tolerances: dict) -> "ToleranceModel":
@@ -166,54 +247,22 @@ class ToleranceModel:
                          if SOURCE_SCOPE[c.source] == "wing" or (SOURCE_SCOPE[c.source] == "bay" and c.index == k)
                          or (SOURCE_SCOPE[c.source] == "rib" and c.index in (k, k + 1))], dtype=int)
 
-    def deviation(self, e, source: str, index: int):
-        """The entry of ``e`` (deviations in the sources' units) of ``source`` at ``index``, or 0."""
-        for i, c in enumerate(self.columns):
-            if c.source == source and c.index == index:
-                return e[i]
-        return 0.0
-
     def bay_parameters(self, k: int, e) -> Parameters:
         """Bay ``k``'s `Parameters` at the deviations ``e`` (``(size,)``, the sources' units; JAX
-        values allowed): the module docstring's map."""
-        p = self.nominal[k]
-        def dev(source, index=k):
-            return self.deviation(e, source, index)
-
-        changes = {}
-        if "pressure" in self.tolerances:
-            changes["pressure"] = p.pressure + dev("pressure", 0)
-        for name in ("stiffness_span", "stiffness_chord"):
-            if name in self.tolerances:
-                changes[name] = getattr(p, name) + dev(name)
-        # (b + db) / (b / (1 + e0) + dL) - 1, written as e0 plus a change that is exactly 0 at no
-        # deviation: the nominal wing is then the design's own, to the bit (its kept factor serves)
-        if {"cut_span", "rib_station"} & set(self.tolerances):
-            b, e0 = self.spacing[k], float(p.prestrain_span)
-            db = 1e-3 * (dev("rib_station", k + 1) - dev("rib_station", k))
-            dl = (1.0 + e0) * 1e-3 * dev("cut_span")
-            changes["prestrain_span"] = e0 + (1.0 + e0) * (db - dl) / (b + dl)
-        if "cut_chord" in self.tolerances:
-            c, e0 = self.contour[k], float(p.prestrain_chord)
-            dl = (1.0 + e0) * 1e-3 * dev("cut_chord")
-            changes["prestrain_chord"] = e0 - (1.0 + e0) * dl / (c + dl)
-        if "rib_profile" in self.tolerances:
-            root, tip = p.rib_shapes
-            size = self.shape_terms
-            root = np.zeros(size) if root is None else np.asarray(root, np.float64)
-            tip = np.zeros(size) if tip is None else np.asarray(tip, np.float64)
-            ones = np.ones(size)
-            a_root = 1e-3 * dev("rib_profile", k) / (self.rib_chords[k] * CLASS_RMS)
-            a_tip = 1e-3 * dev("rib_profile", k + 1) / (self.rib_chords[k + 1] * CLASS_RMS)
-            changes["rib_shape"] = root + a_root * ones
-            changes["rib_shape_tip"] = tip + a_tip * ones
-        return p.replace(**changes)
+        values allowed): the module docstring's map (`bay_changes`). Concrete deviations (a Monte
+        Carlo sample) take NumPy's arithmetic; traced ones (`bay_jacobian`'s push) one jitted program
+        for every bay, ``k`` among its operands (the map's dozen operations, each an eager program
+        of its own under ``vmap`` and ``jvp``, were most of the default case's first-order analysis)."""
+        if isinstance(e, jax.Array):
+            changes = _traced_bay_changes(e, jnp.asarray(k, jnp.int32), self._bay_values, self._offsets)
+        else:
+            changes = bay_changes(np.asarray(e, np.float64), k, self._bay_values, self._offsets)
+        return self.nominal[k].replace(**changes)
 
     def outputs(self, k: int, nodes, parameters):
         """Bay ``k``'s normal distances (mm, the objective's rows) and cell tensions (N/m), one vector."""
-        d = self.targets.distances(k, nodes)
-        d = jnp.reshape(d * jnp.asarray(np.asarray(self.targets.chords[k], np.float64))[:, None] * 1e3, (-1,))
-        return jnp.concatenate([d, cell_tensions(self.scenes[k], nodes, parameters)])
+        d = _millimetres(self.targets.distances(k, nodes), np.asarray(self.targets.chords[k], np.float64))
+        return joined(d, cell_tensions(self.scenes[k], nodes, parameters))
 
     @property
     def n_distances(self) -> int:
@@ -233,7 +282,7 @@ class ToleranceModel:
             p = self.bay_parameters(k, e)
             with nodes_only():  # (the tensions are the outputs' own, from the nodes: no traced force program)
                 sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
-            return jnp.concatenate([self.outputs(k, sol.nodes, p), sol.nodes.reshape(-1)]), ()
+            return joined(self.outputs(k, sol.nodes, p), sol.nodes), ()
 
         if cols.size == 0:
             return np.asarray(outputs(e0)[0])[:-3 * math.prod(scene.bay.shape)], np.zeros((0, 0))

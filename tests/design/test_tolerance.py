@@ -120,6 +120,37 @@ def test_a_sample_resolved_alone_reproduces_its_row(two_bays):
         assert again[key] == pytest.approx(row[key], rel=1e-7, abs=1e-9), key
 
 
+def test_a_bays_parameters_are_one_program_for_every_bay_and_numpys_for_a_sample(two_bays):
+    """`ToleranceModel.bay_parameters` at traced deviations (the Jacobian's push) is one jitted call whose
+    program is the same for both bays (``k`` an operand), and gives the concrete (NumPy) values of a
+    sample; at no deviation the nominal parameters to the bit (their kept factor then serves)."""
+    model = ToleranceModel.of(two_bays, parse_tolerances(["defaults"]))
+    e = np.random.default_rng(3).standard_normal(model.size) * model.spread
+    fields = ("pressure", "stiffness_span", "stiffness_chord", "prestrain_span", "prestrain_chord", "rib_shape",
+              "rib_shape_tip")
+    programs = []
+    with jax.enable_x64(True):
+        for k in range(2):
+            def changed(v, k=k):
+                p = model.bay_parameters(k, v)
+                return {f: getattr(p, f) for f in fields}
+
+            calls = [q for q in jax.make_jaxpr(changed)(e).eqns if q.primitive.name in ("pjit", "jit")]
+            assert [q.params["name"] for q in calls] == ["bay_changes"]
+            programs.append(str(calls[0].params["jaxpr"]))
+            concrete, traced = model.bay_parameters(k, e), jax.jit(changed)(e)
+            for f in fields:
+                np.testing.assert_allclose(np.asarray(traced[f]), np.asarray(getattr(concrete, f)), rtol=1e-14,
+                                           err_msg=f)
+            assert float(concrete.prestrain_span) != float(model.nominal[k].prestrain_span)
+            at_zero = jax.jit(changed)(np.zeros(model.size))
+            for f in fields:
+                nominal = getattr(model.nominal[k], f)
+                np.testing.assert_array_equal(np.asarray(at_zero[f]), np.zeros(model.shape_terms) if nominal is None
+                                              else np.asarray(nominal), err_msg=f)
+    assert programs[0] == programs[1]
+
+
 def test_a_samples_warm_start_is_the_nominal_moved_to_first_order(two_bays):
     """A Monte Carlo sample starts from the nominal nodes moved by their tangents (`predicted_start`): for
     each source that scatters bay 1, drawn at its spread alone (its rib profiles move its mounted shape),
