@@ -296,8 +296,9 @@ class Airfoil:
         upper, lower = 2 * k < n - 1, 2 * k > n - 1
         s = np.full(n, contour.le_parameter)
         x_le = contour.x_le
-        s[upper] = contour.parameter_at_x(x_le + (contour.start[0] - x_le) * station[upper], True)
-        s[lower] = contour.parameter_at_x(x_le + (contour.end[0] - x_le) * station[lower], False)
+        side = upper | lower  # (both surfaces in one bisection)
+        end = np.where(upper, contour.start[0], contour.end[0])
+        s[side] = contour.parameter_at_x((x_le + (end - x_le) * station)[side], upper[side])
         points = contour.spline(s)
         points[0], points[-1] = contour.start, contour.end
         return Airfoil._on_contour(points[:, 0], points[:, 1], self.name, contour)

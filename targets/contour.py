@@ -155,41 +155,45 @@ class SmoothContour:
                         f"leading edge to the trailing edge")
         return None
 
-    def parameter_at_x(self, stations: np.ndarray, upper: bool) -> np.ndarray:
+    def parameter_at_x(self, stations: np.ndarray, upper) -> np.ndarray:
         """Contour parameter where x equals each station, on one surface.
 
         Args:
             stations: Chordwise stations (chord units) inside the x-range of
                 the surface, shape ``(m,)``.
             upper: True for the upper surface (parameter 0 to the leading
-                edge), False for the lower one (leading edge to the end).
+                edge), False for the lower one (leading edge to the end); or
+                ``(m,)`` booleans, a surface per station (both surfaces in one
+                bisection: each station's steps are its own).
 
         Returns:
             Parameters, shape ``(m,)``, found by bisection to float64
             resolution (x is monotonic along each surface).
         """
-        low, high = (0.0, self.le_parameter) if upper else (self.le_parameter, self.length)
-        a = np.full(stations.shape, low)
-        b = np.full(stations.shape, high)
+        upper = np.broadcast_to(np.asarray(upper, dtype=bool), np.shape(stations))
+        a = np.where(upper, 0.0, self.le_parameter)
+        b = np.where(upper, self.le_parameter, self.length)
         for _ in range(_BISECTION_STEPS):
             middle = 0.5 * (a + b)
             above = self._x_poly(middle) > stations
-            root_after_middle = above if upper else ~above
+            root_after_middle = above == upper  # (above on the upper surface, below on the lower)
             a = np.where(root_after_middle, middle, a)
             b = np.where(root_after_middle, b, middle)
         return 0.5 * (a + b)
 
-    def surface_z(self, stations: np.ndarray, upper: bool) -> np.ndarray:
-        """z of one surface at chordwise ``stations`` (inside its x-range, or beyond its trailing-edge end)."""
-        end = self.start if upper else self.end
-        inside = np.clip(stations, self.x_le, end[0])
+    def surface_z(self, stations: np.ndarray, upper) -> np.ndarray:
+        """z of one surface at chordwise ``stations`` (inside its x-range, or beyond its trailing-edge end);
+        ``upper`` as `parameter_at_x` takes it (a surface, or one per station)."""
+        upper = np.broadcast_to(np.asarray(upper, dtype=bool), np.shape(stations))
+        end = np.where(upper, self.start[0], self.end[0])
+        inside = np.clip(stations, self.x_le, end)
         z = self.spline(self.parameter_at_x(inside, upper))[:, 1]
-        beyond = stations > end[0]
+        beyond = stations > end
         if beyond.any():
             # An open, cambered trailing edge ends its surfaces a little before or after
             # x = 1; continue the shorter one along its end tangent.
-            tangent = self.tangent(np.array(0.0 if upper else self.length))
-            z = z + np.where(beyond, tangent[1] / tangent[0] * (stations - end[0]), 0.0)
+            tangent = np.where(upper[:, None], self.tangent(np.array(0.0)), self.tangent(np.array(self.length)))
+            z = z + np.where(beyond, tangent[:, 1] / tangent[:, 0] * (stations - end), 0.0)
         return z
 
     def surfaces_at(self, x, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -210,9 +214,8 @@ class SmoothContour:
             raise ValueError(f"{what}: station x = {flat[np.argmax(outside)]!r} lies outside the "
                              f"section, which runs from x = {self.x_le:.6g} to x = {x_te:.6g}")
         flat = np.clip(flat, self.x_le, x_te)
-        upper = self.surface_z(flat, upper=True).reshape(stations.shape)
-        lower = self.surface_z(flat, upper=False).reshape(stations.shape)
-        return upper, lower
+        both = self.surface_z(np.concatenate([flat, flat]), np.arange(2 * flat.size) < flat.size)
+        return both[:flat.size].reshape(stations.shape), both[flat.size:].reshape(stations.shape)
 
     def project(self, points) -> Projection:
         """Closest points of the contour to query points (x, z) of shape ``(..., 2)``, chord units.
