@@ -8,7 +8,11 @@ Cases: the default case with a warm cache (after one run that fills it;
 median of ``--repeats`` alternating runs each), the default case without the
 cache (``--no-compilation-cache``; ``--cold-repeats`` each), and the 40-cell
 wing (``--config inverse_design/cases/wing_40_cells.toml``, ``--wing-repeats``
-each; the first with a cache that holds the default case's programs only). Writes ``benchmarks/results/startup.json``.
+each; the first with a cache that holds the default case's programs only), and with
+``--tolerance-repeats N`` both again with the first-order tolerance analysis
+(``--tolerance defaults``), whose ratio to the design's own optimisation time
+(``timings_s``: ``tolerance`` over ``optimisation``, median per checkout) is
+noted beside the wall times. Writes ``benchmarks/results/startup.json``.
 
 Run:  python -m benchmarks.startup --base /path/to/other/checkout [--repeats 5]
 
@@ -64,7 +68,13 @@ def _alternate(trees: dict, caches: dict, work: Path, extra: list[str], repeats:
 def _phases(timings: list) -> str:
     """Median seconds of the design's phases over runs (summary.json ``timings_s``)."""
     return ", ".join(f"{name} {statistics.median(t[name] for t in timings):.2f}"
-                     for name in ("setup", "optimisation", "report") if all(name in t for t in timings))
+                     for name in ("setup", "optimisation", "tolerance", "report") if all(name in t for t in timings))
+
+
+def _share(timings: list) -> str:
+    """Median over runs of the tolerance analysis's seconds over the optimisation's, and the runs'."""
+    ratios = [t["tolerance"] / t["optimisation"] for t in timings]
+    return f"{statistics.median(ratios):.3f} ({' '.join(f'{r:.3f}' for r in ratios)})"
 
 
 def main(argv=None) -> None:
@@ -75,6 +85,8 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--cold-repeats", type=int, default=2)
     parser.add_argument("--wing-repeats", type=int, default=1)
+    parser.add_argument("--tolerance-repeats", type=int, default=0,
+                        help="runs each of the default case and the 40-cell wing with --tolerance defaults")
     parser.add_argument("--name", default="startup", help="the result's name in benchmarks/results")
     args = parser.parse_args(argv)
     trees = {"new": args.new.resolve(), args.base_label: args.base.resolve()}
@@ -88,7 +100,10 @@ def main(argv=None) -> None:
         rows, notes = [], []
         cases = [("default case, cached", [], args.repeats),
                  ("default case, cold (--no-compilation-cache)", ["--no-compilation-cache"], args.cold_repeats),
-                 ("40-cell wing, its first run with that cache", ["--config", WING], args.wing_repeats)]
+                 ("40-cell wing, its first run with that cache", ["--config", WING], args.wing_repeats),
+                 ("default case, cached, --tolerance defaults", ["--tolerance", "defaults"], args.tolerance_repeats),
+                 ("40-cell wing, cached, --tolerance defaults", ["--config", WING, "--tolerance", "defaults"],
+                  args.tolerance_repeats)]
         for label in trees:  # (fills each cache with the default case's programs)
             _run(trees[label], caches[label], work, [])
         for name, extra, repeats in cases:
@@ -102,10 +117,14 @@ def main(argv=None) -> None:
                          f"{min(loads):.1f}-{max(loads):.1f}"])
             notes.append(f"{name}: median phases (summary.json timings_s, s): new {_phases(phases['new'])}; "
                          f"{args.base_label} {_phases(phases[args.base_label])}")
+            if "--tolerance" in extra:
+                notes.append(f"{name}: the tolerance analysis over the optimisation (timings_s, median): new "
+                             f"{_share(phases['new'])}; {args.base_label} {_share(phases[args.base_label])}")
     result = {
         "title": f"Start-up: the command against {args.base_label}, alternating runs",
         "command": f"python -m benchmarks.startup --base {args.base} --base-label {args.base_label} "
                    f"--repeats {args.repeats} --cold-repeats {args.cold_repeats} --wing-repeats {args.wing_repeats}"
+                   + (f" --tolerance-repeats {args.tolerance_repeats}" if args.tolerance_repeats else "")
                    + ("" if args.name == "startup" else f" --name {args.name}"),
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, {platform.python_version()}; load average "
                    f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
