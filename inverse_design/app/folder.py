@@ -304,8 +304,9 @@ def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, worker
     """Every bay's flat panels and rib templates (`patterns.write_bay_patterns`): ``(names, panels)``; the
     panels already laid out for the marker (``laid``: ``{(bay, name): Panel}``) are not laid out again.
     With workers that took the figures (``sent``, their tasks so far, extended here), each bay's DXF
-    files are handed to them at once: they write them while this process lays out the next bays' panels."""
-    dxf = []  # (the DXF files go to the workers, which have ezdxf imported, if they took the figures)
+    and SVG files are handed to them at once: they draw and write them while this process lays out the
+    next bays' panels."""
+    dxf = []  # (the files go to the workers, which have ezdxf imported, if they took the figures)
     writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
     names, panels = [], []
     for k in range(bays.n):

@@ -29,7 +29,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         ribs: the indices of its root and tip ribs.
         seam_allowance_m: the seam allowance, metres (>= 0).
         rib_templates: False leaves the ribs out (a wing writes each shared rib once).
-        writer: ``writer(path, function, *args)`` writes each DXF file, as
+        writer: ``writer(path, function, *args)`` writes each file (DXF and SVG), as
             ``function(path, *args)`` does (the default); the report's may hand
             it to its `workers.ReportWorkers` instead.
         panels: the bay's panels already laid out (the marker's), or None: laid out here.
@@ -47,10 +47,7 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
     for panel in panels:
         for suffix, write in (("dxf", write_panel_dxf), ("svg", write_panel_svg)):
             name = f"pattern_bay_{bay}_{panel.name}.{suffix}"
-            if suffix == "dxf":
-                writer(folder / name, write, panel, allowance)
-            else:
-                write(folder / name, panel, allowance)
+            writer(folder / name, write, panel, allowance)
             names.append(name)
     if rib_templates and scene.bay.periodic and scene.bay.airfoil is not None:
         for row, rib in zip((0, -1), ribs):

@@ -1,4 +1,4 @@
-"""Writing a report's figures and DXF patterns in worker processes while the design runs.
+"""Writing a report's figures and DXF and SVG patterns in worker processes while the design runs.
 
 Saving a figure (``Figure.savefig``: the layout engine, the Agg rasteriser,
 the PNG encoder) and drawing a DXF pattern are Python-bound work that holds
@@ -58,7 +58,7 @@ __all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "PARENT_POLL_S", "REPORT
 #: The report's libraries, imported ahead by the command's run (`run`) and by the workers.
 REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
 #: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
-#: the figures and of the DXF patterns they write, and the modules their tasks name.
+#: the figures and of the DXF and SVG patterns they write, and the modules their tasks name.
 WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
 
 
@@ -83,9 +83,9 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-#: Most tasks one `ReportWorkers` takes (a single bay's report hands over four figures and four DXF
-#: files, a 40-bay wing's its figures and 121 DXF files); more are left to the caller.
-MAX_TASKS = 256
+#: Most tasks one `ReportWorkers` takes (a single bay's report hands over four figures, four DXF and two
+#: SVG files, a 40-bay wing's its figures, 121 DXF and 80 SVG files); more are left to the caller.
+MAX_TASKS = 512
 _CLAIMED = None  # in a worker: the pool's shared claims (`multiprocessing.Array`), one flag per task
 
 

@@ -238,16 +238,16 @@ print(json.dumps({"code": code, "saved": saved}))
 
 def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, cli_env):
     """The command's report workers (started before the design) and the command's process between them
-    save every figure and DXF pattern of a single bay's report, byte for byte as the report writes
-    them in one process (the default run's, `support.command`; ``--quiet`` changes only stdout)."""
+    save every figure and DXF and SVG pattern of a single bay's report, byte for byte as the report
+    writes them in one process (the default run's, `support.command`; ``--quiet`` changes only stdout)."""
     base, out, _, _ = default_run
     counted = subprocess.run([sys.executable, "-c", _COUNTED, *SMALL, "--quiet", "--out", "counted"], cwd=base,
                              env=cli_env, capture_output=True, text=True, timeout=600)
     assert counted.returncode == 0, counted.stderr
     ran = json.loads(counted.stdout.strip().splitlines()[-1])
-    if report_workers_possible():  # five figures, two panels' and two ribs' DXF: none left undone
-        assert ran["saved"] == [list(range(9))]
-    for name in sorted(n for n in FOLDER if n.endswith(".png")):
+    if report_workers_possible():  # five figures, two panels' DXF and SVG, two ribs' DXF: none left undone
+        assert ran["saved"] == [list(range(11))]
+    for name in sorted(n for n in FOLDER if n.endswith((".png", ".svg"))):
         assert (base / "counted" / name).read_bytes() == (out / name).read_bytes(), name
     for name in sorted(n for n in FOLDER if n.endswith(".dxf")):  # (the header dates each file: the drawing)
         assert _dxf_entities(base / "counted" / name) == _dxf_entities(out / name), name
