@@ -83,7 +83,7 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
-#: Most tasks one `ReportWorkers` takes (a single bay's report hands over four figures, four DXF and two
+#: Most tasks one `ReportWorkers` takes (a single bay's report hands over five figures, four DXF and two
 #: SVG files, a 40-bay wing's its figures, 121 DXF and 80 SVG files); more are left to the caller.
 MAX_TASKS = 512
 _CLAIMED = None  # in a worker: the pool's shared claims (`multiprocessing.Array`), one flag per task
