@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LAYOUT_TOLERANCE", "Panel", "develop", "edge_lengths", "offset_outline", "panel_outline"]
+__all__ = ["LAYOUT_TOLERANCE", "Panel", "develop", "edge_lengths", "layout_faults", "offset_outline", "panel_outline"]
 
 #: Largest edge-length error accepted by `develop`, as a fraction of the edge's cut length.
 LAYOUT_TOLERANCE = 1e-9
@@ -76,7 +76,9 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
 
     Raises:
         ValueError: if the edge lengths cannot be met in the plane (largest
-            error above `LAYOUT_TOLERANCE` of its edge).
+            error above `LAYOUT_TOLERANCE` of its edge), or only by a layout
+            that lies over itself (`layout_faults`: a mirrored cell, a crossing
+            of the outline), which no fabric can be cut to.
     """
     from scipy.sparse import coo_matrix
 
@@ -153,6 +155,11 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     if not error <= LAYOUT_TOLERANCE:
         raise ValueError(f"the cut lengths cannot be laid flat: an edge is off by {error:.3g} of its length "
                          f"(above {LAYOUT_TOLERANCE:g})")
+    folded, crossings = layout_faults(flat)
+    if folded or crossings:
+        raise ValueError("the cut lengths cannot be laid flat without the panel lying over itself: the layout "
+                         f"that meets every edge length has {folded} of {n_cells} cells mirrored and {crossings} "
+                         "crossings of its outline")
     # place: first node at the origin, the first row's chord along +x, the span along +y
     flat = flat - flat[0, 0]
     direction = flat[0, -1] / np.linalg.norm(flat[0, -1])
@@ -161,6 +168,29 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     if np.mean(flat[-1, :, 1]) < 0:  # the span the other way: mirror
         flat[..., 1] *= -1
     return flat
+
+
+def layout_faults(flat) -> tuple[int, int]:
+    """``(folded, crossings)`` of a laid grid ``(n, m, 2)``: the cells mirrored against the most (their signed
+    area of the other sign), and the pairs of its outline's edges (`panel_outline`) that cross. A panel
+    that can be cut has neither: edge lengths alone are also met by a layout folded over itself (a bay
+    whose ribs are a millimetre apart and whose chords differ: its panel turns through hundreds of radians)."""
+    a, b, c, d = flat[:-1, :-1], flat[1:, :-1], flat[1:, 1:], flat[:-1, 1:]
+    area = (c - a)[..., 0] * (d - b)[..., 1] - (c - a)[..., 1] * (d - b)[..., 0]
+    folded = int(min(np.sum(area > 0), np.sum(area < 0)))
+    p, _ = panel_outline(flat)
+    q = np.roll(p, -1, axis=0)  # edge k from p[k] to q[k]
+
+    def side(o, u, v):  # the sign of the turn o -> u -> v, for every pair of edges
+        return np.sign((u[..., 0] - o[..., 0]) * (v[..., 1] - o[..., 1])
+                       - (u[..., 1] - o[..., 1]) * (v[..., 0] - o[..., 0]))
+
+    i, j = np.triu_indices(len(p), k=2)
+    keep = ~((i == 0) & (j == len(p) - 1))  # (the last edge meets the first)
+    i, j = i[keep], j[keep]
+    cross = ((side(p[i], q[i], p[j]) * side(p[i], q[i], q[j]) < 0)
+             & (side(p[j], q[j], p[i]) * side(p[j], q[j], q[i]) < 0))
+    return folded, int(np.sum(cross))
 
 
 def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) -> np.ndarray:

@@ -30,7 +30,7 @@ from inverse_design.app import cli  # noqa: E402
 from inverse_design.app.folder import ReportOptions, write_report  # noqa: E402
 from inverse_design.app.cut_files import rib_mark_nodes  # noqa: E402
 from support.reports import measured  # noqa: E402
-from inverse_design.flat_layout import develop, offset_outline  # noqa: E402
+from inverse_design.flat_layout import develop, layout_faults, offset_outline  # noqa: E402
 from inverse_design.flat_panels import RIB_CHORDAL_ERROR, mounted_skin, rib_template  # noqa: E402
 from inverse_design.rib_design import cut_lengths  # noqa: E402
 from targets import naca  # noqa: E402
@@ -224,6 +224,24 @@ def test_offset_outline_of_a_square_is_the_square_grown():
         grown = offset_outline(points, 0.1)
         assert sorted(map(tuple, np.round(grown, 12))) == sorted(
             map(tuple, np.round(np.array([[-0.1, -0.1], [1.1, -0.1], [1.1, 1.1], [-0.1, 1.1]]), 12)))
+
+
+def test_a_layout_that_lies_over_itself_is_found():
+    """`layout_faults` finds what edge lengths alone do not: none on a plain grid; the two cells of a
+    column folded back over its neighbour; the crossings of an annular strip laid round 1.15 turns, every
+    cell the same way round (none at 0.9 turns)."""
+    x, y = np.meshgrid(np.arange(5.0), np.arange(3.0))
+    grid = np.stack([x, y], axis=-1)  # (3, 5, 2)
+    assert layout_faults(grid) == (0, 0)
+    folded = grid.copy()
+    folded[:, 4, 0] = 2.5  # the last column laid back between the third and the fourth
+    assert layout_faults(folded)[0] == 2
+    radius = np.array([1.0, 1.1])[:, None]
+    for turns, crossed in ((0.9, False), (1.15, True)):
+        angle = np.linspace(0.0, 2.0 * np.pi * turns, 37)
+        strip = np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=-1)  # (2, 37, 2)
+        folded, crossings = layout_faults(strip)
+        assert folded == 0 and (crossings > 0) == crossed, (turns, crossings)
 
 
 def test_a_failed_design_gets_no_pattern(folder, scene, design, tmp_path):
