@@ -14,9 +14,9 @@ cold as on CI, and no test writes to the user's own cache
 
 The run compiles as the command does, with XLA's faster-compiling CPU loop
 emitters (`forward_solver.compilation.enable_fast_compilation`, set before any test
-starts JAX's backend; its subprocesses inherit it), and at LLVM's first
-optimisation level (`TEST_XLA_FLAGS`), where compiling, most of a small test's
-time, is shorter.
+starts JAX's backend; its subprocesses inherit it), and without LLVM's
+optimisations (`support.command.TEST_XLA_FLAGS`), where compiling, most of a
+small test's time, is shorter.
 
 The command's runs in the test processes (`cli.main`) write their reports
 serially (the same files; the tests of the workers themselves,
@@ -34,7 +34,7 @@ import pytest
 
 from forward_solver.compilation import enable_fast_compilation
 from inverse_design.app import cli
-from support.command import NoWorkers, plain_programs
+from support.command import TEST_XLA_FLAGS, NoWorkers, plain_programs
 
 CACHE_VARIABLE = "INFLATABLE_WING_TEST_CACHE"
 
@@ -55,12 +55,6 @@ def command_in_the_test_processes():
 def x64():
     with jax.enable_x64(True):
         yield
-
-
-#: The test run's programs compiled with LLVM's first optimisation level (XLA's default is higher): the
-#: same programs, the suite about 9% shorter on two cores (docs/architecture.md "Tests"); the run's
-#: subprocesses inherit it. The command and the library keep XLA's default.
-TEST_XLA_FLAGS = ("--xla_backend_optimization_level=1",)
 
 
 def pytest_configure(config):

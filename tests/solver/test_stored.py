@@ -1,14 +1,17 @@
 """The program store (`forward_solver.compilation`, `stored_jit`): the same results, and a second process neither traces
 nor lowers a stored program."""
 
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
 from forward_solver import compilation as store
-from targets import naca
+from support.command import TEST_XLA_FLAGS, environment
 
 TRACES = []
 
@@ -93,15 +96,36 @@ def test_tracers_and_no_store_run_jitted(tmp_path):
         store.use_program_store(previous)
 
 
-def test_a_solve_is_the_same_with_the_store(folder):
+#: The solve of `test_a_solve_is_the_same_with_the_store`, in a process of its own.
+_SAME_SOLVE = r"""
+import sys
+from pathlib import Path
+import numpy as np
+from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
+from forward_solver import compilation as store
+from targets import naca
+
+folder = Path(sys.argv[1])
+store.use_program_store(folder)
+scene = Scene(Bay.from_airfoil(naca("0012"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=16), Fabric())
+parameters = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
+with_store = solve_equilibrium(scene, parameters, method="auto")
+names = {path.name.split("-")[0] for path in folder.glob("*.bin")}
+assert {"relax_jit", "static_state", "_jacobian_values"} <= names, names
+store.use_program_store(None)
+plain = solve_equilibrium(scene, parameters, method="auto")
+assert with_store.converged and plain.converged
+np.testing.assert_array_equal(np.asarray(with_store.nodes), np.asarray(plain.nodes))
+print("same")
+"""
+
+
+def test_a_solve_is_the_same_with_the_store(tmp_path):
     """The solver's stored programs (relaxation, Newton, the static state) give the same equilibrium
-    to the bit, and they are written to the store."""
-    scene = Scene(Bay.from_airfoil(naca("0012"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=16), Fabric())
-    parameters = Parameters(pressure=1e4, prestrain_span=0.02, prestrain_chord=0.02)
-    with_store = solve_equilibrium(scene, parameters, method="auto")
-    names = {path.name.split("-")[0] for path in folder.glob("*.bin")}
-    assert {"relax_jit", "static_state", "_jacobian_values"} <= names
-    store.use_program_store(None)
-    plain = solve_equilibrium(scene, parameters, method="auto")
-    assert with_store.converged and plain.converged
-    np.testing.assert_array_equal(np.asarray(with_store.nodes), np.asarray(plain.nodes))
+    to the bit, and they are written to the store. In a process compiled as the command compiles
+    (XLA's default code generation, not the test run's `support.command.TEST_XLA_FLAGS`: without LLVM's
+    optimisations an exported program and the jitted one part by 1e-16 m)."""
+    flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if f not in TEST_XLA_FLAGS)
+    done = subprocess.run([sys.executable, "-c", _SAME_SOLVE, str(tmp_path)], env=environment(XLA_FLAGS=flags),
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == "same", done.stderr[-3000:]

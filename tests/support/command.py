@@ -28,10 +28,15 @@ from pathlib import Path
 
 from inverse_design.app import cli
 
-__all__ = ["NoWorkers", "environment", "launch", "main", "plain_programs"]
+__all__ = ["TEST_XLA_FLAGS", "NoWorkers", "environment", "launch", "main", "plain_programs"]
 
 TESTS = Path(__file__).resolve().parents[1]
 ROOT = TESTS.parent
+#: The test run's programs compiled without LLVM's optimisations (XLA's default optimises): the same
+#: programs, compiled in less time, which is most of a small test's (docs/architecture.md "Tests");
+#: tests/conftest.py adds it to ``XLA_FLAGS``, which the run's subprocesses inherit. The command and the
+#: library keep XLA's default.
+TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0",)
 
 
 class NoWorkers:
