@@ -306,8 +306,8 @@ def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, worker
     With workers that took the figures (``sent``, their tasks so far, extended here), each bay's DXF
     and SVG files are handed to them at once: they draw and write them while this process lays out the
     next bays' panels."""
-    dxf = []  # (the files go to the workers, which have ezdxf imported, if they took the figures)
-    writer = (lambda path, function, *args: dxf.append((path, function, args, {}))) if sent else None
+    tasks = []  # (the files go to the workers, which have ezdxf imported, if they took the figures)
+    writer = (lambda path, function, *args: tasks.append((path, function, args, {}))) if sent else None
     names, panels = [], []
     for k in range(bays.n):
         known = [panel for (bay, _), panel in laid.items() if bay == k] or None
@@ -317,12 +317,12 @@ def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, worker
                                               panels=known)
         names += more
         panels += bay_panels
-        if dxf and workers.submit(dxf):
-            sent += dxf
+        if tasks and workers.submit(tasks):
+            sent += tasks
         else:
-            for task in dxf:
+            for task in tasks:
                 run_task(task)
-        dxf.clear()
+        tasks.clear()
     return names, panels
 
 
