@@ -12,6 +12,7 @@ import this module without JAX.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -80,8 +81,6 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
             that lies over itself (`layout_faults`: a mirrored cell, a crossing
             of the outline), which no fabric can be cut to.
     """
-    from scipy.sparse import coo_matrix
-
     contour_cut = np.asarray(contour_cut, np.float64)
     span_cut = np.asarray(span_cut, np.float64)
     n, m = span_cut.shape[0] + 1, contour_cut.shape[1] + 1
@@ -96,7 +95,7 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     # cells: corners (i, k), (i+1, k), (i+1, k+1), (i, k+1)
     c00, c10, c11, c01 = (index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(),
                           index[:-1, 1:].ravel())
-    n_edges, n_cells = a.size, c00.size
+    n_cells = c00.size
 
     # first guess: each row laid straight along x, centred on the first row; rows stacked
     # along y by the mean span cut
@@ -107,48 +106,36 @@ def develop(contour_cut, span_cut, cos_angle=None, *, shear_weight: float = 1e-2
     start[index] = np.stack([x0, np.broadcast_to(y0, (n, m))], axis=-1)
     start = start.ravel()
 
-    def parts(z):
+    cells = (c00, c10, c11, c01)
+    edge_columns = np.stack([2 * b, 2 * b + 1, 2 * a, 2 * a + 1], axis=1)
+    cell_columns = np.concatenate([np.stack([2 * c, 2 * c + 1], axis=1) for c in cells], axis=1)
+
+    def evaluate(z, weight):
+        """The residuals at ``z`` and the Jacobian's non-zeros of each row (in ``edge_columns``,
+        ``cell_columns``)."""
         p = z.reshape(-1, 2)
         d = p[b] - p[a]
         length = np.linalg.norm(d, axis=1)
-        s = 0.5 * (p[c10] - p[c00] + p[c11] - p[c01])  # the cell's warp
-        c = 0.5 * (p[c01] - p[c00] + p[c11] - p[c10])  # its weft
-        ls, lc = np.linalg.norm(s, axis=1), np.linalg.norm(c, axis=1)
-        return p, d, length, s, c, ls, lc
-
-    def make(weight):
-        def fun(z):
-            _, _, length, s, c, ls, lc = parts(z)
-            r = [(length - h) / h]
-            if weight:
-                r.append(weight * (np.sum(s * c, axis=1) / (ls * lc) - cos_angle.ravel()))
-            return np.concatenate(r)
-
-        def jac(z):
-            _, d, length, s, c, ls, lc = parts(z)
-            u = d / (length * h)[:, None]
-            rows = [np.repeat(np.arange(n_edges), 4)]
-            cols = [np.stack([2 * b, 2 * b + 1, 2 * a, 2 * a + 1], axis=1).ravel()]
-            vals = [np.stack([u[:, 0], u[:, 1], -u[:, 0], -u[:, 1]], axis=1).ravel()]
-            if weight:
-                cos = np.sum(s * c, axis=1) / (ls * lc)
-                ds = weight * ((c / lc[:, None]) - cos[:, None] * s / ls[:, None]) / ls[:, None]
-                dc = weight * ((s / ls[:, None]) - cos[:, None] * c / lc[:, None]) / lc[:, None]
-                # d s / d corner: c10, c11 +1/2; c00, c01 -1/2.  d c / d corner: c01, c11 +1/2; c00, c10 -1/2
-                for corner, fs, fc in ((c00, -0.5, -0.5), (c10, 0.5, -0.5), (c11, 0.5, 0.5), (c01, -0.5, 0.5)):
-                    g = fs * ds + fc * dc
-                    rows.append(np.repeat(n_edges + np.arange(n_cells), 2))
-                    cols.append(np.stack([2 * corner, 2 * corner + 1], axis=1).ravel())
-                    vals.append(g.ravel())
-            shape = (n_edges + (n_cells if weight else 0), 2 * n * m)
-            return coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                              shape=shape).tocsr()
-
-        return fun, jac
+        r = [(length - h) / h]
+        u = d / (length * h)[:, None]
+        values = [np.concatenate([u, -u], axis=1)]
+        if weight:
+            s = 0.5 * (p[c10] - p[c00] + p[c11] - p[c01])  # the cell's warp
+            c = 0.5 * (p[c01] - p[c00] + p[c11] - p[c10])  # its weft
+            ls, lc = np.linalg.norm(s, axis=1), np.linalg.norm(c, axis=1)
+            cos = np.sum(s * c, axis=1) / (ls * lc)
+            r.append(weight * (cos - cos_angle.ravel()))
+            ds = weight * ((c / lc[:, None]) - cos[:, None] * s / ls[:, None]) / ls[:, None]
+            dc = weight * ((s / ls[:, None]) - cos[:, None] * c / lc[:, None]) / lc[:, None]
+            # d s / d corner: c10, c11 +1/2; c00, c01 -1/2.  d c / d corner: c01, c11 +1/2; c00, c10 -1/2
+            values.append(np.concatenate([fs * ds + fc * dc for fs, fc in
+                                          ((-0.5, -0.5), (0.5, -0.5), (0.5, 0.5), (-0.5, 0.5))], axis=1))
+        return np.concatenate(r), values
 
     z = start
     for weight in (shear_weight, 0.0):
-        z = _levenberg_marquardt(*make(weight), z, exact=weight == 0.0)
+        normal = _NormalEquations([edge_columns, cell_columns] if weight else [edge_columns], 2 * n * m)
+        z = _levenberg_marquardt(partial(evaluate, weight=weight), normal, z, exact=weight == 0.0)
     flat = z.reshape(-1, 2)[index]
     contour, span = edge_lengths(flat)
     error = max(np.max(np.abs(contour - contour_cut) / contour_cut), np.max(np.abs(span - span_cut) / span_cut))
@@ -193,26 +180,30 @@ def layout_faults(flat) -> tuple[int, int]:
     return folded, int(np.sum(cross))
 
 
-def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) -> np.ndarray:
-    """Minimise ``|fun(z)|^2`` by damped Gauss-Newton steps on the sparse normal equations.
+def _levenberg_marquardt(evaluate, normal, z, exact: bool, max_iterations: int = 200) -> np.ndarray:
+    """Minimise ``|r(z)|^2`` by damped Gauss-Newton steps on the banded normal equations.
 
-    The damping also fixes the directions the residuals leave free (the
-    panel's position and, without the angle terms, its shear): each step is
-    the smallest that reduces the residual, so the layout stays near where it
-    started. ``exact``: stop when every residual is below 1e-14 (the edges
-    laid at their lengths), or below `_ROUNDING_FLOOR` when a step no longer
-    improves it; otherwise when a step lowers the cost by less than 1e-10 of
-    itself (the layout then moves by about 1e-14 m: bay 11 of
-    ``wing_40_cells.toml``, against 1e-14 relative).
+    ``evaluate(z)`` gives the residuals ``r`` and the Jacobian's non-zeros of
+    each row, ``normal`` (a `_NormalEquations`) assembles ``J^T J`` and
+    ``-J^T r`` from them. The damping also fixes the directions the residuals
+    leave free (the panel's position and, without the angle terms, its
+    shear): each step is the smallest that reduces the residual, so the
+    layout stays near where it started. ``exact``: stop when every residual
+    is below 1e-14 (the edges laid at their lengths), or below
+    `_ROUNDING_FLOOR` when a step no longer improves it; otherwise when a step
+    lowers the cost by less than 1e-10 of itself (the layout then moves by
+    about 1e-14 m: bay 11 of ``wing_40_cells.toml``, against 1e-14 relative).
     """
-    r = fun(z)
+    r, values = evaluate(z)
     cost = float(r @ r)
     damping = 1e-6
+    system = None
     for iteration in range(max_iterations):
         if exact and np.max(np.abs(r)) < 1e-14:
             break
-        J = jac(z)
-        step = _normal_step(J.T @ J, -(J.T @ r), damping)
+        if system is None:  # (at a new iterate; a rejected step keeps it and changes the damping alone)
+            system = normal(values, r)
+        step = _normal_step(*system, damping)
         if step is None or not np.all(np.isfinite(step)):
             if exact and np.max(np.abs(r)) < _ROUNDING_FLOOR:
                 break
@@ -221,11 +212,11 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
                 break
             continue
         trial = z + step
-        r_trial = fun(trial)
+        r_trial, values_trial = evaluate(trial)
         cost_trial = float(r_trial @ r_trial)
         if cost_trial < cost:
             converged = not exact and cost - cost_trial <= 1e-10 * max(cost, 1e-30)
-            z, r, cost = trial, r_trial, cost_trial
+            z, r, values, cost, system = trial, r_trial, values_trial, cost_trial, None
             damping = max(damping / 4.0, 1e-15)
             if converged:
                 break
@@ -238,27 +229,49 @@ def _levenberg_marquardt(fun, jac, z, exact: bool, max_iterations: int = 200) ->
     return z
 
 
-def _normal_step(normal, rhs, damping: float):
-    """``(N + damping I)^-1 rhs`` for the symmetric banded normal matrix ``N`` (sparse), by a banded
-    Cholesky factorisation (LAPACK ``pbsv``; a 17x33 panel: half-width 37, 0.3 ms against 2.4 ms
-    of a general sparse LU); None where rounding leaves it not positive definite: the residuals
-    leave the panel's position (and, without the angle terms, its shear) free, so a damping lost
-    in rounding leaves it singular, and the step is rejected."""
+class _NormalEquations:
+    """``J^T J`` in LAPACK's upper banded storage and ``-J^T r``, summed straight from the Jacobian's
+    non-zeros: each residual row's entries lie in fixed columns (a block of rows per kind: an edge's
+    4, a cell's 8), so every product ``J_ri J_rj`` has a fixed place in the band, found once per
+    layout; no sparse matrix is built, multiplied or converted at each iteration (which took most of
+    a panel's layout: 1.6 ms an iteration on a 17x33 panel)."""
+
+    def __init__(self, columns, size: int):
+        self.size = size
+        self.columns = [np.asarray(c) for c in columns]
+        self.pairs = [np.triu_indices(c.shape[1]) for c in self.columns]  # (s <= t) within a row's entries
+        lo, hi = [], []
+        for c, (s, t) in zip(self.columns, self.pairs):
+            lo.append(np.minimum(c[:, s], c[:, t]).ravel())
+            hi.append(np.maximum(c[:, s], c[:, t]).ravel())
+        lo, hi = np.concatenate(lo), np.concatenate(hi)
+        self.width = int(np.max(hi - lo, initial=0))
+        self.place = (self.width + lo - hi) * size + hi  # (row, col) -> banded[width + row - col, col]
+        self.flat_columns = np.concatenate([c.ravel() for c in self.columns])
+
+    def __call__(self, values, r):
+        """``(banded J^T J, -J^T r)`` for the rows' non-zeros ``values`` (one array per block) and residuals."""
+        products = np.concatenate([(v[:, s] * v[:, t]).ravel() for v, (s, t) in zip(values, self.pairs)])
+        banded = np.bincount(self.place, weights=products, minlength=(self.width + 1) * self.size)
+        rows = np.split(r, np.cumsum([v.shape[0] for v in values])[:-1])
+        rhs = np.bincount(self.flat_columns, weights=-np.concatenate([(v * q[:, None]).ravel()
+                                                                      for v, q in zip(values, rows)]),
+                          minlength=self.size)
+        return banded.reshape(self.width + 1, self.size), rhs
+
+
+def _normal_step(banded, rhs, damping: float):
+    """``(N + damping I)^-1 rhs`` for the symmetric banded normal matrix ``N`` (LAPACK's upper banded
+    storage, `_NormalEquations`), by a banded Cholesky factorisation (LAPACK ``pbsv``; a 17x33 panel:
+    half-width 37, 0.3 ms against 2.4 ms of a general sparse LU); None where rounding leaves it not
+    positive definite: the residuals leave the panel's position (and, without the angle terms, its
+    shear) free, so a damping lost in rounding leaves it singular, and the step is rejected."""
     from scipy.linalg import LinAlgError, solveh_banded
 
-    # Summed (none on a sparse product) as CSR, whose check of that is linear: COO's sorts, and took 12%
-    # of a 40-bay wing's report.
-    normal = normal.tocsr()
-    normal.sum_duplicates()
-    normal = normal.tocoo()
-    upper = normal.col >= normal.row
-    row, col, data = normal.row[upper], normal.col[upper], normal.data[upper]
-    width = int(np.max(col - row, initial=0))
-    banded = np.zeros((width + 1, rhs.size))
-    banded[width + row - col, col] = data
-    banded[width] += damping
+    damped = banded.copy()
+    damped[-1] += damping
     try:
-        return solveh_banded(banded, rhs, check_finite=False)
+        return solveh_banded(damped, rhs, overwrite_ab=True, check_finite=False)
     except LinAlgError:
         return None
 
