@@ -43,7 +43,7 @@ from ..programs import mounted_compiled
 from ..solution import BaysSolution, ConvergenceError, Result, Solution
 from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
 from .loop import check_stop
-from .methods import Relax
+from .methods import Relax, RelaxNewton
 from .relax import RELAX_CHUNK, relaxed_nodes
 
 __all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "Loop", "Batch", "STRATEGIES", "as_strategy",
@@ -290,6 +290,24 @@ def _check_scenes(scenes) -> None:
                              f"differs from scene 0 in: {', '.join(differs)}")
 
 
+def _from_the_bay_before(method, rest, before: Solution | None, before_rest):
+    """A cold bay's start after the first: the displacement of the bay before (``before``, solved on its
+    mounted shape ``before_rest``) on this bay's mounted shape ``rest``, for a method that tries Newton
+    from such a start (`methods.RelaxNewton`); None (the method's cold start) for the first bay, after a
+    bay that failed, under ``jax.jit`` or ``jax.vmap``, or for another method. A wing's neighbouring bays
+    differ by a step of its taper: Newton from there converges in 2-5 iterations where the cold start
+    relaxes for hundreds of steps first (docs/architecture.md)."""
+    if before is None or not isinstance(method, RelaxNewton):
+        return None
+    arrays = (before.nodes, before_rest, rest)
+    if any(isinstance(a, jax.core.Tracer) for a in arrays):
+        return None
+    x, x_rest, here = (np.asarray(a, np.float64) for a in arrays)
+    if not np.all(np.isfinite(x)):
+        return None
+    return here + (x - x_rest)
+
+
 def _mounted(scene: Scene, parameters: Parameters):
     """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly).
 
@@ -339,7 +357,8 @@ class Loop:
             p = bay_parameters(parameters, shapes, k, fields)
             rest = _mounted(scene, p)
             if initial is None:
-                start = None
+                start = _from_the_bay_before(method, rest, solutions[-1] if solutions else None,
+                                             mounted[-1] if mounted else None)
             elif initial.solutions is not None:
                 start = initial.solutions[k]
             else:  # a batch's solution: its displacement on this solve's mounted shape

@@ -205,7 +205,10 @@ class RelaxNewton(HostOnly):
     adjoint solves reuse it). Warm-started from a `Solution` with a factor,
     it first tries chord Newton with that factor (`newton.chord_newton`):
     at the initial solution's own parameters, with no iteration needed, the
-    factor is current and no fresh assembly and LU is made.
+    factor is current and no fresh assembly and LU is made. Where that
+    iteration does not converge, or the warm start has no factor (a
+    `Solution` without one, or nodes), Newton proper runs from the start
+    (`WARM_NEWTON_ITERATIONS`, no load continuation) before any relaxation.
 
     Args:
         switch_rtol: relative residual at which relaxation hands over.
@@ -240,14 +243,17 @@ class RelaxNewton(HostOnly):
                 if chord is not None:
                     host.extra["warm_start"] = "chord Newton with the initial solution's factor"
                     return finish(chord, steps, extra=dict(host.extra, relax_steps=0))
-                # Beyond the chord iteration's reach (a design step's change of the Jacobian): Newton proper
-                # from the warm start, without load continuation and with few iterations, before any
-                # relaxation (which from a nearby shape still takes about as many steps as from the mounted one).
+            if initial is not None:
+                # Beyond the chord iteration's reach (a design step's change of the Jacobian), or no factor (a
+                # start of nodes: the bay before's shape, `bays.Loop`): Newton proper from the warm start,
+                # without load continuation and with few iterations, before any relaxation (which from a
+                # nearby shape still takes about as many steps as from the mounted one).
                 near = newton(x_init, host.geometry, host.params, host.physics, rtol,
                               replace(self.newton, continuation=False, max_iterations=WARM_NEWTON_ITERATIONS),
                               divergence_bound=host.bay.divergence_bound)
                 if near.result == Result.converged:
-                    host.extra["warm_start"] = "Newton from the initial solution"
+                    host.extra["warm_start"] = ("Newton from the initial solution" if previous is not None
+                                                else "Newton from the initial nodes")
                     return finish(near, steps, extra=dict(host.extra, relax_steps=0))
             ahead.ready(prepared.get(tuple(x_init.shape)))
             out, _, nodes = relax(x_init, host.geometry, relax_rtol, with_forces=False)

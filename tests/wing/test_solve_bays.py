@@ -87,10 +87,25 @@ def test_a_flat_panel_is_solved_by_the_loop_as_is():
         Wing.from_scene(scene)
 
 
-def test_warm_start_passes_each_bay_its_solution(scenes):
-    cold = solve_bays(scenes, PARAMETERS, rtol=1e-10, method="relax+newton", strategy="loop")
-    warm = solve_bays(scenes, PARAMETERS.replace(pressure=2.02e4), rtol=1e-10, method="relax+newton",
-                      initial=cold, strategy="loop")
+@pytest.fixture(scope="module")
+def cold(scenes):
+    return solve_bays(scenes, PARAMETERS, rtol=1e-10, rib_shapes=SHAPES, method="relax+newton", strategy="loop")
+
+
+def test_a_cold_loop_starts_each_bay_after_the_first_from_the_bay_before(cold, solved):
+    first, *others = cold.solutions
+    assert first.extra["relax_steps"] > 0 and "warm_start" not in first.extra
+    # The bay before's displacement on this bay's mounted shape, by Newton: no relaxation.
+    assert all(s.extra["warm_start"] == "Newton from the initial nodes" and s.extra["relax_steps"] == 0
+               and 0 < s.extra["newton_iterations"] for s in others)
+    # The same equilibrium as the batch's relaxation of every bay from its mounted shape (both at 1e-10).
+    assert cold.converged
+    assert np.max(np.abs(np.asarray(cold.nodes) - np.asarray(solved["batch"].nodes))) < 1e-7
+
+
+def test_warm_start_passes_each_bay_its_solution(scenes, cold):
+    warm = solve_bays(scenes, PARAMETERS.replace(pressure=2.02e4), rtol=1e-10, rib_shapes=SHAPES,
+                      method="relax+newton", initial=cold, strategy="loop")
     assert warm.converged
     assert all("chord Newton" in s.extra.get("warm_start", "") for s in warm.solutions)
 
