@@ -32,7 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
-from ..derivatives.custom_jvp import nodes_only
+from ..derivatives.custom_jvp import concrete_parameters, nodes_only, presolved
+from ..derivatives.implicit import top_level
 from ..model.bay import N_CONTOUR, N_SPAN
 from ..model.fabric import Fabric
 from ..model.parameters import Parameters, as_parameters, bay_parameters
@@ -43,8 +44,9 @@ from ..programs import mounted_compiled
 from ..solution import BaysSolution, ConvergenceError, Result, Solution
 from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
 from .loop import check_stop
-from .methods import Relax, RelaxNewton
-from .relax import RELAX_CHUNK, relaxed_nodes
+from .methods import HostOnly, Relax, RelaxNewton
+from .relax import RELAX_CHUNK, has_abstract_values, relaxed_nodes
+from .threads import each, helpers
 
 __all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "Loop", "Batch", "STRATEGIES", "as_strategy",
            "default_strategy"]
@@ -290,6 +292,32 @@ def _check_scenes(scenes) -> None:
                              f"differs from scene 0 in: {', '.join(differs)}")
 
 
+def _presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
+    """The host solves of a warm wing solve (``initial`` a loop's `BaysSolution`), two bays at a time
+    where the machine has a second core (`threads.each`): ``id(scene) -> (scene, parameters, Solution)``
+    for `custom_jvp.presolved` (``parameters`` concrete, those the bay's solve poses). Each bay's solve
+    is the one `solve_equilibrium` makes (a host method's, from its own warm start), made before the
+    bays are differentiated one after the other; empty where there is nothing to share (one bay, a
+    cold solve, one core, ``jax.jit`` or ``jax.vmap``, a method that is not host-only)."""
+    if (initial is None or initial.solutions is None or len(scenes) < 2 or helpers() == 0
+            or not isinstance(method, HostOnly)):
+        return {}
+    posed = []
+    for k, scene in enumerate(scenes):
+        p = as_parameters(bay_parameters(parameters, shapes, k, fields)).resolved(scene.fabric)
+        if has_abstract_values(p):
+            return {}
+        scene.check_parameters(p)
+        # (an eager transformation's primal values: `stop_gradient` is the identity on them, and no tracer)
+        posed.append(concrete_parameters(jax.lax.stop_gradient(p)) if p.is_traced() else p)
+
+    def solve(k):
+        with top_level():  # (the caller's share runs inside its transformation, as `custom_jvp` solves)
+            return method.solve(scenes[k], posed[k], rtol=rtol, max_steps=max_steps, initial=initial.solutions[k])
+
+    return {id(scene): (scene, posed[k], sol) for k, (scene, sol) in enumerate(zip(scenes, each(solve, len(scenes))))}
+
+
 def _from_the_bay_before(method, rest, before: Solution | None, before_rest):
     """A cold bay's start after the first: the displacement of the bay before (``before``, solved on its
     mounted shape ``before_rest``) on this bay's mounted shape ``rest``, for a method that tries Newton
@@ -336,7 +364,12 @@ class Loop:
     """The "loop" strategy: `solve_equilibrium` on each bay in turn (float64 scope on).
 
     Every method, grid sequencing, half-bay symmetry, Newton and the factor
-    reuse of a warm start: the faster way on a CPU.
+    reuse of a warm start: the faster way on a CPU. From cold, each bay after
+    the first starts from the bay before's shape (`_from_the_bay_before`);
+    warm, with a host method, the bays' host solves are made first, two at a
+    time where there is a second core (`_presolve`, `threads.each`), and each
+    bay's `solve_equilibrium` then takes its own (the same `Solution` it would
+    have solved).
 
     Args:
         adjoint: each bay's derivative (`solve_equilibrium`'s ``adjoint``:
@@ -353,6 +386,7 @@ class Loop:
         """The bays' `BaysSolution` (``shapes``, ``fields``: float64 per-rib shapes and per-bay cut fields, or None)."""
         solutions, nodes, mounted = [], [], []
         moved = None if initial is None or initial.solutions is not None else initial.displacements()
+        done = _presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
         for k, scene in enumerate(scenes):
             p = bay_parameters(parameters, shapes, k, fields)
             rest = _mounted(scene, p)
@@ -363,9 +397,12 @@ class Loop:
                 start = initial.solutions[k]
             else:  # a batch's solution: its displacement on this solve's mounted shape
                 start = rest + jnp.asarray(moved[k], jnp.float64)
-            with nodes_only():  # the tensions returned are the primal's (`_concrete_solution`)
-                sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method, initial=start,
-                                        throw=False, adjoint=self.adjoint)
+            if id(scene) in done and not p.is_traced():  # (concrete parameters: the presolve's is the solve)
+                sol = done[id(scene)][2]
+            else:
+                with nodes_only(), presolved(done):  # the tensions returned are the primal's (`_concrete_solution`)
+                    sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method,
+                                            initial=start, throw=False, adjoint=self.adjoint)
             traced = bool(sol.extra.get("traced"))
             if traced:  # under jax.jit / vmap: result codes are arrays
                 x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)

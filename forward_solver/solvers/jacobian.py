@@ -34,6 +34,7 @@ warm starts and the adjoint solves of the implicit derivative (`derivatives.impl
 from __future__ import annotations
 
 import functools
+import threading
 from typing import NamedTuple
 
 import jax
@@ -288,6 +289,7 @@ class _Reordering(NamedTuple):
 
 
 _REORDERINGS: dict = {}  # (in the order last used)
+_REORDERINGS_LOCK = threading.Lock()
 #: Structures whose reordering `factorise` keeps, the most recently used (the grids of a run are few).
 _MAX_REORDERINGS = 16
 
@@ -320,13 +322,16 @@ def factorise(matrix: sp.csc_matrix, permc_spec: str = PERMC_SPEC):
     matrix = sp.csc_matrix(matrix)
     matrix.sum_duplicates()  # (canonical: sorted indices, no duplicates; a no-op for the solver's matrices)
     key = (matrix.shape, matrix.indptr.tobytes(), matrix.indices.tobytes())
-    reordering = _REORDERINGS.pop(key, None)
+    with _REORDERINGS_LOCK:  # (a wing's bays are factorised two at a time: `threads.each`)
+        reordering = _REORDERINGS.pop(key, None)
     if reordering is None:  # SuperLU's ordering of this structure (its numeric factor is not used: every
         # factor of a structure comes from the same reordered matrix, whatever the process met before)
         reordering = _reordering(matrix, np.argsort(spla.splu(matrix, permc_spec=permc_spec).perm_c))
+    with _REORDERINGS_LOCK:
+        _REORDERINGS.pop(key, None)  # (another thread's, meanwhile)
         while len(_REORDERINGS) >= _MAX_REORDERINGS:
             _REORDERINGS.pop(next(iter(_REORDERINGS)))  # the least recently used
-    _REORDERINGS[key] = reordering  # (the most recently used now)
+        _REORDERINGS[key] = reordering  # (the most recently used now)
     reordered = sp.csc_matrix((matrix.data[reordering.gather], reordering.indices.copy(), reordering.indptr.copy()),
                               shape=matrix.shape)
     return OrderedLU(spla.splu(reordered, permc_spec="NATURAL", options=ORDERED_OPTIONS), reordering.order)

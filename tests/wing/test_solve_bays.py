@@ -110,6 +110,35 @@ def test_warm_start_passes_each_bay_its_solution(scenes, cold):
     assert all("chord Newton" in s.extra.get("warm_start", "") for s in warm.solutions)
 
 
+def test_a_warm_differentiated_loop_solves_its_bays_first_and_the_same(scenes, cold, monkeypatch):
+    # The host solves of a warm solve under jax.jvp are made before the bays are differentiated, two
+    # at a time on a second core (`bays._presolve`, `threads.each`): the same nodes and tangents, to
+    # the bit, as each bay solved where it is differentiated.
+    from forward_solver.solvers import bays
+
+    def nodes(p):
+        return solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10, rib_shapes=SHAPES,
+                          method="relax+newton", initial=cold, strategy="loop").nodes
+
+    presolved = []
+    each = bays.each
+
+    def counted(function, count):
+        presolved.append(count)
+        return each(function, count)
+
+    monkeypatch.setattr(bays, "each", counted)
+    with jax.enable_x64(True):
+        monkeypatch.setattr(bays, "helpers", lambda: 1)
+        shared = jax.jvp(nodes, (2.02e4,), (1.0,))
+        monkeypatch.setattr(bays, "helpers", lambda: 0)
+        alone = jax.jvp(nodes, (2.02e4,), (1.0,))
+    assert presolved == [3]
+    assert np.all(np.isfinite(np.asarray(shared[1]))) and np.any(np.asarray(shared[1]) != 0)
+    for a, b in zip(shared, alone):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_the_same_call_under_jit(scenes, solved):
     with jax.enable_x64(True):
         nodes = jax.jit(lambda p: solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10,
