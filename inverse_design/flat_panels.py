@@ -56,6 +56,8 @@ which lie on the outline.
 
 from __future__ import annotations
 
+import weakref
+
 import jax
 import numpy as np
 
@@ -159,7 +161,7 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
     coefficients = None if shape is None else np.asarray(shape, np.float64).reshape(-1)
     t_le = section.leading_edge_parameter
 
-    def mounted(t: np.ndarray) -> np.ndarray:
+    def unit(t: np.ndarray) -> np.ndarray:
         x0, z0 = section.contour_points(t).T
         station = np.clip(x0, 0.0, 1.0)
         camber = np.asarray(section.camber(station))  # as `forward_solver.model.bay` takes it at the nodes
@@ -169,7 +171,12 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
             basis = np.asarray(class_function(station))[:, None] * np.asarray(bernstein_basis(station, k))
             upper = t <= t_le
             z = z + np.where(upper, basis @ coefficients[:k], -(basis @ coefficients[k:]))
-        return np.column_stack([x0 * chord_scale, z]) * chord
+        return np.column_stack([x0 * chord_scale, z])
+
+    known = _known_points(section, thickness_scale, chord_scale, coefficients)
+
+    def mounted(t: np.ndarray) -> np.ndarray:
+        return known.points(t, unit) * chord
 
     t = np.unique(np.concatenate([np.linspace(0.0, 1.0, 65), [t_le]]))
     points = mounted(t)
@@ -194,6 +201,49 @@ def rib_outline(section, chord: float, thickness_scale: float = 1.0, chord_scale
     if section.closed_te:
         points = points[:-1]  # the last point is the first
     return points
+
+
+class _KnownPoints:
+    """A rib outline's points in chord units (`rib_outline`'s ``unit``), by contour parameter, as computed
+    so far for one section, scales and shape: a wing's ribs share a section and differ in chord, and an
+    outline's parameters are halvings of one grid, so a smaller rib's are mostly a larger one's (the 40-cell
+    wing's 41 ribs: every point once instead of once per rib)."""
+
+    def __init__(self):
+        self.t = np.zeros(0)
+        self.values = np.zeros((0, 2))
+
+    def points(self, t: np.ndarray, unit) -> np.ndarray:
+        """``unit(t)``: the known values, and the others computed (in one call) and kept."""
+        at = np.minimum(np.searchsorted(self.t, t), max(self.t.size - 1, 0))
+        hit = (self.t[at] == t) if self.t.size else np.zeros(t.shape, bool)
+        out = np.empty((t.size, 2))
+        out[hit] = self.values[at[hit]]
+        if not hit.all():
+            new_t = t[~hit]
+            out[~hit] = new = unit(new_t)
+            order = np.argsort(np.concatenate([self.t, new_t]), kind="stable")
+            self.t = np.concatenate([self.t, new_t])[order]
+            self.values = np.concatenate([self.values, new])[order]
+        return out
+
+
+#: The `_KnownPoints` of the last outlines' sections, scales and shapes (a few: a report's ribs in turn).
+_KNOWN: dict = {}
+_MAX_KNOWN = 4
+
+
+def _known_points(section, thickness_scale: float, chord_scale: float, coefficients) -> _KnownPoints:
+    """The `_KnownPoints` of ``section`` (by identity) at these scales and shape coefficients."""
+    key = (id(section), float(thickness_scale), float(chord_scale),
+           None if coefficients is None else coefficients.tobytes())
+    entry = _KNOWN.pop(key, None)
+    if entry is None or entry[0]() is not section:  # (a section collected since, its id reused)
+        entry = (weakref.ref(section), _KnownPoints())
+    while len(_KNOWN) >= _MAX_KNOWN:
+        _KNOWN.pop(next(iter(_KNOWN)))
+    _KNOWN[key] = entry  # (the most recently used last)
+    return entry[1]
 
 
 def rib_template(scene, parameters, row: int) -> tuple[np.ndarray, np.ndarray]:

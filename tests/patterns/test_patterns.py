@@ -289,6 +289,32 @@ def test_the_rib_template_is_the_section_not_the_grid_polygon(folder):
         assert chordal <= 1e-4, name
 
 
+def test_a_smaller_rib_of_the_same_section_reuses_the_larger_ones_points():
+    # A wing's ribs share a section and differ in chord: the outline's points are kept by contour
+    # parameter (`flat_panels.rib_outline`), and a smaller rib's parameters are among a larger one's
+    # (halvings of one grid). Every outline is the one computed alone, to the bit.
+    from inverse_design.flat_panels import rib_outline
+
+    shape = np.array([0.01, -0.02, 0.005, 0.01])
+    alone = [rib_outline(naca("2412"), chord, 0.9, 1.0, shape) for chord in (1.0, 0.4)]
+    section = naca("2412")
+    evaluated = []
+    contour_points = section.contour_points
+
+    def counted(t):
+        evaluated.append(np.size(t))
+        return contour_points(t)
+
+    section.contour_points = counted
+    large = rib_outline(section, 1.0, 0.9, 1.0, shape)
+    assert sum(evaluated) > large.shape[0]  # (its probes between the points too)
+    evaluated.clear()
+    small = rib_outline(section, 0.4, 0.9, 1.0, shape)
+    assert sum(evaluated) == 0 and small.shape[0] < large.shape[0]
+    assert np.array_equal(large, alone[0]) and np.array_equal(small, alone[1])
+    assert not np.array_equal(rib_outline(section, 0.4, 0.8, 1.0, shape), small)  # (another scale: its own)
+
+
 def test_the_rib_attachment_marks_are_at_the_skins_nodes(folder, scene, design):
     out, _ = folder
     nodes = mounted_skin(scene, design.parameters)[0][:, [0, 2]] * 1000.0  # mm, the root rib's contour nodes
