@@ -46,6 +46,7 @@ import scipy.sparse.linalg as spla
 from .. import forces as fk
 from ..precision import float64_scope
 from ..compilation import stored_jit
+from . import threads
 
 __all__ = ["PERMC_SPEC", "ORDERED_OPTIONS", "Sparsity", "JacobianFactor", "OrderedLU", "jacobian_sparsity", "free_dofs",
            "assemble_jacobian", "factorise"]
@@ -254,15 +255,28 @@ def assemble_jacobian(x, ref: fk.Reference, params: fk.KernelInputs, physics: fk
 class OrderedLU:
     """The LU of ``J`` made as SuperLU's of ``J[order][:, order]`` (`factorise`); solves with ``J`` itself.
 
+    Made on the wing's helper thread (`threads.each`), its SuperLU is kept and finally freed there
+    (`threads.keep`: SciPy's SuperLU frees a factor's memory only on the thread that made it).
+
     Attributes:
         lu: the `scipy.sparse.linalg.SuperLU` of the reordered matrix.
         order: ``(n,)`` the symmetric permutation.
     """
 
-    __slots__ = ("lu", "order")
+    __slots__ = ("_lu", "_key", "order")
 
     def __init__(self, lu, order: np.ndarray):
-        self.lu, self.order = lu, order
+        self._lu, self._key, self.order = lu, None, order
+        if threads.on_helper():
+            self._lu, self._key = None, threads.keep(lu)
+
+    def __del__(self):
+        if getattr(self, "_key", None) is not None:
+            threads.release(self._key)
+
+    @property
+    def lu(self):
+        return self._lu if self._key is None else threads.kept(self._key)
 
     @property
     def shape(self) -> tuple[int, int]:

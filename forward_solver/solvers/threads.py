@@ -13,19 +13,33 @@ never holds up the interpreter's exit.
 The results are those of the items run one by one: each item is computed
 whole by one thread, from the same inputs; which thread runs it does not
 enter it.
+
+SciPy's SuperLU (1.17) frees a factor's memory only on the thread that
+allocated it: a factor made on the helper and dropped on another thread
+leaked all of it (a 2000x2000 factor: 14 MB each time) and left an error
+behind that made the interpreter's exit fail (status 120). So what the
+helper makes and must also free there is kept by it (`keep`: the caller
+holds a key, `kept` looks the value up) and dropped on it (`release`), and
+at the interpreter's exit the helper drops what it still keeps.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextvars
+import itertools
 import os
 import queue
 import threading
 
-__all__ = ["each", "helpers"]
+__all__ = ["each", "helpers", "keep", "kept", "on_helper", "release"]
 
 _LOCK = threading.Lock()
 _QUEUE: queue.SimpleQueue | None = None
+_HELPER: int | None = None  # the helper thread's ident
+_KEPT: dict = {}  # key -> what the helper made and keeps (`keep`)
+_KEYS = itertools.count()
+_CLOSED = False  # (the interpreter's exit: the helper keeps nothing more)
 
 
 def helpers() -> int:
@@ -39,18 +53,59 @@ def helpers() -> int:
 
 def _helper() -> queue.SimpleQueue:
     """The helper thread's queue of tasks (the thread started on first use)."""
-    global _QUEUE
+    global _QUEUE, _HELPER
     with _LOCK:
         if _QUEUE is None:
             tasks = queue.SimpleQueue()
-            threading.Thread(target=_serve, args=(tasks,), name="bay-helper", daemon=True).start()
-            _QUEUE = tasks
+            thread = threading.Thread(target=_serve, args=(tasks,), name="bay-helper", daemon=True)
+            thread.start()
+            _QUEUE, _HELPER = tasks, thread.ident
+            atexit.register(_close)
         return _QUEUE
 
 
 def _serve(tasks: queue.SimpleQueue) -> None:
     while True:
-        tasks.get()()
+        task = tasks.get()
+        task()
+        del task  # (what it held is dropped here, on this thread)
+
+
+def on_helper() -> bool:
+    """Whether this is the helper thread."""
+    return _HELPER is not None and threading.get_ident() == _HELPER
+
+
+def keep(value) -> int:
+    """On the helper thread: keep ``value`` there; returns its key for `kept` and `release`."""
+    key = next(_KEYS)
+    _KEPT[key] = value
+    return key
+
+
+def kept(key: int):
+    """What `keep` keeps under ``key`` (any thread)."""
+    return _KEPT[key]
+
+
+def release(key: int) -> None:
+    """Drop what `keep` keeps under ``key``, on the helper thread (any thread may ask; nothing at exit)."""
+    if not _CLOSED and _QUEUE is not None:
+        _QUEUE.put(lambda: _KEPT.pop(key, None))
+
+
+def _close() -> None:
+    """At the interpreter's exit: the helper drops all it keeps, on its own thread (at most 5 s)."""
+    global _CLOSED
+    done = threading.Event()
+
+    def drop():
+        _KEPT.clear()
+        done.set()
+
+    _QUEUE.put(drop)
+    done.wait(5.0)
+    _CLOSED = True
 
 
 def each(function, count: int) -> list:

@@ -103,6 +103,24 @@ def test_a_cold_loop_starts_each_bay_after_the_first_from_the_bay_before(cold, s
     assert np.max(np.abs(np.asarray(cold.nodes) - np.asarray(solved["batch"].nodes))) < 1e-7
 
 
+def test_a_cold_loop_of_four_bays_runs_two_halves_the_same_on_one_thread_or_two(monkeypatch):
+    # From four bays on, each half of the wing starts cold at its first bay (so that two threads can
+    # take one each): the same starts, and the same nodes to the bit, whether a second core helps.
+    from forward_solver.solvers import bays
+
+    af = naca("2412")
+    wing = Wing(airfoils=(af,) * 5, chords=(1.0, 0.9, 0.8, 0.7, 0.6), stations=(0.0, 0.25, 0.5, 0.75, 1.0))
+    four = wing.scenes(Fabric(), **GRID)
+    solved = {}
+    for helpers in (1, 0):
+        monkeypatch.setattr(bays, "helpers", lambda helpers=helpers: helpers)
+        solved[helpers] = solve_bays(four, PARAMETERS, rtol=1e-10, method="relax+newton", strategy="loop")
+    for sol in solved.values():
+        assert sol.converged
+        assert [s.extra["relax_steps"] > 0 for s in sol.solutions] == [True, False, True, False]
+    assert np.array_equal(np.asarray(solved[1].nodes), np.asarray(solved[0].nodes))
+
+
 def test_warm_start_passes_each_bay_its_solution(scenes, cold):
     warm = solve_bays(scenes, PARAMETERS.replace(pressure=2.02e4), rtol=1e-10, rib_shapes=SHAPES,
                       method="relax+newton", initial=cold, strategy="loop")
