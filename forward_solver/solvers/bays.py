@@ -32,21 +32,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
-from ..derivatives.custom_jvp import concrete_parameters, nodes_only, presolved
-from ..derivatives.implicit import top_level
+from ..derivatives.custom_jvp import nodes_only, presolved
 from ..model.bay import N_CONTOUR, N_SPAN
 from ..model.fabric import Fabric
-from ..model.parameters import Parameters, as_parameters, bay_parameters
+from ..model.parameters import as_parameters, bay_parameters
 from ..model.scene import Scene
 from ..model.wing import Wing
 from ..precision import float64_scope, rounding_floor
-from ..programs import mounted_compiled
 from ..solution import BaysSolution, ConvergenceError, Result, Solution
 from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
+from .bay_starts import chains, from_the_bay_before, mounted_shape, presolve
 from .loop import check_stop
-from .methods import HostOnly, Relax, RelaxNewton
-from .relax import RELAX_CHUNK, has_abstract_values, relaxed_nodes
-from .threads import each, helpers
+from .methods import Relax
+from .relax import RELAX_CHUNK, relaxed_nodes
 
 __all__ = ["check_rib_gaps", "solve_wing", "solve_bays", "Loop", "Batch", "STRATEGIES", "as_strategy",
            "default_strategy"]
@@ -292,88 +290,6 @@ def _check_scenes(scenes) -> None:
                              f"differs from scene 0 in: {', '.join(differs)}")
 
 
-def _presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
-    """The host solves of a wing solve, two at a time where the machine has a second core
-    (`threads.each`): ``id(scene) -> (scene, parameters, Solution)`` for `custom_jvp.presolved`
-    (``parameters`` concrete, those the bay's solve poses). Warm (``initial`` a loop's `BaysSolution`),
-    every bay from its own warm start; cold, each of the `_chains` from its first bay, every later bay
-    from the bay before (`_from_the_bay_before`). Each is the solve `solve_equilibrium` makes where the
-    bay is differentiated, made before the bays are differentiated one after the other. Empty where
-    there is nothing to share (one chain of a cold solve, one core, ``jax.jit`` or ``jax.vmap``, a
-    method that is not host-only)."""
-    warm = initial is not None and initial.solutions is not None
-    cold = initial is None and isinstance(method, RelaxNewton) and len(_chains(len(scenes))) > 1
-    if not (warm or cold) or len(scenes) < 2 or helpers() == 0 or not isinstance(method, HostOnly):
-        return {}
-    posed = []
-    for k, scene in enumerate(scenes):
-        p = as_parameters(bay_parameters(parameters, shapes, k, fields)).resolved(scene.fabric)
-        if has_abstract_values(p):
-            return {}
-        scene.check_parameters(p)
-        # (an eager transformation's primal values: `stop_gradient` is the identity on them, and no tracer)
-        posed.append(concrete_parameters(jax.lax.stop_gradient(p)) if p.is_traced() else p)
-
-    def solve(k, start):
-        with top_level():  # (the caller's share runs inside its transformation, as `custom_jvp` solves)
-            return method.solve(scenes[k], posed[k], rtol=rtol, max_steps=max_steps, initial=start)
-
-    if warm:
-        solved = each(lambda k: solve(k, initial.solutions[k]), len(scenes))
-    else:
-        def chain(bays):
-            out, before, before_rest = [], None, None
-            with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)
-                for k in bays:
-                    rest = _mounted(scenes[k], posed[k])
-                    out.append(solve(k, _from_the_bay_before(method, rest, before, before_rest)))
-                    before, before_rest = out[-1], rest
-            return out
-
-        chains = _chains(len(scenes))
-        solved = [sol for part in each(lambda c: chain(chains[c]), len(chains)) for sol in part]
-    return {id(scene): (scene, posed[k], sol) for k, (scene, sol) in enumerate(zip(scenes, solved))}
-
-
-def _chains(n_bays: int) -> list[range]:
-    """The runs of bays a cold wing solve takes one from another (`_from_the_bay_before`): two halves from
-    four bays on, so that two threads can take one each (`_presolve`), on any machine (the starts, and so
-    the equilibria to the last bit, do not depend on its cores)."""
-    if n_bays < 4:
-        return [range(n_bays)]
-    half = (n_bays + 1) // 2
-    return [range(half), range(half, n_bays)]
-
-
-def _from_the_bay_before(method, rest, before: Solution | None, before_rest):
-    """A cold bay's start after the first: the displacement of the bay before (``before``, solved on its
-    mounted shape ``before_rest``) on this bay's mounted shape ``rest``, for a method that tries Newton
-    from such a start (`methods.RelaxNewton`); None (the method's cold start) for the first bay (of each of
-    the `_chains`), after a bay that failed, under ``jax.jit`` or ``jax.vmap``, or for another method. A wing's neighbouring bays
-    differ by a step of its taper: Newton from there converges in 2-5 iterations where the cold start
-    relaxes for hundreds of steps first (docs/architecture.md)."""
-    if before is None or not isinstance(method, RelaxNewton):
-        return None
-    arrays = (before.nodes, before_rest, rest)
-    if any(isinstance(a, jax.core.Tracer) for a in arrays):
-        return None
-    x, x_rest, here = (np.asarray(a, np.float64) for a in arrays)
-    if not np.all(np.isfinite(x)):
-        return None
-    return here + (x - x_rest)
-
-
-def _mounted(scene: Scene, parameters: Parameters):
-    """Bay's mounted shape at ``parameters``, not differentiated (concrete eagerly).
-
-    The gradient is stopped on ``parameters`` before their arrays are made: under an eager
-    ``jax.jvp`` (the design's forward mode) they are then the concrete primal values, moved in one
-    transfer, not a converted tracer each (an eager operation compiled or fetched apiece)."""
-    geometry = scene.bay.geometry()
-    params = scene.params(jax.lax.stop_gradient(parameters))
-    return jax.lax.stop_gradient(mounted_compiled(geometry, params))
-
-
 def _concrete_solution(solution: Solution) -> Solution:
     """A `Solution` returned under eager ``jax.grad`` with its primal (concrete) nodes and tensions."""
     if not isinstance(solution.nodes, jax.core.Tracer) or "primal_nodes" not in solution.extra:
@@ -392,9 +308,9 @@ class Loop:
 
     Every method, grid sequencing, half-bay symmetry, Newton and the factor
     reuse of a warm start: the faster way on a CPU. From cold, each bay after
-    the first of its half of the wing (`_chains`) starts from the bay before's
-    shape (`_from_the_bay_before`); with a host method, the bays' host solves
-    are made first, two at a time where there is a second core (`_presolve`,
+    the first of its half of the wing (`chains`) starts from the bay before's
+    shape (`from_the_bay_before`); with a host method, the bays' host solves
+    are made first, two at a time where there is a second core (`presolve`,
     `threads.each`: warm, bay by bay; cold, the two halves), and each bay's
     `solve_equilibrium` then takes its own (the same `Solution` it would have
     solved).
@@ -414,13 +330,13 @@ class Loop:
         """The bays' `BaysSolution` (``shapes``, ``fields``: float64 per-rib shapes and per-bay cut fields, or None)."""
         solutions, nodes, mounted = [], [], []
         moved = None if initial is None or initial.solutions is not None else initial.displacements()
-        done = _presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
+        done = presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
         for k, scene in enumerate(scenes):
             p = bay_parameters(parameters, shapes, k, fields)
-            rest = _mounted(scene, p)
+            rest = mounted_shape(scene, p)
             if initial is None:
-                first = any(k == run.start for run in _chains(len(scenes)))
-                start = None if first else _from_the_bay_before(method, rest, solutions[-1], mounted[-1])
+                first = any(k == run.start for run in chains(len(scenes)))
+                start = None if first else from_the_bay_before(method, rest, solutions[-1], mounted[-1])
             elif initial.solutions is not None:
                 start = initial.solutions[k]
             else:  # a batch's solution: its displacement on this solve's mounted shape

@@ -89,9 +89,9 @@ def test_a_script_that_solves_a_wing_on_two_threads_exits_cleanly(tmp_path):
     script.write_text(
         "import jax\n"
         "from forward_solver import Fabric, Wing, solve_bays\n"
-        "from forward_solver.solvers import bays, threads\n"
+        "from forward_solver.solvers import bay_starts, threads\n"
         "from targets import naca\n"
-        "bays.helpers = threads.helpers = lambda: 1\n"
+        "bay_starts.helpers = threads.helpers = lambda: 1\n"
         "af = naca('2412')\n"
         "wing = Wing(airfoils=(af,) * 5, chords=(1.0, 0.9, 0.8, 0.7, 0.6), stations=(0.0, 0.25, 0.5, 0.75, 1.0))\n"
         "sol = solve_bays(wing.scenes(Fabric(), n_span=5, n_contour=32), 2e4, rtol=1e-8, method='relax+newton')\n"

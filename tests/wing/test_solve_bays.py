@@ -106,14 +106,14 @@ def test_a_cold_loop_starts_each_bay_after_the_first_from_the_bay_before(cold, s
 def test_a_cold_loop_of_four_bays_runs_two_halves_the_same_on_one_thread_or_two(monkeypatch):
     # From four bays on, each half of the wing starts cold at its first bay (so that two threads can
     # take one each): the same starts, and the same nodes to the bit, whether a second core helps.
-    from forward_solver.solvers import bays
+    from forward_solver.solvers import bay_starts
 
     af = naca("2412")
     wing = Wing(airfoils=(af,) * 5, chords=(1.0, 0.9, 0.8, 0.7, 0.6), stations=(0.0, 0.25, 0.5, 0.75, 1.0))
     four = wing.scenes(Fabric(), **GRID)
     solved = {}
     for helpers in (1, 0):
-        monkeypatch.setattr(bays, "helpers", lambda helpers=helpers: helpers)
+        monkeypatch.setattr(bay_starts, "helpers", lambda helpers=helpers: helpers)
         solved[helpers] = solve_bays(four, PARAMETERS, rtol=1e-10, method="relax+newton", strategy="loop")
     for sol in solved.values():
         assert sol.converged
@@ -130,26 +130,26 @@ def test_warm_start_passes_each_bay_its_solution(scenes, cold):
 
 def test_a_warm_differentiated_loop_solves_its_bays_first_and_the_same(scenes, cold, monkeypatch):
     # The host solves of a warm solve under jax.jvp are made before the bays are differentiated, two
-    # at a time on a second core (`bays._presolve`, `threads.each`): the same nodes and tangents, to
+    # at a time on a second core (`bay_starts.presolve`, `threads.each`): the same nodes and tangents, to
     # the bit, as each bay solved where it is differentiated.
-    from forward_solver.solvers import bays
+    from forward_solver.solvers import bay_starts
 
     def nodes(p):
         return solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10, rib_shapes=SHAPES,
                           method="relax+newton", initial=cold, strategy="loop").nodes
 
     presolved = []
-    each = bays.each
+    each = bay_starts.each
 
     def counted(function, count):
         presolved.append(count)
         return each(function, count)
 
-    monkeypatch.setattr(bays, "each", counted)
+    monkeypatch.setattr(bay_starts, "each", counted)
     with jax.enable_x64(True):
-        monkeypatch.setattr(bays, "helpers", lambda: 1)
+        monkeypatch.setattr(bay_starts, "helpers", lambda: 1)
         shared = jax.jvp(nodes, (2.02e4,), (1.0,))
-        monkeypatch.setattr(bays, "helpers", lambda: 0)
+        monkeypatch.setattr(bay_starts, "helpers", lambda: 0)
         alone = jax.jvp(nodes, (2.02e4,), (1.0,))
     assert presolved == [3]
     assert np.all(np.isfinite(np.asarray(shared[1]))) and np.any(np.asarray(shared[1]) != 0)
