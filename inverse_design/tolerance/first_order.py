@@ -36,6 +36,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from forward_solver.derivatives.custom_jvp import GRADIENT_RTOL
+from forward_solver.solvers.threads import each
 
 from ..fabric_range import FabricRangeWarning, outside_tested_range
 from .inputs import SOURCE_UNITS, as_tolerances
@@ -356,16 +357,18 @@ def _linear_measures(model: ToleranceModel, d0, t0, jd, jt, draws: np.ndarray) -
     others' worst is never the extreme; `_least`), so a 17x64 bay's 3000 rows become a few dozen or
     hundred."""
     e = draws * model.spread[None, :]
-    ms, largest, least = [], [], []
-    for d, j, t, k, cols in zip(d0, jd, t0, jt, model.touching):
-        n, ec, j, k = d.size, e[:, cols], j[:, cols], k[:, cols]  # (a bay's own columns)
+
+    def bay(i):  # (the bays two at a time where there is a second core: NumPy's products release Python's lock)
+        d, t, cols = d0[i], t0[i], model.touching[i]
+        n, ec, j, k = d.size, e[:, cols], jd[i][:, cols], jt[i][:, cols]  # (a bay's own columns)
         b, q = 2.0 * (j.T @ d) / n, (j.T @ j) / n
-        ms.append(float(d @ d) / n + ec @ b + np.einsum("mi,ij,mj->m", ec, q, ec))
+        ms = float(d @ d) / n + ec @ b + np.einsum("mi,ij,mj->m", ec, q, ec)
         reach = _reach(model, j, cols)
         keep = np.abs(d) + reach >= np.max(np.abs(d) - reach)
-        largest.append(np.max(np.abs(d[keep][None, :] + ec @ j[keep].T), axis=1))
-        least.append(_least(t, k, ec, _reach(model, k, cols)))
-    ms, largest, least = (np.stack(x, axis=1) for x in (ms, largest, least))
+        largest = np.max(np.abs(d[keep][None, :] + ec @ j[keep].T), axis=1)
+        return ms, largest, _least(t, k, ec, _reach(model, k, cols))
+
+    ms, largest, least = (np.stack(x, axis=1) for x in zip(*each(bay, len(d0))))
     return {"bay_rms": np.sqrt(np.maximum(ms, 0.0)), "bay_max": largest, "bay_min_tension": least,
             "rms": np.sqrt(np.maximum(ms @ model.weights, 0.0)), "max": largest.max(axis=1),
             "min_tension": least.min(axis=1)}
