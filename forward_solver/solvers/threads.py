@@ -115,9 +115,10 @@ def each(function, count: int) -> list:
     variables); a thread-local setting (JAX's ``enable_x64``) is the item's
     own to make. An item's exception is raised here once both threads have
     stopped, and no item is begun after it or after the caller itself is
-    interrupted. Without a second core, the caller runs every item.
+    interrupted. Without a second core, or called from an item on the helper
+    itself (which would wait for itself), the caller runs every item.
     """
-    if count < 2 or helpers() == 0:
+    if count < 2 or helpers() == 0 or on_helper():
         return [function(k) for k in range(count)]
     results = [None] * count
     errors: list = []

@@ -42,6 +42,19 @@ def test_an_items_exception_reaches_the_caller_and_stops_the_rest(monkeypatch):
     assert len(begun) < 100
 
 
+def test_an_item_on_the_helper_runs_its_own_items_itself(monkeypatch):
+    monkeypatch.setattr(threads, "helpers", lambda: 1)
+    meet = threading.Barrier(2, timeout=10)
+
+    def item(k):
+        if k < 2:
+            meet.wait()
+        return threads.each(lambda j: (threading.current_thread().name, j), 3)
+
+    names = {name for inner in threads.each(item, 4) for name, _ in inner}
+    assert "bay-helper" in names  # (and no item on the helper waited for the helper)
+
+
 def test_one_core_runs_every_item_in_the_caller(monkeypatch):
     monkeypatch.setattr(threads, "helpers", lambda: 0)
     names = []
