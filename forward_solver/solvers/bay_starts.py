@@ -86,10 +86,10 @@ def chains(n_bays: int) -> list[range]:
 def from_the_bay_before(method, rest, before: Solution | None, before_rest):
     """A cold bay's start after the first: the displacement of the bay before (``before``, solved on its
     mounted shape ``before_rest``) on this bay's mounted shape ``rest``, for a method that tries Newton
-    from such a start (`methods.RelaxNewton`); None (the method's cold start) for the first bay (of each of
-    the `chains`), after a bay that failed, under ``jax.jit`` or ``jax.vmap``, or for another method. A wing's neighbouring bays
-    differ by a step of its taper: Newton from there converges in 2-5 iterations where the cold start
-    relaxes for hundreds of steps first (docs/architecture.md)."""
+    from such a start (`methods.RelaxNewton`); None (the method's cold start) for the first bay of each
+    of the `chains`, after a bay that failed, under ``jax.jit`` or ``jax.vmap``, or for another method.
+    A wing's neighbouring bays differ by a step of its taper: Newton from there converges in 2-5
+    iterations where the cold start relaxes for hundreds of steps first (docs/architecture.md)."""
     if before is None or not isinstance(method, RelaxNewton):
         return None
     arrays = (before.nodes, before_rest, rest)

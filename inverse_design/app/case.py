@@ -300,7 +300,7 @@ def _ribs(o: Options, sources: Mapping) -> tuple:
         rib = target if o.rib is None else load_section(o.rib, "--rib")
         return (Rib(rib, o.chord, 0.0, target), Rib(rib, o.chord, o.rib_spacing, target))
     where = f"{o.config}: rib"
-    loaded = {}  # spec -> section: a wing's ribs mostly name one (the 40-cell wing's 41 ribs: 0.35 s of loading, now once)
+    loaded = {}  # spec -> section: a wing's ribs mostly name one (the 40-cell wing's 41 ribs: 0.35 s, now once)
 
     def section_of(spec, option):
         if spec not in loaded:
