@@ -65,10 +65,14 @@ def float64_scope(*traced_inputs):
         yield
 
 
-@partial(jax.jit, static_argnames=("physics",))
-def rounding_floor(geometry, params, physics, eps):
+def residual_rounding_floor(geometry, params, physics, eps):
+    """`forces.rounding_residual_floor` of a bay at its reference state (`forces.prepare`): the relative
+    residual that rounding its coordinates to machine epsilon ``eps`` alone leaves."""
     physics = fk.static_physics(physics)
     return fk.rounding_residual_floor(fk.prepare(geometry, params, physics), params, physics, eps)
+
+
+rounding_floor = partial(jax.jit, static_argnames=("physics",))(residual_rounding_floor)
 
 
 def float32_floor(geometry, params, physics) -> float:

@@ -7,7 +7,10 @@
   ``||R_free|| / (p A)`` at a state, for Newton, chord Newton and every
   returned `Solution`'s tensions;
 * `cell_strains`: each cell's fibre strains at a state (what a fitted law's
-  tested range is checked against).
+  tested range is checked against);
+* `rounding_floor_compiled`: the relative residual that rounding a bay's
+  coordinates alone leaves (`precision.residual_rounding_floor`), which a
+  wing's rib gaps are checked against before any solve.
 
 They are `compilation.stored_jit` programs: kept between processes while a
 program store is in use.
@@ -18,10 +21,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from . import forces as fk
+from .precision import residual_rounding_floor
 from .stencils import safe_norm
 from .compilation import stored_jit
 
-__all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces", "cell_strains"]
+__all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces", "cell_strains",
+           "rounding_floor_compiled"]
 
 
 #: `forces.prepare` as one compiled program (eagerly, each of its operations compiles on its own).
@@ -30,6 +35,10 @@ prepare_compiled = stored_jit(fk.prepare, static_argnames=("physics",))
 #: `forces.mounted_nodes` as one compiled program (eagerly, a dozen operations compiled and
 #: dispatched one by one, on every cold start and on every bay of every wing solve).
 mounted_compiled = stored_jit(fk.mounted_nodes)
+
+#: `precision.residual_rounding_floor` as a stored program: the wing's rib-gap check runs it before the
+#: first solve of every run, where tracing and lowering it took a tenth of a second.
+rounding_floor_compiled = stored_jit(residual_rounding_floor, static_argnames=("physics",))
 
 
 @stored_jit(static_argnames=("physics",))
