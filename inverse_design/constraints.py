@@ -54,7 +54,7 @@ from forward_solver import Parameters
 from forward_solver import forces as fk
 
 __all__ = ["Constraints", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "FLOOR_MARGIN", "KS_SHARPNESS",
-           "cell_tensions", "cell_constraints", "floor_threshold", "constraint_functions", "penalty_residuals",
+           "cell_tensions", "fibre_tensions", "tension_inputs", "cell_constraints", "floor_threshold", "constraint_functions", "penalty_residuals",
            "constraint_report", "tension_scale",
            "UNMET_ADVICE"]
 
@@ -126,12 +126,16 @@ class Constraints:
         return names
 
 
-@partial(jax.jit, static_argnames=("physics",))
-def _tensions(x, geometry, params, physics):
+def fibre_tensions(x, geometry, params, physics):
+    """Unclamped fibre tensions of every cell (span then chord), N/m, at nodes ``x`` from the force
+    kernel's inputs (`tension_inputs`): `cell_tensions`' program, traceable into a larger one."""
     physics = dataclasses.replace(physics, tension_only=False)  # (the fabric's law kept)
     ref = fk.prepare(geometry, params, physics)
     fib = fk.fibres(x, ref, params, physics)
     return jnp.concatenate([fib.tension_span.reshape(-1), fib.tension_chord.reshape(-1)])
+
+
+_tensions = partial(jax.jit, static_argnames=("physics",))(fibre_tensions)
 
 
 def cell_tensions(scene, nodes, parameters: Parameters):
@@ -142,9 +146,13 @@ def cell_tensions(scene, nodes, parameters: Parameters):
         nodes: ``(n_span, n_contour, 3)`` m (JAX value allowed).
         parameters: the `forward_solver.Parameters` (JAX values allowed).
     """
-    params = scene.params(parameters)
-    geometry = scene.bay.geometry()
-    return _tensions(nodes, geometry, params, scene.physics(dynamic=False))
+    return _tensions(nodes, *tension_inputs(scene, parameters))
+
+
+def tension_inputs(scene, parameters: Parameters) -> tuple:
+    """``(geometry, params, physics)``: the force kernel's inputs of `fibre_tensions` for ``scene`` at
+    ``parameters`` (JAX values allowed)."""
+    return scene.bay.geometry(), scene.params(parameters), scene.physics(dynamic=False)
 
 
 def tension_scale(parameters: Parameters, chord: float) -> float:

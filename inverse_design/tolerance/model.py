@@ -46,9 +46,8 @@ from forward_solver.derivatives.custom_jvp import nodes_only
 from forward_solver.derivatives.forward import value_and_jacobian
 from forward_solver.programs import mounted_compiled
 
-from ..constraints import cell_tensions
+from ..constraints import fibre_tensions, tension_inputs
 from ..objectives import WingTargets
-from ..stacked import joined
 from .inputs import SOURCE_SCOPE, SOURCES
 
 __all__ = ["CLASS_RMS", "MOUNTING_SOURCES", "Column", "ToleranceModel", "bay_changes", "bay_values", "summary_of"]
@@ -124,10 +123,13 @@ def bay_changes(e, k, values: dict, offsets: tuple) -> dict:
 _traced_bay_changes = partial(jax.jit, static_argnames=("offsets",))(bay_changes)
 
 
-@jax.jit
-def _millimetres(distances, chords):
-    """A bay's rows' distances (fractions of their local chords) in mm, flat."""
-    return (distances * chords[:, None] * 1e3).reshape(-1)
+@partial(jax.jit, static_argnames=("physics", "with_nodes"))
+def _bay_outputs(distances, chords, x, geometry, params, physics, with_nodes: bool):
+    """A bay's rows' distances (fractions of their local chords) in mm, flat, then its cells' fibre
+    tensions (N/m; `constraints.fibre_tensions`), then its nodes (m, flat) ``with_nodes``: one program
+    (and one under `bay_jacobian`'s push) for what were four."""
+    parts = [(distances * chords[:, None] * 1e3).reshape(-1), fibre_tensions(x, geometry, params, physics)]
+    return jnp.concatenate(parts + [x.reshape(-1)] if with_nodes else parts)
 
 
 @dataclass(frozen=True)
@@ -253,15 +255,16 @@ class ToleranceModel:
         for every bay, ``k`` among its operands (the map's dozen operations, each an eager program
         of its own under ``vmap`` and ``jvp``, were most of the default case's first-order analysis)."""
         if isinstance(e, jax.Array):
-            changes = _traced_bay_changes(e, jnp.asarray(k, jnp.int32), self._bay_values, self._offsets)
+            changes = _traced_bay_changes(e, np.int32(k), self._bay_values, self._offsets)
         else:
             changes = bay_changes(np.asarray(e, np.float64), k, self._bay_values, self._offsets)
         return self.nominal[k].replace(**changes)
 
-    def outputs(self, k: int, nodes, parameters):
-        """Bay ``k``'s normal distances (mm, the objective's rows) and cell tensions (N/m), one vector."""
-        d = _millimetres(self.targets.distances(k, nodes), np.asarray(self.targets.chords[k], np.float64))
-        return joined(d, cell_tensions(self.scenes[k], nodes, parameters))
+    def outputs(self, k: int, nodes, parameters, with_nodes: bool = False):
+        """Bay ``k``'s normal distances (mm, the objective's rows) and cell tensions (N/m), one vector,
+        then its nodes (m, flat) ``with_nodes``."""
+        return _bay_outputs(self.targets.distances(k, nodes), np.asarray(self.targets.chords[k], np.float64),
+                            nodes, *tension_inputs(self.scenes[k], parameters), with_nodes)
 
     @property
     def n_distances(self) -> int:
@@ -274,14 +277,14 @@ class ToleranceModel:
         (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the nodes'
         tangents (``start_tangents[k]``) and the nominal's mounted shape (``start_mounted[k]``)."""
         cols = self.touching[k]
-        e0 = jnp.zeros(self.size, jnp.float64)
+        e0 = jnp.asarray(np.zeros(self.size))  # (a transfer: jnp.zeros is two eager programs)
         scene = self.scenes[k]
 
         def outputs(e):
             p = self.bay_parameters(k, e)
             with nodes_only():  # (the tensions are the outputs' own, from the nodes: no traced force program)
                 sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
-            return joined(self.outputs(k, sol.nodes, p), sol.nodes), ()
+            return self.outputs(k, sol.nodes, p, with_nodes=True), ()
 
         if cols.size == 0:
             return np.asarray(outputs(e0)[0])[:-3 * math.prod(scene.bay.shape)], np.zeros((0, 0))
