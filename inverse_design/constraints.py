@@ -54,8 +54,8 @@ from forward_solver import Parameters
 from forward_solver import forces as fk
 
 __all__ = ["Constraints", "ACTIVE_TOLERANCE", "VIOLATION_TOLERANCE", "FLOOR_MARGIN", "KS_SHARPNESS",
-           "cell_tensions", "fibre_tensions", "tension_inputs", "cell_constraints", "floor_threshold", "constraint_functions", "penalty_residuals",
-           "constraint_report", "tension_scale",
+           "cell_tensions", "fibre_tensions", "tension_inputs", "cell_constraints", "floor_threshold",
+           "constraint_functions", "penalty_residuals", "constraint_report", "tension_scale",
            "UNMET_ADVICE"]
 
 #: A constraint is reported active when within this fraction of its scale of

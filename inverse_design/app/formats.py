@@ -52,7 +52,8 @@ def write_obj(path, nodes, periodic: bool, name: str = "skin") -> Path:
         f"# grid {n_span} x {n_contour} nodes (span x contour); vertex 1 + i*{n_contour} + j is node (i, j)",
         f"o {name}",
     ]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in nodes.reshape(-1, 3).tolist()]  # (Python floats: half the time)
+    # (Python floats and ints, not NumPy scalars: half the time, the same text)
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in nodes.reshape(-1, 3).tolist()]
     lines += [f"f {a} {b} {c} {d}" for a, b, c, d in quads.tolist()]
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")
