@@ -54,7 +54,7 @@ from ..flat_layout import offset_outline, panel_outline
 from .shop_marks import MARK_EVERY, NOTCH_IN, TEXT_HEIGHT, panel_marks, rib_mark_nodes, rib_marks
 
 __all__ = ["HIDDEN_LAYERS", "LAYERS", "MARK_EVERY", "MM", "rib_mark_nodes", "write_dxf", "write_panel_dxf",
-           "write_panel_svg", "write_rib_dxf", "write_svg"]
+           "write_panel_files", "write_panel_svg", "write_rib_dxf", "write_svg"]
 
 #: Layer name -> AutoCAD colour index (red, blue, green, grey).
 LAYERS = {"CUT": 1, "SEW": 5, "MARK": 3, "GRID": 8}
@@ -147,6 +147,14 @@ def write_panel_svg(path, panel, seam_allowance_mm: float = 10.0) -> Path:
     """Write one flat panel as SVG for a quick look (the DXF's lines, 1 user unit = 1 mm; a text's
     font size is its capitals' height over `_CAP_HEIGHT`, so that its capitals are as high as the DXF's)."""
     return write_svg(path, _panel_drawing(panel, seam_allowance_mm))
+
+
+def write_panel_files(path, panel, seam_allowance_mm: float = 10.0) -> tuple[Path, Path]:
+    """`write_panel_dxf` to ``path`` and `write_panel_svg` beside it (``path`` with the suffix ``.svg``)
+    from one drawing: the panel's marks are placed once for both. Returns both paths."""
+    drawing = _panel_drawing(panel, seam_allowance_mm)
+    path = Path(path)
+    return write_dxf(path, drawing), write_svg(path.with_suffix(".svg"), drawing)
 
 
 def write_svg(path, drawing: dict) -> Path:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..flat_panels import bay_panels, rib_template
-from .cut_files import MM, write_panel_dxf, write_panel_svg, write_rib_dxf
+from .cut_files import MM, write_panel_files, write_rib_dxf
 
 __all__ = ["write_bay_patterns"]
 
@@ -29,9 +29,9 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
         ribs: the indices of its root and tip ribs.
         seam_allowance_m: the seam allowance, metres (>= 0).
         rib_templates: False leaves the ribs out (a wing writes each shared rib once).
-        writer: ``writer(path, function, *args)`` writes each file (DXF and SVG), as
-            ``function(path, *args)`` does (the default); the report's may hand
-            it to its `workers.ReportWorkers` instead.
+        writer: ``writer(path, function, *args)`` writes each file (a panel's DXF and its SVG
+            beside it, a rib's DXF), as ``function(path, *args)`` does (the default); the report's
+            may hand it to its `workers.ReportWorkers` instead.
         panels: the bay's panels already laid out (the marker's), or None: laid out here.
 
     Returns:
@@ -44,11 +44,10 @@ def write_bay_patterns(folder, scene, parameters, bay: int = 0, ribs=(0, 1),
             function(path, *args)
     names = []
     panels = bay_panels(scene, parameters, bay=bay) if panels is None else panels
-    for panel in panels:
-        for suffix, write in (("dxf", write_panel_dxf), ("svg", write_panel_svg)):
-            name = f"pattern_bay_{bay}_{panel.name}.{suffix}"
-            writer(folder / name, write, panel, allowance)
-            names.append(name)
+    for panel in panels:  # (its DXF and SVG from one drawing: `cut_files.write_panel_files`)
+        name = f"pattern_bay_{bay}_{panel.name}"
+        writer(folder / f"{name}.dxf", write_panel_files, panel, allowance)
+        names += [f"{name}.dxf", f"{name}.svg"]
     if rib_templates and scene.bay.periodic and scene.bay.airfoil is not None:
         for row, rib in zip((0, -1), ribs):
             if rib is None:
