@@ -117,4 +117,14 @@ def device_arrays(values, dtype=None) -> list:
     """
     traced = [isinstance(v, jax.core.Tracer) for v in values]
     concrete = iter(jax.device_put([np.asarray(v, dtype=dtype) for v, t in zip(values, traced) if not t]))
-    return [jnp.asarray(v, dtype=dtype) if t else next(concrete) for v, t in zip(values, traced)]
+    return [_traced_as(v, dtype) if t else next(concrete) for v, t in zip(values, traced)]
+
+
+def _traced_as(value, dtype):
+    """``jnp.asarray(value, dtype=dtype)`` of a traced value; the value itself where it is of that type
+    already and strongly typed (under an eager transformation, a conversion is an operation of its own,
+    run for the primal and again for the tangents: six of them per bay in a design's linearisation)."""
+    aval = jax.typeof(value)
+    if (dtype is None or aval.dtype == np.dtype(dtype)) and not aval.weak_type:
+        return value
+    return jnp.asarray(value, dtype=dtype)

@@ -34,6 +34,8 @@ from typing import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from ..model.parameters import Parameters
 from ..model.scene import Scene
@@ -155,12 +157,17 @@ def differentiable_solution(scene: Scene, parameters: Parameters, solve: Callabl
         found["solution"] = primal_solution(concrete_parameters(p))
         return jnp.asarray(found["solution"].nodes, jnp.float64)
 
-    @nodes_of.defjvp
     def nodes_jvp(primals, tangents):
         (p,), (dp,) = primals, tangents
+        # A parameter nobody differentiates comes as a symbolic zero: NumPy's zero of its type here (JAX
+        # would make each an eager operation, for the primal and again under a batch).
+        dp = jax.tree_util.tree_map(lambda t: np.zeros(t.aval.shape, t.aval.dtype) if isinstance(t, SymbolicZero)
+                                    else t, dp, is_leaf=lambda t: isinstance(t, SymbolicZero))
         concrete = concrete_parameters(p)
         sol = found["solution"] = primal_solution(concrete)
         return adjoint.jvp(scene, p, dp, concrete, sol, max_steps)
+
+    nodes_of.defjvp(nodes_jvp, symbolic_zeros=True)
 
     with float64_scope(parameters):
         nodes = nodes_of(parameters)

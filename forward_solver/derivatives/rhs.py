@@ -45,14 +45,16 @@ def kernel_tangent(dparameters: Parameters, like: fk.KernelInputs) -> fk.KernelI
     tangents["cut_pattern"] = dparameters.cut_pattern
     # Cast to the primal's dtype: a weakly typed tangent (a Python zero) would be another jit
     # signature of the kernels it reaches than a strongly typed one, and recompile them. Zeros
-    # are NumPy's and a tangent already of that type is kept: an eager JAX operation is a program
-    # compiled (or fetched from the cache) in every process.
+    # are NumPy's, a concrete tangent is cast by NumPy and a tangent already of that type is kept:
+    # an eager JAX operation is a program compiled (or fetched from the cache) in every process.
     def tangent(name):
         primal, value = getattr(like, name), tangents.get(name)
         if value is None:
             return np.zeros(np.shape(primal), primal.dtype)
         if isinstance(value, jax.Array) and jax.typeof(value) == jax.typeof(primal).update(weak_type=False):
             return value
+        if not isinstance(value, jax.core.Tracer):  # (a concrete tangent, e.g. a zero: cast on the host)
+            return np.asarray(value, dtype=primal.dtype)
         return jnp.asarray(value, dtype=primal.dtype)
 
     return fk.KernelInputs(*(tangent(name) for name in fk.KernelInputs._fields))
