@@ -135,14 +135,22 @@ class DesignProblem:
 
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
-        """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed)."""
-        return self._record("distances", [self.targets.distances(k, bay_nodes(nodes, k))
-                                          for k in range(len(self.scenes))])
+        """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed; ``nodes``
+        stacked, or `each_bay`'s list)."""
+        return self._record("distances", [self.targets.distances(k, x) for k, x in enumerate(self.each_bay(nodes))])
 
     def tensions(self, nodes, u) -> list:
-        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable."""
-        return self._record("tensions", [cell_tensions(scene, bay_nodes(nodes, k), self.variables.bay_parameters(u, k))
-                                         for k, scene in enumerate(self.scenes)])
+        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable (``nodes``
+        stacked, or `each_bay`'s list)."""
+        parameters = self.variables.bays_parameters(u, len(self.scenes))
+        return self._record("tensions", [cell_tensions(scene, x, p) for scene, x, p in
+                                         zip(self.scenes, self.each_bay(nodes), parameters)])
+
+    def each_bay(self, nodes) -> list:
+        """Per bay, its nodes: ``nodes`` itself if a list, else sliced from the stacked array (once per
+        bay under a transformation, where each slice is an operation: `distances` and `tensions` take
+        the list)."""
+        return nodes if isinstance(nodes, list) else [bay_nodes(nodes, k) for k in range(len(self.scenes))]
 
     def _record(self, name: str, values: list) -> list:
         """``values``, kept as ``name`` when a transformed evaluation computes them (`measure` reads
@@ -321,10 +329,11 @@ class DesignProblem:
         if key not in self._cache:
 
             def outputs(v, sol):
-                f = self.targets.objective_value(self.distances(sol.nodes))
+                nodes = self.each_bay(sol.nodes)
+                f = self.targets.objective_value(self.distances(nodes))
                 if self.tension is None:
                     return prepend(f, jnp.zeros(0, f.dtype))
-                return prepend(f, constraint_functions(self.tension, self.tensions(sol.nodes, v),
+                return prepend(f, constraint_functions(self.tension, self.tensions(nodes, v),
                                                         self.fabric, self.tension_scale))
 
             if self.variables.size <= 1 + self._limit_rows():
@@ -423,10 +432,11 @@ class DesignProblem:
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
-        shape = self.targets.residuals(self.distances(sol.nodes))
+        nodes = self.each_bay(sol.nodes)
+        shape = self.targets.residuals(self.distances(nodes))
         if self.tension is None:
             return shape
-        t = joined(*self.tensions(sol.nodes, v))
+        t = joined(*self.tensions(nodes, v))
         return joined(shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale))
 
     def _row_bays(self, n_rows: int) -> np.ndarray:
@@ -444,10 +454,11 @@ class DesignProblem:
     def residuals(self, v, sol):
         """Shape residuals (`objectives.WingTargets.residuals`) and tension penalties at ``v`` (a JAX
         value allowed) of the solution ``sol``."""
-        shape = self.targets.residuals(self.distances(sol.nodes))
+        nodes = self.each_bay(sol.nodes)
+        shape = self.targets.residuals(self.distances(nodes))
         if self.tension is None:
             return shape
-        t = jnp.concatenate(self.tensions(sol.nodes, v))
+        t = jnp.concatenate(self.tensions(nodes, v))
         return jnp.concatenate([shape, penalty_residuals(self.tension, t, self.fabric, self.tension_scale)])
 
     def residuals_and_jacobian(self, u):

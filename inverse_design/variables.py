@@ -311,6 +311,12 @@ class DesignVariables:
         and its cut field when per bay."""
         return bay_parameters(self.parameters(u), self.rib_shapes_at(u), bay, self.cut_patterns_at(u))
 
+    def bays_parameters(self, u, n_bays: int) -> list:
+        """`bay_parameters` of bays ``0 .. n_bays - 1`` at ``u``, the shared ones made once (under a
+        transformation, each is a program of its own)."""
+        shared, shapes, fields = self.parameters(u), self.rib_shapes_at(u), self.cut_patterns_at(u)
+        return [bay_parameters(shared, shapes, k, fields) for k in range(n_bays)]
+
     def values(self, u) -> dict:
         """``{name: value}`` of the optimised names at ``u`` (a list for a vector; per rib, a list per rib)."""
         u = np.asarray(u, np.float64)

@@ -322,7 +322,7 @@ class HostLU:
             flat = np.asarray(b, np.float64).reshape(axis_size, -1)
             out = np.zeros_like(flat)
             out[:, self.free_host] = self.host_solve(flat[:, self.free_host], "N")
-            return jnp.asarray(out.reshape(b.shape) + np.asarray(dheld, np.float64)), True
+            return jax.device_put(out.reshape(b.shape) + np.asarray(dheld, np.float64)), True
 
         return solve(dparams)
 
@@ -439,7 +439,7 @@ class ImplicitAdjoint:
             return jnp.asarray(solution.nodes), nan
         with top_level():  # concrete: the LU (a fresh one after chord Newton) as a plain call
             params = scene.params(concrete)
-            x = jnp.asarray(solution.nodes)
+            x = jax.device_put(np.asarray(solution.nodes, np.float64))  # (a transfer, not an eager operation)
             rule = self.at(x, scene.bay.geometry(), params, scene.physics(dynamic=False), solution.factor)
         return x, rule.tangent(kernel_tangent(dparameters, params))
 
