@@ -32,8 +32,8 @@ __all__ = ["chains", "from_the_bay_before", "mounted_shape", "presolve"]
 
 def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
     """The host solves of a wing solve, two at a time where the machine has a second core
-    (`threads.each`): ``id(scene) -> (scene, parameters, Solution)`` for `custom_jvp.presolved`
-    (``parameters`` concrete, those the bay's solve poses). Warm (``initial`` a loop's `BaysSolution`),
+    (`threads.each`): ``id(scene) -> (scene, parameters, Solution, mounted)`` for `custom_jvp.presolved`
+    (``parameters`` concrete, those the bay's solve poses; ``mounted`` the bay's `mounted_shape` at them). Warm (``initial`` a loop's `BaysSolution`),
     every bay from its own warm start; cold, each of the `chains` from its first bay, every later bay
     from the bay before (`from_the_bay_before`). Each is the solve `solve_equilibrium` makes where the
     bay is differentiated, made before the bays are differentiated one after the other. Empty where
@@ -56,21 +56,25 @@ def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initia
         with top_level():  # (the caller's share runs inside its transformation, as `custom_jvp` solves)
             return method.solve(scenes[k], posed[k], rtol=rtol, max_steps=max_steps, initial=start)
 
+    def rest(k):
+        with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)
+            return mounted_shape(scenes[k], posed[k])
+
     if warm:
-        solved = each(lambda k: solve(k, initial.solutions[k]), len(scenes))
+        solved = each(lambda k: (solve(k, initial.solutions[k]), rest(k)), len(scenes))
     else:
         def chain(bays):
             out, before, before_rest = [], None, None
             with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)
                 for k in bays:
-                    rest = mounted_shape(scenes[k], posed[k])
-                    out.append(solve(k, from_the_bay_before(method, rest, before, before_rest)))
-                    before, before_rest = out[-1], rest
+                    here = rest(k)
+                    out.append((solve(k, from_the_bay_before(method, here, before, before_rest)), here))
+                    before, before_rest = out[-1][0], here
             return out
 
         runs = chains(len(scenes))
-        solved = [sol for part in each(lambda c: chain(runs[c]), len(runs)) for sol in part]
-    return {id(scene): (scene, posed[k], sol) for k, (scene, sol) in enumerate(zip(scenes, solved))}
+        solved = [pair for part in each(lambda c: chain(runs[c]), len(runs)) for pair in part]
+    return {id(scene): (scene, posed[k], sol, here) for k, (scene, (sol, here)) in enumerate(zip(scenes, solved))}
 
 
 def chains(n_bays: int) -> list[range]:

@@ -334,7 +334,7 @@ class Loop:
         done = presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
         for k, scene in enumerate(scenes):
             p = bay_parameters(parameters, shapes, k, fields)
-            rest = mounted_shape(scene, p)
+            rest = done[id(scene)][3] if id(scene) in done else mounted_shape(scene, p)
             if initial is None:
                 first = any(k == run.start for run in chains(len(scenes)))
                 start = None if first else from_the_bay_before(method, rest, solutions[-1], mounted[-1])
