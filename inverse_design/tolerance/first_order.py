@@ -292,10 +292,14 @@ def tolerance_analysis(result, tolerances, *, spec: float | None = None, samplin
                                  f"{spread:g} N/m reaches the nominal {v:g} N/m (100% or more); give less")
         check_samples(sampling.samples, model, sampling.keep_rows)  # (before any solve)
         nominal = model.nominal_solutions(rtol)
+
+        def jacobian(k):  # (a bay whole on one thread: the same numbers on either)
+            with jax.enable_x64(True):  # (a thread's own setting: the helper's too)
+                return model.bay_jacobian(k, nominal[k], rtol)
+
         d0, t0, jd, jt = [], [], [], []
         nd = model.n_distances
-        for k in range(model.n_bays):
-            y, jac = model.bay_jacobian(k, nominal[k], rtol)
+        for y, jac in each(jacobian, model.n_bays):  # two bays at a time: their solves and LU back-solves
             d0.append(y[:nd]), t0.append(y[nd:]), jd.append(jac[:nd]), jt.append(jac[nd:])
     # the wing's mean square as a quadratic in e: a + b.e + e^T Q e (each bay on its own columns)
     size = model.size

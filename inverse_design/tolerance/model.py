@@ -277,7 +277,7 @@ class ToleranceModel:
         (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the nodes'
         tangents (``start_tangents[k]``) and the nominal's mounted shape (``start_mounted[k]``)."""
         cols = self.touching[k]
-        e0 = jnp.asarray(np.zeros(self.size))  # (a transfer: jnp.zeros is two eager programs)
+        e0 = jax.device_put(np.zeros(self.size))  # (a transfer: jnp.zeros is two eager operations)
         scene = self.scenes[k]
 
         def outputs(e):

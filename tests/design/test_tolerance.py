@@ -104,6 +104,30 @@ def test_linear_spread_agrees_with_monte_carlo_at_a_tenth_of_the_defaults(one_ba
     assert analysis.rms_squared_mean == pytest.approx(np.mean(analysis.linear_rms**2), rel=0.02)
 
 
+def test_the_bays_jacobians_are_the_same_on_one_thread_or_two(two_bays, monkeypatch):
+    """The bays' Jacobians are taken two at a time where there is a second core (`threads.each`): each bay
+    whole on one thread, so the analysis is the same to the bit as one bay after the other."""
+    from inverse_design.tolerance import first_order
+
+    tolerances = {"pressure": "2%", "stiffness_span": "10%", "cut_chord": "uniform:1", "rib_station": 1.0}
+    counts = []
+    each = first_order.each
+
+    def counted(function, count):
+        counts.append(count)
+        return each(function, count)
+
+    monkeypatch.setattr(first_order, "each", counted)
+    shared = tolerance_analysis(two_bays, tolerances)
+    monkeypatch.setattr(first_order, "each", lambda function, count: [function(k) for k in range(count)])
+    alone = tolerance_analysis(two_bays, tolerances)
+    assert counts[0] == 2
+    for a, b in zip(shared.distance_jacobians + shared.tension_jacobians + shared.distances,
+                    alone.distance_jacobians + alone.tension_jacobians + alone.distances):
+        assert np.array_equal(a, b)
+    assert np.any(shared.distance_jacobians[1] != 0)
+
+
 def test_a_sample_resolved_alone_reproduces_its_row(two_bays):
     """A Monte Carlo wing (solved warm from the nominal equilibrium) solved again alone and cold from
     its CSV row's drawn values gives the same rms, max and least tension (both to rtol 1e-11)."""
