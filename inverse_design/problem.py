@@ -43,7 +43,7 @@ from .memory import release_free_memory
 from .methods.blocks import compressed_seeds, decompress, rib_columns
 from .objectives import WingTargets
 from .settings import SolverSettings
-from .stacked import bay_nodes, displacements, joined, prepend
+from .stacked import displacements, each_bay, joined, prepend
 from .tolerance.robust import RobustTerms, check_robust_tolerances
 from .variables import DesignVariables, check_field_terms, concrete_rows, key_of
 
@@ -135,22 +135,18 @@ class DesignProblem:
 
     # ------------------------------------------------------------ pieces
     def distances(self, nodes) -> list:
-        """Per bay, the ``(n_rows, n_contour)`` distances of its rows (JAX values allowed; ``nodes``
-        stacked, or `each_bay`'s list)."""
-        return self._record("distances", [self.targets.distances(k, x) for k, x in enumerate(self.each_bay(nodes))])
+        """Per bay, the ``(n_rows, n_contour)`` distances of its rows (``nodes``: as `stacked.each_bay`)."""
+        return self._record("distances", [self.targets.distances(k, x) for k, x in enumerate(self._bays(nodes))])
 
     def tensions(self, nodes, u) -> list:
-        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable (``nodes``
-        stacked, or `each_bay`'s list)."""
+        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable (``nodes``: as
+        `stacked.each_bay`)."""
         parameters = self.variables.bays_parameters(u, len(self.scenes))
         return self._record("tensions", [cell_tensions(scene, x, p) for scene, x, p in
-                                         zip(self.scenes, self.each_bay(nodes), parameters)])
+                                         zip(self.scenes, self._bays(nodes), parameters)])
 
-    def each_bay(self, nodes) -> list:
-        """Per bay, its nodes: ``nodes`` itself if a list, else sliced from the stacked array (once per
-        bay under a transformation, where each slice is an operation: `distances` and `tensions` take
-        the list)."""
-        return nodes if isinstance(nodes, list) else [bay_nodes(nodes, k) for k in range(len(self.scenes))]
+    def _bays(self, nodes) -> list:
+        return each_bay(nodes, len(self.scenes))
 
     def _record(self, name: str, values: list) -> list:
         """``values``, kept as ``name`` when a transformed evaluation computes them (`measure` reads
@@ -329,7 +325,7 @@ class DesignProblem:
         if key not in self._cache:
 
             def outputs(v, sol):
-                nodes = self.each_bay(sol.nodes)
+                nodes = self._bays(sol.nodes)
                 f = self.targets.objective_value(self.distances(nodes))
                 if self.tension is None:
                     return prepend(f, jnp.zeros(0, f.dtype))
@@ -432,7 +428,7 @@ class DesignProblem:
 
     def _linearised_outputs(self, v, sol):
         """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
-        nodes = self.each_bay(sol.nodes)
+        nodes = self._bays(sol.nodes)
         shape = self.targets.residuals(self.distances(nodes))
         if self.tension is None:
             return shape
@@ -454,7 +450,7 @@ class DesignProblem:
     def residuals(self, v, sol):
         """Shape residuals (`objectives.WingTargets.residuals`) and tension penalties at ``v`` (a JAX
         value allowed) of the solution ``sol``."""
-        nodes = self.each_bay(sol.nodes)
+        nodes = self._bays(sol.nodes)
         shape = self.targets.residuals(self.distances(nodes))
         if self.tension is None:
             return shape

@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["bay_nodes", "displacements", "joined", "prepend"]
+__all__ = ["bay_nodes", "displacements", "each_bay", "joined", "prepend"]
 
 
 @jax.jit
@@ -43,3 +43,9 @@ def bay_nodes(nodes, k: int):
     """Bay ``k``'s nodes of the wing's stacked ``nodes``: traced, by one program whose index is an
     argument, not a constant (a wing of 40 bays compiles it once, not 40 times); concrete, sliced."""
     return _bay_nodes(nodes, k) if isinstance(nodes, jax.core.Tracer) else nodes[k]
+
+
+def each_bay(nodes, n_bays: int) -> list:
+    """Per bay, its nodes: ``nodes`` itself if a list (one array per bay), else `bay_nodes` of the stacked
+    array; under a transformation each slice is an operation of its own: slice once, pass the list."""
+    return nodes if isinstance(nodes, list) else [bay_nodes(nodes, k) for k in range(n_bays)]

@@ -33,12 +33,12 @@ __all__ = ["chains", "from_the_bay_before", "mounted_shape", "presolve"]
 def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
     """The host solves of a wing solve, two at a time where the machine has a second core
     (`threads.each`): ``id(scene) -> (scene, parameters, Solution, mounted)`` for `custom_jvp.presolved`
-    (``parameters`` concrete, those the bay's solve poses; ``mounted`` the bay's `mounted_shape` at them). Warm (``initial`` a loop's `BaysSolution`),
-    every bay from its own warm start; cold, each of the `chains` from its first bay, every later bay
-    from the bay before (`from_the_bay_before`). Each is the solve `solve_equilibrium` makes where the
-    bay is differentiated, made before the bays are differentiated one after the other. Empty where
-    there is nothing to share (one chain of a cold solve, one core, ``jax.jit`` or ``jax.vmap``, a
-    method that is not host-only)."""
+    (``parameters`` concrete, those the bay's solve poses; ``mounted`` the bay's `mounted_shape` at
+    them). Warm (``initial`` a loop's `BaysSolution`), every bay from its own warm start; cold, each of
+    the `chains` from its first bay, every later bay from the bay before (`from_the_bay_before`). Each
+    is the solve `solve_equilibrium` makes where the bay is differentiated, made before the bays are
+    differentiated one after the other. Empty where there is nothing to share (one chain of a cold
+    solve, one core, ``jax.jit`` or ``jax.vmap``, a method that is not host-only)."""
     warm = initial is not None and initial.solutions is not None
     cold = initial is None and isinstance(method, RelaxNewton) and len(chains(len(scenes))) > 1
     if not (warm or cold) or len(scenes) < 2 or helpers() == 0 or not isinstance(method, HostOnly):
