@@ -43,7 +43,7 @@ from .memory import release_free_memory
 from .methods.blocks import compressed_seeds, decompress, rib_columns
 from .objectives import WingTargets
 from .settings import SolverSettings
-from .stacked import displacements, each_bay, joined, prepend
+from .stacked import displacements, each_bay, prepend
 from .tolerance.robust import RobustTerms, check_robust_tolerances
 from .variables import DesignVariables, check_field_terms, concrete_rows, key_of
 
@@ -116,6 +116,7 @@ class DesignProblem:
         # The concrete distances and tensions an evaluation computed at a solve, by `key_of` (`measure`).
         self._measured: dict = {}
         self._recording: dict | None = None  # within a transformed evaluation: what it computes
+        self._rows = None
         self.robust = (RobustTerms(self, check_robust_tolerances(tolerances)) if targets.objective == "robust"
                        else None)
         if self.ribs:  # no solve in them: their Jacobian by forward mode on the design vector alone
@@ -139,11 +140,9 @@ class DesignProblem:
         return self._record("distances", [self.targets.distances(k, x) for k, x in enumerate(self._bays(nodes))])
 
     def tensions(self, nodes, u) -> list:
-        """Per bay, its unclamped cell tensions (span then chord) at ``u``, N/m, differentiable (``nodes``: as
-        `stacked.each_bay`)."""
+        """Per bay, its unclamped cell tensions at ``u`` (span then chord), N/m, differentiable (``nodes``: above)."""
         parameters = self.variables.bays_parameters(u, len(self.scenes))
-        return self._record("tensions", [cell_tensions(scene, x, p) for scene, x, p in
-                                         zip(self.scenes, self._bays(nodes), parameters)])
+        return self._record("tensions", [cell_tensions(*a) for a in zip(self.scenes, self._bays(nodes), parameters)])
 
     def _bays(self, nodes) -> list:
         return each_bay(nodes, len(self.scenes))
@@ -422,21 +421,21 @@ class DesignProblem:
         return self._cache[key]
 
     def _outputs_and_displacements(self, v, sol):
-        """`_linearised_outputs`, then every bay's displacement from its mounted shape (flat): their
-        tangents are the next solve's first-order warm start (`predicted_start`)."""
-        return joined(self._linearised_outputs(v, sol), displacements(sol.nodes, sol.mounted))
-
-    def _linearised_outputs(self, v, sol):
-        """The shape residuals, then every cell's tension rows (`constraints.cell_constraints`)."""
+        """The shape residuals, every cell's tension rows (`constraints.cell_constraints`), then every bay's
+        displacement from its mounted shape (their tangents: the next solve's warm start, `predicted_start`)."""
         nodes = self._bays(sol.nodes)
-        shape = self.targets.residuals(self.distances(nodes))
-        if self.tension is None:
-            return shape
-        t = joined(*self.tensions(nodes, v))
-        return joined(shape, cell_constraints(self.tension, t, self.fabric, self.tension_scale))
+        tensions = None if self.tension is None else self.tensions(nodes, v)
+        self._rows = self._rows or jax.jit(self._rows_of)  # (this problem's: its limits are constants)
+        return self._rows(self.distances(nodes), tensions, sol.nodes, sol.mounted, np.float64(self.tension_scale))
+
+    def _rows_of(self, distances, tensions, nodes, mounted, scale):  # (a divisor as an operand, as eagerly)
+        shape = self.targets.residuals(distances)
+        rows = [shape] if tensions is None else [shape, cell_constraints(self.tension, jnp.concatenate(tensions),
+                                                                          self.fabric, scale)]
+        return jnp.concatenate(rows + [displacements(nodes, mounted)])
 
     def _row_bays(self, n_rows: int) -> np.ndarray:
-        """The bay of each row of `_linearised_outputs`: the shape residuals bay by bay, then each
+        """The bay of each row of `_outputs_and_displacements`: the shape residuals bay by bay, then each
         tension limit's rows over every bay's cells (span, then chord tensions of each bay)."""
         n_bays = len(self.scenes)
         shape = np.repeat(np.arange(n_bays), self.targets.residual_size // n_bays)
