@@ -285,7 +285,7 @@ def constraint_report(constraints: Constraints | None, variables, parameters: Pa
     if constraints is None:
         return active, {}, report, []
     smooth = dict(zip(constraints.names(fabric),
-                      np.asarray(constraint_functions(constraints, jnp.asarray(joined), fabric, scale))))
+                      np.asarray(constraint_functions(constraints, joined, fabric, scale))))
     floor, ceiling = constraints.min_tension, constraints.ceiling(fabric)
     if floor is not None:
         report["min_tension_floor"] = floor

@@ -403,7 +403,7 @@ class DesignProblem:
             (y, compressed), sol = self._transformed(partial(value_and_jacobian, basis=seeds),
                                                      self._outputs_and_displacements, u)
             n_out = y.size - sol.nodes.size
-            y, compressed, moved = np.asarray(y[:n_out]), compressed[:n_out], compressed[n_out:]
+            y, compressed, moved = np.asarray(y)[:n_out], compressed[:n_out], compressed[n_out:]
             self._tangents = (key_of(u), np.array(u, np.float64),
                               np.moveaxis(moved.reshape(*sol.nodes.shape, -1), -1, 1))
             n = self.targets.residual_size
