@@ -8,7 +8,7 @@
   returned `Solution`'s tensions;
 * `cell_strains`: each cell's fibre strains at a state (what a fitted law's
   tested range is checked against);
-* `rounding_floor_compiled`: the relative residual that rounding a bay's
+* `rounding_floors_compiled`: the relative residual that rounding each bay's
   coordinates alone leaves (`precision.residual_rounding_floor`), which a
   wing's rib gaps are checked against before any solve.
 
@@ -18,6 +18,7 @@ program store is in use.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from . import forces as fk
@@ -26,7 +27,7 @@ from .stencils import safe_norm
 from .compilation import stored_jit
 
 __all__ = ["prepare_compiled", "mounted_compiled", "static_state", "static_forces", "cell_strains",
-           "rounding_floor_compiled"]
+           "rounding_floors_compiled"]
 
 
 #: `forces.prepare` as one compiled program (eagerly, each of its operations compiles on its own).
@@ -36,9 +37,14 @@ prepare_compiled = stored_jit(fk.prepare, static_argnames=("physics",))
 #: dispatched one by one, on every cold start and on every bay of every wing solve).
 mounted_compiled = stored_jit(fk.mounted_nodes)
 
-#: `precision.residual_rounding_floor` as a stored program: the wing's rib-gap check runs it before the
-#: first solve of every run, where tracing and lowering it took a tenth of a second.
-rounding_floor_compiled = stored_jit(residual_rounding_floor, static_argnames=("physics",))
+def _rounding_floors(geometries, params, physics, eps):
+    return jax.vmap(lambda geometry: residual_rounding_floor(geometry, params, physics, eps))(geometries)
+
+
+#: `precision.residual_rounding_floor` of every bay of a wing at once (``geometries``: a `forces.Geometry`
+#: of the bays' arrays stacked), a stored program: the rib-gap check runs it before the first solve of
+#: every run (traced and lowered, it took a tenth of a second; bay by bay, 0.18 s for 40 bays).
+rounding_floors_compiled = stored_jit(_rounding_floors, static_argnames=("physics",))
 
 
 @stored_jit(static_argnames=("physics",))

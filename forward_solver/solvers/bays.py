@@ -39,7 +39,7 @@ from ..model.parameters import as_parameters, bay_parameters
 from ..model.scene import Scene
 from ..model.wing import Wing
 from ..precision import float64_scope
-from ..programs import rounding_floor_compiled
+from ..programs import rounding_floors_compiled
 from ..solution import BaysSolution, ConvergenceError, Result, Solution
 from ..solve import METHOD_KNOBS, MOVED, as_method, refuse_moved, solve_equilibrium
 from .bay_starts import chains, from_the_bay_before, mounted_shape, presolve
@@ -99,7 +99,8 @@ def check_rib_gaps(wing: Wing, fabric: Fabric, parameters, *, n_span: int = N_SP
     with float64_scope():
         params = scene.params(parameters)
         eps = float(np.finfo(np.float64).eps)
-        floors = [float(rounding_floor_compiled(bay.geometry(), params, physics, eps)) for bay in bays]
+        geometries = fk.Geometry(*(np.stack(parts) for parts in zip(*(map(np.asarray, b.geometry()) for b in bays))))
+        floors = np.asarray(rounding_floors_compiled(geometries, params, physics, eps)).tolist()
     for k, (bay, floor) in enumerate(zip(bays, floors)):
         if floor > ROUNDING_MARGIN * rtol:
             gap = bay.rib_spacing
