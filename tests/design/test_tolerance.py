@@ -17,6 +17,7 @@ from inverse_design.tolerance import (DEFAULT_TOLERANCES, SOURCES, Sampling, Tol
                                       parse_tolerances,
                                       tolerance_analysis)
 from support.design import solve_sample, wing_outputs
+from support.solver import counted_each
 from targets import naca
 
 START = {"pressure": 5e3, "prestrain_span": 0.02, "prestrain_chord": 0.02}
@@ -110,14 +111,7 @@ def test_the_bays_jacobians_are_the_same_on_one_thread_or_two(two_bays, monkeypa
     from inverse_design.tolerance import first_order
 
     tolerances = {"pressure": "2%", "stiffness_span": "10%", "cut_chord": "uniform:1", "rib_station": 1.0}
-    counts = []
-    each = first_order.each
-
-    def counted(function, count):
-        counts.append(count)
-        return each(function, count)
-
-    monkeypatch.setattr(first_order, "each", counted)
+    counts = counted_each(monkeypatch, first_order)
     shared = tolerance_analysis(two_bays, tolerances)
     monkeypatch.setattr(first_order, "each", lambda function, count: [function(k) for k in range(count)])
     alone = tolerance_analysis(two_bays, tolerances)

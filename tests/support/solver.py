@@ -1,5 +1,5 @@
 """What the solver's tests share: the default bay and its scene, a tight solve, the circle section, a row's
-outward bulge."""
+outward bulge, the item counts a module hands `threads.each`."""
 
 import jax
 import numpy as np
@@ -43,3 +43,16 @@ def outward_displacement(bay: Bay, sol, row: int) -> np.ndarray:
         area = np.asarray(fk.node_area_vectors(x0, bay.periodic))
     normal = area / np.linalg.norm(area, axis=-1, keepdims=True)
     return np.sum((sol.nodes[row] - np.asarray(x0)[row]) * normal[row], axis=-1)
+
+
+def counted_each(monkeypatch, module) -> list:
+    """The item counts of each call of ``module.each`` (`forward_solver.solvers.threads.each`) from now on
+    (the calls still run as they would)."""
+    counts, each = [], module.each
+
+    def counted(function, count):
+        counts.append(count)
+        return each(function, count)
+
+    monkeypatch.setattr(module, "each", counted)
+    return counts

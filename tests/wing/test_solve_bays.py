@@ -18,7 +18,7 @@ from forward_solver.derivatives.implicit import ImplicitAdjoint
 from forward_solver import Wing
 from forward_solver.solvers.bays import solve_wing
 from targets import naca
-from support.solver import default_bay
+from support.solver import counted_each, default_bay
 
 GRID = dict(n_span=5, n_contour=32)
 PARAMETERS = Parameters(pressure=2e4, prestrain_span=0.005, prestrain_chord=0.005)
@@ -138,14 +138,7 @@ def test_a_warm_differentiated_loop_solves_its_bays_first_and_the_same(scenes, c
         return solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10, rib_shapes=SHAPES,
                           method="relax+newton", initial=cold, strategy="loop").nodes
 
-    presolved = []
-    each = bay_starts.each
-
-    def counted(function, count):
-        presolved.append(count)
-        return each(function, count)
-
-    monkeypatch.setattr(bay_starts, "each", counted)
+    presolved = counted_each(monkeypatch, bay_starts)
     with jax.enable_x64(True):
         monkeypatch.setattr(bay_starts, "helpers", lambda: 1)
         shared = jax.jvp(nodes, (2.02e4,), (1.0,))
