@@ -44,7 +44,7 @@ def _rounding_floors(geometries, params, physics, eps):
 #: `precision.residual_rounding_floor` of every bay of a wing at once (``geometries``: a `forces.Geometry`
 #: of the bays' arrays stacked), a stored program: the rib-gap check runs it before the first solve of
 #: every run (traced and lowered, it took a tenth of a second; bay by bay, 0.18 s for 40 bays).
-rounding_floors_compiled = stored_jit(_rounding_floors, static_argnames=("physics",))
+rounding_floors_compiled = stored_jit(_rounding_floors, static_argnames=("physics",), light=True)
 
 
 @stored_jit(static_argnames=("physics",))
@@ -69,7 +69,7 @@ def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
     return static_state(x, geometry, params, physics)[0]
 
 
-@stored_jit(static_argnames=("physics",))
+@stored_jit(static_argnames=("physics",), light=True)
 def cell_strains(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
     """``(strain_span, strain_chord)``, each ``(n_span - 1, n_cells)``: the cells' fibre strains
     ``lambda - 1`` (eq. 12) at nodes ``x``."""

@@ -13,6 +13,14 @@ library's default), it is the jitted function itself; a program that cannot
 be exported (a host callback) runs as jitted. The exported module is the
 jitted program's own StableHLO, so the results are the same.
 
+A program that runs briefly (a setup step, a relaxation of a small grid)
+may be declared ``light``: its top-level calls compile with `LIGHT_OPTIONS`
+(LLVM's optimisation off), in a third of the time, and run slower, which a
+few calls do not notice (docs/compilation.md gives both). The results differ
+from a full compilation's by rounding only (the order LLVM gives a reduction).
+A call under a transformation is part of its caller's program and compiles
+as the caller does.
+
 An entry's file name is a digest of the function, its static arguments, the
 avals of its array arguments, the float64 setting, this package's source and
 its siblings', JAX and jaxlib, ``XLA_FLAGS`` and the platform. Loading an
@@ -36,7 +44,13 @@ from pathlib import Path
 import jax
 import jaxlib
 
-__all__ = ["stored_jit", "use_program_store", "program_store"]
+__all__ = ["LIGHT_OPTIONS", "stored_jit", "use_program_store", "program_store"]
+
+#: XLA's options of a ``light`` program's top-level compilation (`stored_jit`): LLVM's optimisation
+#: level 0 (XLA's own graph passes still run). Measured on the 2-core development machine: the
+#: relaxation program of a 17x64 bay compiles in 0.35 s against 1.0 s and relaxes in 0.12 s against
+#: 0.016 s (0.59 s against 0.115 s at 33x128: docs/compilation.md).
+LIGHT_OPTIONS = {"xla_backend_optimization_level": 0}
 
 #: The packages whose source shapes the programs.
 _PACKAGES = ("forward_solver", "inverse_design", "targets")
@@ -82,8 +96,11 @@ def _version() -> str:
 class _Stored:
     """A jitted function whose concrete calls run stored exported programs (module docstring)."""
 
-    def __init__(self, function, static_argnames: tuple):
+    def __init__(self, function, static_argnames: tuple, light):
         self._jitted = jax.jit(function, static_argnames=static_argnames)
+        self._light = light  # False, True, or a function of the dynamic arguments (by name)
+        self._light_jitted = jax.jit(function, static_argnames=static_argnames,
+                                     compiler_options=LIGHT_OPTIONS) if light else None
         self._signature = inspect.signature(function)
         self._static = frozenset(static_argnames)
         self._name = f"{function.__module__}.{function.__qualname__}"
@@ -99,6 +116,19 @@ class _Stored:
         bound.apply_defaults()
         static = tuple(sorted((n, v) for n, v in bound.arguments.items() if n in self._static))
         return static, {n: v for n, v in bound.arguments.items() if n not in self._static}
+
+    def _is_light(self, dynamic) -> bool:
+        return self._light if isinstance(self._light, bool) else bool(self._light(**dynamic))
+
+    def _top_level(self, args, kwargs):
+        """The jitted function a call without a store takes: the light one for a light program's
+        call with concrete arguments (module docstring), else the plain one."""
+        if self._light_jitted is None:
+            return self._jitted
+        _, dynamic = self._split(args, kwargs)
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dynamic)):
+            return self._jitted
+        return self._light_jitted if self._is_light(dynamic) else self._jitted
 
     def _entry(self, args, kwargs):
         """``(entry, leaves)`` of a call: ``entry`` is ``(jitted exported call, output structure)``,
@@ -117,7 +147,8 @@ class _Stored:
             with self._lock:  # (the compile-ahead thread and the solve may ask at once)
                 entry = self._calls.get(key)
                 if entry is None:
-                    entry = self._calls[key] = self._load(key, static, tree, leaves)
+                    light = bool(self._light) and self._is_light(dynamic)
+                    entry = self._calls[key] = self._load(key, static, tree, leaves, light)
         return entry or None, leaves
 
     def __call__(self, *args, **kwargs):
@@ -126,7 +157,7 @@ class _Stored:
             if entry is not None:
                 call, out_tree = entry
                 return jax.tree_util.tree_unflatten(out_tree, call(*leaves))
-        return self._jitted(*args, **kwargs)
+        return self._top_level(args, kwargs)(*args, **kwargs)
 
     def __getattr__(self, name):  # the rest of ``jax.jit``'s interface (``trace``, ``_cache_size``, ...)
         if name.startswith("__") or name == "_jitted":
@@ -140,18 +171,19 @@ class _Stored:
             entry, leaves = self._entry(args, kwargs)
             if entry is not None:
                 return entry[0].lower(*leaves)
-        return self._jitted.lower(*args, **kwargs)
+        return self._top_level(args, kwargs).lower(*args, **kwargs)
 
-    def _load(self, key, static, tree, leaves):
-        """``(jitted exported call, output structure)`` for ``key``, loaded or exported; False if the
-        program cannot be exported."""
+    def _load(self, key, static, tree, leaves, light: bool):
+        """``(jitted exported call, output structure)`` for ``key``, loaded or exported (compiled with
+        `LIGHT_OPTIONS` if ``light``); False if the program cannot be exported."""
+        options = LIGHT_OPTIONS if light else None
         named = key[:3] + (tuple((tuple(a[0]), str(a[1]), bool(a[2])) if isinstance(a, tuple) else a.__name__
                                  for a in key[3]),)  # (the key as the digest of its file names it)
         digest = hashlib.sha256(f"{_version()}\0{self._name}\0{named!r}".encode()).hexdigest()[:32]
         path = _FOLDER / f"{self._name.rsplit('.', 1)[-1]}-{digest}.bin"
         try:
             blob, out_tree = pickle.loads(path.read_bytes())
-            return jax.jit(jax.export.deserialize(blob).call), out_tree
+            return jax.jit(jax.export.deserialize(blob).call, compiler_options=options), out_tree
         except Exception:  # noqa: BLE001 - missing, half-written by a stopped run, or from elsewhere: export
             pass
         held = {}
@@ -166,7 +198,7 @@ class _Stored:
         except (ValueError, NotImplementedError, TypeError):  # e.g. a host callback: not exportable
             return False
         _write(path, pickle.dumps((exported.serialize(), held["tree"])))
-        return jax.jit(exported.call), held["tree"]
+        return jax.jit(exported.call, compiler_options=options), held["tree"]
 
 
 def _write(path: Path, data: bytes) -> None:
@@ -182,9 +214,13 @@ def _write(path: Path, data: bytes) -> None:
             pass
 
 
-def stored_jit(function=None, *, static_argnames=()):
+def stored_jit(function=None, *, static_argnames=(), light=False):
     """``jax.jit(function, static_argnames=...)``, kept between processes while a store is in use
-    (module docstring). Use as ``@stored_jit`` or ``@stored_jit(static_argnames=(...))``."""
+    (module docstring). Use as ``@stored_jit`` or ``@stored_jit(static_argnames=(...))``.
+
+    ``light``: compile the top-level calls with `LIGHT_OPTIONS` (module docstring): True, or a
+    function of the call's dynamic arguments (by name; of their shapes only, as a program is one
+    per shape) saying whether this call's program is light."""
     if function is None:
-        return functools.partial(stored_jit, static_argnames=static_argnames)
-    return _Stored(function, tuple(static_argnames))
+        return functools.partial(stored_jit, static_argnames=static_argnames, light=light)
+    return _Stored(function, tuple(static_argnames), light)

@@ -90,6 +90,15 @@ __all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_d
 MASS_SAFETY = 1.5
 #: Steps per chunk of the relaxation loop (stop test and mass update between chunks).
 RELAX_CHUNK = 100
+#: Grids of at most this many nodes compile their relaxation light (`compilation.stored_jit`): at
+#: 17x64 (1,088 nodes) a relaxation runs 0.1 s longer and compiles 0.65 s shorter, which a process
+#: relaxing a grid fewer than about six times gains; at 33x128 it would run 0.48 s longer
+#: (docs/compilation.md).
+LIGHT_RELAX_NODES = 2_000
+
+
+def _light_relaxation(x_init, **_) -> bool:
+    return x_init.shape[0] * x_init.shape[1] <= LIGHT_RELAX_NODES
 
 
 class _State(NamedTuple):
@@ -205,7 +214,7 @@ class RelaxOptions(NamedTuple):
     chunk: int = RELAX_CHUNK
 
 
-@stored_jit(static_argnames=("physics", "options"))
+@stored_jit(static_argnames=("physics", "options"), light=_light_relaxation)
 def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, options: RelaxOptions):
     """Dynamic relaxation from the full-grid shape ``x_init``.
 

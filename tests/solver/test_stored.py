@@ -96,6 +96,45 @@ def test_tracers_and_no_store_run_jitted(tmp_path):
         store.use_program_store(previous)
 
 
+def test_a_light_program_compiles_light_only_at_the_top_level(tmp_path):
+    """A ``light`` program's top-level calls ask its rule (by the arguments' shapes) and run the
+    light compilation, with and without a store; under ``jit``, ``vmap`` and ``grad`` it is part of
+    the caller's program (JAX refuses compiler options there) and the rule is not asked. Every
+    result is the plain program's to rounding."""
+    asked = []
+
+    def light(x, **_):
+        asked.append(x.shape)
+        return x.shape[0] <= 7
+
+    function = store.stored_jit(_program(), static_argnames=("power",), light=light)
+    plain = jax.jit(_program(), static_argnames=("power",))
+    previous = store.use_program_store(None)
+    try:
+        for folder in (None, tmp_path):
+            store.use_program_store(folder)
+            asked.clear()
+            for n in (7, 9):  # light, then not
+                with jax.enable_x64(True):
+                    x = jnp.linspace(0.0, 1.0, n)
+                    got, want = (f(x, (0.5, jnp.arange(3.0)), 1.5, power=2)["value"] for f in (function, plain))
+                np.testing.assert_allclose(got, want, rtol=1e-14)
+            assert asked == [(7,), (9,)]
+            asked.clear()
+            with jax.enable_x64(True):
+                x = jnp.linspace(0.0, 1.0, 7)
+                grad = jax.grad(lambda x: function(x, (0.5, jnp.arange(3.0)), 1.5, power=2)["value"])(x)
+                inner = jax.jit(lambda x: function(x, (0.5, jnp.arange(3.0)), 1.5, power=2)["value"])(x)
+                batched = jax.vmap(lambda s: function(x, (0.5, jnp.arange(3.0)), s, power=2)["value"])(jnp.arange(3.0))
+            np.testing.assert_allclose(grad, 3.0 * np.asarray(x), rtol=1e-15)
+            np.testing.assert_allclose(inner, 1.5 * np.sum(np.asarray(x) ** 2) + 0.5, rtol=1e-15)
+            np.testing.assert_allclose(batched, np.arange(3.0) * np.sum(np.asarray(x) ** 2) + 0.5, rtol=1e-15)
+            assert asked == []
+        assert len(list(tmp_path.glob("scaled-*.bin"))) == 2  # (one program a shape, light or not)
+    finally:
+        store.use_program_store(previous)
+
+
 #: The solve of `test_a_solve_is_the_same_with_the_store`, in a process of its own.
 _SAME_SOLVE = r"""
 import sys
@@ -103,8 +142,10 @@ from pathlib import Path
 import numpy as np
 from forward_solver import Bay, Fabric, Parameters, Scene, solve_equilibrium
 from forward_solver import compilation as store
+from forward_solver.solvers import relax
 from targets import naca
 
+relax.LIGHT_RELAX_NODES = 0  # (every program at LLVM's level 2: see the test's docstring)
 folder = Path(sys.argv[1])
 store.use_program_store(folder)
 scene = Scene(Bay.from_airfoil(naca("0012"), chord=1.0, rib_spacing=0.25, n_span=5, n_contour=16), Fabric())
@@ -124,7 +165,8 @@ def test_a_solve_is_the_same_with_the_store(tmp_path):
     """The solver's stored programs (relaxation, Newton, the static state) give the same equilibrium
     to the bit, and they are written to the store. In a process compiled as the command compiles
     (XLA's default code generation, not the test run's `support.command.TEST_XLA_FLAGS`: without LLVM's
-    optimisations an exported program and the jitted one part by 1e-16 m)."""
+    optimisations an exported program and the jitted one part by 1e-16 m), its small grid's
+    relaxation too (a light program, `stored_jit`, would part them so)."""
     flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if f not in TEST_XLA_FLAGS)
     done = subprocess.run([sys.executable, "-c", _SAME_SOLVE, str(tmp_path)], env=environment(XLA_FLAGS=flags),
                           capture_output=True, text=True, timeout=300)
