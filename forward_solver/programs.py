@@ -69,7 +69,7 @@ def static_forces(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk
     return static_state(x, geometry, params, physics)[0]
 
 
-@stored_jit(static_argnames=("physics",), light=True)
+@stored_jit(static_argnames=("physics",))
 def cell_strains(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physics):
     """``(strain_span, strain_chord)``, each ``(n_span - 1, n_cells)``: the cells' fibre strains
     ``lambda - 1`` (eq. 12) at nodes ``x``."""
