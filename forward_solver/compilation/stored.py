@@ -49,7 +49,7 @@ __all__ = ["LIGHT_OPTIONS", "stored_jit", "use_program_store", "program_store"]
 #: XLA's options of a ``light`` program's top-level compilation (`stored_jit`): LLVM's optimisation
 #: level 0 (XLA's own graph passes still run). Measured on the 2-core development machine: the
 #: relaxation program of a 17x64 bay compiles in 0.35 s against 1.0 s and relaxes in 0.12 s against
-#: 0.016 s (0.59 s against 0.115 s at 33x128: docs/compilation.md).
+#: 0.016 s (0.64 s against 0.12 s at 33x128: docs/compilation.md, `benchmarks/light_programs.py`).
 LIGHT_OPTIONS = {"xla_backend_optimization_level": 0}
 
 #: The packages whose source shapes the programs.

@@ -82,8 +82,8 @@ try:  # public home of the check since JAX 0.4.36; jax.core's copy is deprecated
 except ImportError:  # pragma: no cover - older JAX
     from jax.core import concrete_or_error
 
-__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "kinetic_damping_step", "mirror_rows",
-           "has_abstract_values", "relaxed_nodes", "traced_solution"]
+__all__ = ["relax_jit", "RelaxOptions", "MASS_SAFETY", "RELAX_CHUNK", "LIGHT_RELAX_NODES", "kinetic_damping_step",
+           "mirror_rows", "has_abstract_values", "relaxed_nodes", "traced_solution"]
 
 #: Factor over the Gershgorin mass bound: 1.0 is the bound itself; 1.5
 #: leaves room for the couplings the bound leaves out (cell averaging).
@@ -92,7 +92,7 @@ MASS_SAFETY = 1.5
 RELAX_CHUNK = 100
 #: Grids of at most this many nodes compile their relaxation light (`compilation.stored_jit`): at
 #: 17x64 (1,088 nodes) a relaxation runs 0.1 s longer and compiles 0.65 s shorter, which a process
-#: relaxing a grid fewer than about six times gains; at 33x128 it would run 0.48 s longer
+#: relaxing a grid fewer than about six times gains; at 33x128 it would run 0.52 s longer
 #: (docs/compilation.md).
 LIGHT_RELAX_NODES = 2_000
 
