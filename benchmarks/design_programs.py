@@ -18,14 +18,12 @@ Writes benchmarks/results/design_programs.json.
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import print_result, save_result  # noqa: E402
+from benchmarks.results import fresh_process_json, print_result, save_result  # noqa: E402
 from benchmarks.wing_solves import CASES, VARIABLES  # noqa: E402
 
 BAYS = {"bay": 1, "wing3": 3, "wing40": 40}
@@ -52,9 +50,7 @@ print(json.dumps({{"seconds": time.perf_counter() - start, "solves": int(result.
 
 
 def run(argv: list[str]) -> dict:
-    ran = subprocess.run([sys.executable, "-c", PROBE.format(root=str(ROOT), argv=argv)], cwd=ROOT,
-                         capture_output=True, text=True, check=True)
-    return json.loads(ran.stdout.strip().splitlines()[-1])
+    return fresh_process_json(PROBE.format(root=str(ROOT), argv=argv), ROOT)
 
 
 def main() -> None:

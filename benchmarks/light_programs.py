@@ -19,14 +19,12 @@ Writes benchmarks/results/light_programs.json (docs/compilation.md quotes it).
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.results import print_result, save_result  # noqa: E402
+from benchmarks.results import fresh_process_json, print_result, save_result  # noqa: E402
 
 #: Run in a fresh process: one grid, light or not (JSON on stdout).
 PROBE = """
@@ -50,9 +48,7 @@ print(json.dumps({{"times": times, "height": float(solution.nodes[{ns} // 2, 10,
 
 
 def run(ns: int, nc: int, light: bool) -> dict:
-    ran = subprocess.run([sys.executable, "-c", PROBE.format(root=str(ROOT), ns=ns, nc=nc, light=light)], cwd=ROOT,
-                         capture_output=True, text=True, check=True)
-    return json.loads(ran.stdout.strip().splitlines()[-1])
+    return fresh_process_json(PROBE.format(root=str(ROOT), ns=ns, nc=nc, light=light), ROOT)
 
 
 def main() -> None:

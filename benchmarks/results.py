@@ -20,6 +20,8 @@ import json
 import math
 import os
 import platform
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -30,6 +32,13 @@ def print_result(path: Path, rows, notes=()) -> None:
     """Print a saved table's rows and notes, then where it was saved."""
     for line in [*rows, *notes, path]:
         print(line)
+
+
+def fresh_process_json(code: str, cwd: Path) -> dict:
+    """Run ``code`` in a fresh Python process (``python -c``, in ``cwd``) and return the JSON object on
+    the last line of its standard output (a failing probe raises, with its output)."""
+    ran = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, check=True)
+    return json.loads(ran.stdout.strip().splitlines()[-1])
 
 
 def blas_as_in_the_command():

@@ -147,8 +147,7 @@ class _Stored:
             with self._lock:  # (the compile-ahead thread and the solve may ask at once)
                 entry = self._calls.get(key)
                 if entry is None:
-                    light = bool(self._light) and self._is_light(dynamic)
-                    entry = self._calls[key] = self._load(key, static, tree, leaves, light)
+                    entry = self._calls[key] = self._load(key, static, tree, leaves, self._is_light(dynamic))
         return entry or None, leaves
 
     def __call__(self, *args, **kwargs):
