@@ -90,11 +90,11 @@ _PRESOLVED = contextvars.ContextVar("presolved", default=None)
 
 
 @contextlib.contextmanager
-def presolved(solutions):
-    """Within: a differentiated solve of a scene in ``solutions`` (a mapping ``id(scene) -> (scene,
-    parameters, Solution, ...)``, ``parameters`` concrete) at parameters that pose the same problem
-    takes that `Solution` as its host solve instead of solving (`bays.Loop` solves a wing's bays two at
-    a time where the machine has a second core, and differentiates them one by one as they come)."""
+def presolved(solutions: dict):
+    """Within: a differentiated solve of a scene in ``solutions`` (``id(scene) -> (scene, parameters,
+    Solution)``, ``parameters`` concrete) at parameters that pose the same problem takes that
+    `Solution` as its host solve instead of solving (`bays.Loop` solves a wing's bays before it
+    differentiates them one by one, two at a time where the machine has a second core)."""
     token = _PRESOLVED.set(solutions)
     try:
         yield

@@ -6,16 +6,12 @@ neighbouring bays differ by a step of its taper, and Newton from there
 converges in 2-5 iterations where the cold start relaxes for hundreds of
 steps. `presolve` makes the bays' host solves before they are
 differentiated, two at a time where the machine has a second core
-(`threads.Shared`, `threads.each`): warm, bay by bay from each one's own warm
-start, each bay's to the caller as soon as it is made (`Presolved`: the caller
-differentiates it while the helper solves the next); cold, the two halves.
-Each is the `Solution` that `solve_equilibrium` would make where the bay is
-differentiated, which then takes it (`custom_jvp.presolved`).
+(`threads.each`): warm, bay by bay from each one's own warm start; cold, the
+two halves. Each is the `Solution` that `solve_equilibrium` would make where
+the bay is differentiated, which then takes it (`custom_jvp.presolved`).
 """
 
 from __future__ import annotations
-
-from collections.abc import Mapping
 
 import jax
 import numpy as np
@@ -29,17 +25,16 @@ from ..programs import mounted_compiled
 from ..solution import Solution
 from .methods import HostOnly, RelaxNewton
 from .relax import has_abstract_values
-from .threads import Shared, each, helpers
+from .threads import each, helpers
 
-__all__ = ["Presolved", "chains", "from_the_bay_before", "mounted_shape", "presolve"]
+__all__ = ["chains", "from_the_bay_before", "mounted_shape", "presolve"]
 
 
-def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> "Presolved":
+def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
     """The host solves of a wing solve, two at a time where the machine has a second core
-    (`threads.Shared`): ``id(scene) -> (scene, parameters, Solution, mounted)`` for `custom_jvp.presolved`
+    (`threads.each`): ``id(scene) -> (scene, parameters, Solution, mounted)`` for `custom_jvp.presolved`
     (``parameters`` concrete, those the bay's solve poses; ``mounted`` the bay's `mounted_shape` at
-    them). Warm (``initial`` a loop's `BaysSolution`), every bay from its own warm start, a `Presolved`
-    that gives each bay's as soon as it is made (close it when the wing solve ends); cold, each of
+    them). Warm (``initial`` a loop's `BaysSolution`), every bay from its own warm start; cold, each of
     the `chains` from its first bay, every later bay from the bay before (`from_the_bay_before`). Each
     is the solve `solve_equilibrium` makes where the bay is differentiated, made before the bays are
     differentiated one after the other. Empty where there is nothing to share (one chain of a cold
@@ -47,12 +42,12 @@ def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initia
     warm = initial is not None and initial.solutions is not None
     cold = initial is None and isinstance(method, RelaxNewton) and len(chains(len(scenes))) > 1
     if not (warm or cold) or len(scenes) < 2 or helpers() == 0 or not isinstance(method, HostOnly):
-        return Presolved()
+        return {}
     posed = []
     for k, scene in enumerate(scenes):
         p = as_parameters(bay_parameters(parameters, shapes, k, fields)).resolved(scene.fabric)
         if has_abstract_values(p):
-            return Presolved()
+            return {}
         scene.check_parameters(p)
         # (an eager transformation's primal values: `stop_gradient` is the identity on them, and no tracer)
         posed.append(concrete_parameters(jax.lax.stop_gradient(p)) if p.is_traced() else p)
@@ -66,50 +61,20 @@ def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initia
             return mounted_shape(scenes[k], posed[k])
 
     if warm:
-        shared = Shared(lambda k: (solve(k, initial.solutions[k]), rest(k)), len(scenes))
-        return Presolved(scenes, posed, shared.result, shared.close)
+        solved = each(lambda k: (solve(k, initial.solutions[k]), rest(k)), len(scenes))
+    else:
+        def chain(bays):
+            out, before, before_rest = [], None, None
+            with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)
+                for k in bays:
+                    here = rest(k)
+                    out.append((solve(k, from_the_bay_before(method, here, before, before_rest)), here))
+                    before, before_rest = out[-1][0], here
+            return out
 
-    def chain(bays):
-        out, before, before_rest = [], None, None
-        with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)
-            for k in bays:
-                here = rest(k)
-                out.append((solve(k, from_the_bay_before(method, here, before, before_rest)), here))
-                before, before_rest = out[-1][0], here
-        return out
-
-    runs = chains(len(scenes))
-    solved = [pair for part in each(lambda c: chain(runs[c]), len(runs)) for pair in part]
-    return Presolved(scenes, posed, solved.__getitem__)
-
-
-class Presolved(Mapping):
-    """A wing solve's host solves (`presolve`): ``id(scene) -> (scene, parameters, Solution, mounted)``,
-    each bay's looked up when asked, and so, warm, as soon as it is made (``result``: `threads.Shared`'s:
-    the caller differentiates bay ``k`` while the helper solves the next ones). `close` it when the
-    wing solve ends, or leaves (``close``: no further bay is begun). Empty: nothing presolved."""
-
-    def __init__(self, scenes=(), posed=(), result=None, close=None):
-        self._index = {id(scene): k for k, scene in enumerate(scenes)}
-        self._scenes, self._posed, self._result, self._close = scenes, posed, result, close
-
-    def __getitem__(self, key):
-        k = self._index[key]
-        sol, mounted = self._result(k)
-        return self._scenes[k], self._posed[k], sol, mounted
-
-    def __contains__(self, key) -> bool:
-        return key in self._index
-
-    def __iter__(self):
-        return iter(self._index)
-
-    def __len__(self) -> int:
-        return len(self._index)
-
-    def close(self) -> None:
-        if self._close is not None:
-            self._close()
+        runs = chains(len(scenes))
+        solved = [pair for part in each(lambda c: chain(runs[c]), len(runs)) for pair in part]
+    return {id(scene): (scene, posed[k], sol, here) for k, (scene, (sol, here)) in enumerate(zip(scenes, solved))}
 
 
 def chains(n_bays: int) -> list[range]:

@@ -333,35 +333,32 @@ class Loop:
         solutions, nodes, mounted = [], [], []
         moved = None if initial is None or initial.solutions is not None else initial.displacements()
         done = presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
-        try:
-            for k, scene in enumerate(scenes):
-                p = bay_parameters(parameters, shapes, k, fields)
-                rest = done[id(scene)][3] if id(scene) in done else mounted_shape(scene, p)
-                if initial is None:
-                    first = any(k == run.start for run in chains(len(scenes)))
-                    start = None if first else from_the_bay_before(method, rest, solutions[-1], mounted[-1])
-                elif initial.solutions is not None:
-                    start = initial.solutions[k]
-                else:  # a batch's solution: its displacement on this solve's mounted shape
-                    start = rest + jnp.asarray(moved[k], jnp.float64)
-                if id(scene) in done and not p.is_traced():  # (concrete parameters: the presolve's is the solve)
-                    sol = done[id(scene)][2]
-                else:
-                    with nodes_only(), presolved(done):  # the tensions returned are the primal's (`_concrete_solution`)
-                        sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method,
-                                                initial=start, throw=False, adjoint=self.adjoint)
-                traced = bool(sol.extra.get("traced"))
-                if traced:  # under jax.jit / vmap: result codes are arrays
-                    x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
-                elif sol.converged:
-                    x = sol.nodes
-                else:
-                    x = np.full(np.shape(sol.nodes), np.nan)
-                nodes.append(x)
-                mounted.append(rest)
-                solutions.append(sol if traced else _concrete_solution(sol))
-        finally:
-            done.close()  # (warm: no further bay is begun where the loop left early)
+        for k, scene in enumerate(scenes):
+            p = bay_parameters(parameters, shapes, k, fields)
+            rest = done[id(scene)][3] if id(scene) in done else mounted_shape(scene, p)
+            if initial is None:
+                first = any(k == run.start for run in chains(len(scenes)))
+                start = None if first else from_the_bay_before(method, rest, solutions[-1], mounted[-1])
+            elif initial.solutions is not None:
+                start = initial.solutions[k]
+            else:  # a batch's solution: its displacement on this solve's mounted shape
+                start = rest + jnp.asarray(moved[k], jnp.float64)
+            if id(scene) in done and not p.is_traced():  # (concrete parameters: the presolve's is the solve)
+                sol = done[id(scene)][2]
+            else:
+                with nodes_only(), presolved(done):  # the tensions returned are the primal's (`_concrete_solution`)
+                    sol = solve_equilibrium(scene, p, rtol=rtol, max_steps=max_steps, method=method,
+                                            initial=start, throw=False, adjoint=self.adjoint)
+            traced = bool(sol.extra.get("traced"))
+            if traced:  # under jax.jit / vmap: result codes are arrays
+                x = jnp.where(sol.result == Result.converged, sol.nodes, jnp.nan)
+            elif sol.converged:
+                x = sol.nodes
+            else:
+                x = np.full(np.shape(sol.nodes), np.nan)
+            nodes.append(x)
+            mounted.append(rest)
+            solutions.append(sol if traced else _concrete_solution(sol))
         if any(isinstance(x, jax.core.Tracer) for x in nodes):
             stacked = _stack_nodes(nodes)
         else:

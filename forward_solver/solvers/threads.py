@@ -1,16 +1,14 @@
-"""Independent host work two at a time: the caller and one helper thread (`each`, `Shared`).
+"""Independent host work two at a time: the caller and one helper thread (`each`).
 
 A wing's warm bay solves are independent of one another, and most of each is
 native code that releases Python's lock: SuperLU's factorisations and
 back-solves, XLA's compiled residual and Jacobian. On a machine with a second
 core, `each` shares such items between the calling thread and one helper
-thread, so that one bay's LU runs while the other's Jacobian is computed;
-`Shared` hands each result to the caller as soon as it is made, so that the
-caller's own work on it (a warm bay differentiated, `bay_starts.presolve`)
-runs while the helper goes on (`bays.Loop`; docs/architecture.md). The
-helper is one daemon thread, started on the first call that can use it
-(never at import) and kept for the process: it takes nothing from a stopped
-caller beyond the item it is in, and never holds up the interpreter's exit.
+thread, so that one bay's LU runs while the other's Jacobian is computed
+(`bays.Loop`; docs/architecture.md). The helper is one daemon thread, started
+on the first call that can use it (never at import) and kept for the
+process: it takes nothing from a stopped caller beyond the item it is in, and
+never holds up the interpreter's exit.
 
 The results are those of the items run one by one: each item is computed
 whole by one thread, from the same inputs; which thread runs it does not
@@ -34,7 +32,7 @@ import os
 import queue
 import threading
 
-__all__ = ["Shared", "each", "helpers", "keep", "kept", "on_helper", "release"]
+__all__ = ["each", "helpers", "keep", "kept", "on_helper", "release"]
 
 _LOCK = threading.Lock()
 _QUEUE: queue.SimpleQueue | None = None
@@ -120,94 +118,42 @@ def each(function, count: int) -> list:
     interrupted. Without a second core, or called from an item on the helper
     itself (which would wait for itself), the caller runs every item.
     """
-    with Shared(function, count) as items:
-        return [items.result(k) for k in range(count)]
+    if count < 2 or helpers() == 0 or on_helper():
+        return [function(k) for k in range(count)]
+    results = [None] * count
+    errors: list = []
+    lock = threading.Lock()
+    remaining = iter(range(count))
 
+    def take():
+        with lock:
+            return None if errors else next(remaining, None)
 
-class Shared:
-    """``function(k)`` for ``k`` in ``range(count)``, shared by the caller and the helper thread, each
-    result to the caller as soon as it is made (`result`): `each` takes them all at once; a caller
-    with work of its own on each result (`bay_starts.presolve`: the bays differentiated one by one)
-    takes them one by one while the helper goes on with the next items.
-
-    The items are begun in order, by whichever thread is free: the helper from the first on, the
-    caller whenever it asks for a result not yet made while an item is still unbegun (else it waits
-    for that result). Use it as a context manager: on leaving, no further item is begun and the
-    helper's item in progress is waited for (`close`). Rules of `each` (context, errors, no helper).
-    """
-
-    def __init__(self, function, count: int):
-        self._function, self._count = function, count
-        self._results, self._made = [None] * count, [False] * count
-        self._errors: list = []
-        self._next = 0
-        self._stopped = False
-        self._changed = threading.Condition()
-        self._helper_done = threading.Event()
-        if count < 2 or helpers() == 0 or on_helper():
-            self._helper_done.set()  # (the caller runs every item)
-            return
-        context = contextvars.copy_context()
-
-        def helper():
+    def work():
+        while (k := take()) is not None:
             try:
-                context.run(self._work)
-            finally:
-                self._helper_done.set()
+                results[k] = function(k)
+            except BaseException as error:  # noqa: BLE001 - raised in the caller, below
+                with lock:
+                    errors.append(error)
 
-        _helper().put(helper)
+    done = threading.Event()
+    context = contextvars.copy_context()
 
-    def __enter__(self) -> "Shared":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def _take(self) -> int | None:
-        with self._changed:
-            if self._errors or self._stopped or self._next >= self._count:
-                return None
-            self._next += 1
-            return self._next - 1
-
-    def _run(self, k: int) -> None:
+    def helper():
         try:
-            result, error = self._function(k), None
-        except BaseException as raised:  # noqa: BLE001 - raised in the caller (`result`)
-            result, error = None, raised
-        with self._changed:
-            self._results[k], self._made[k] = result, True
-            if error is not None:
-                self._errors.append(error)
-            self._changed.notify_all()
+            context.run(work)
+        finally:
+            done.set()
 
-    def _work(self) -> None:
-        while (k := self._take()) is not None:
-            self._run(k)
-
-    def result(self, k: int):
-        """Item ``k``'s result: made by the caller now (the next unbegun items first), or waited for;
-        an item's exception is raised once the helper has stopped. Raises RuntimeError for an item
-        not begun before `close`."""
-        while True:
-            with self._changed:
-                if self._errors:
-                    break
-                if self._made[k]:
-                    return self._results[k]
-            j = self._take()
-            if j is not None:
-                self._run(j)
-                continue
-            with self._changed:
-                if k >= self._next:  # (closed before item k was begun: it never will be)
-                    raise RuntimeError(f"item {k} was not begun before its Shared was closed")
-                self._changed.wait_for(lambda: self._made[k] or bool(self._errors))
-        self.close()
-        raise self._errors[0]
-
-    def close(self) -> None:
-        """Begin no further item, and wait for the helper's item in progress."""
-        with self._changed:
-            self._stopped = True
-        self._helper_done.wait()
+    _helper().put(helper)
+    try:
+        work()
+    finally:
+        with lock:
+            errors.append(None)  # (the helper begins no further item)
+        done.wait()
+    raised = [error for error in errors if error is not None]
+    if raised:
+        raise raised[0]
+    return results

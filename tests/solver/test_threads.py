@@ -1,14 +1,11 @@
-"""`forward_solver.solvers.threads.each` and `Shared`: independent items shared by the caller and one
-helper thread.
+"""`forward_solver.solvers.threads.each`: independent items shared by the caller and one helper thread.
 
 The items come back in order, both threads run at once (two items that wait for each other finish),
 an item's exception is raised in the caller and stops the items not begun, and without a second core
-the caller runs everything itself. `Shared` gives an item's result as soon as it is made, and begins
-no item once it is closed.
+the caller runs everything itself.
 """
 
 import threading
-import time
 
 import pytest
 
@@ -43,27 +40,6 @@ def test_an_items_exception_reaches_the_caller_and_stops_the_rest(monkeypatch):
     with pytest.raises(ValueError, match="bay 0 is bad"):
         threads.each(item, 100)
     assert len(begun) < 100
-
-
-def test_a_shared_result_comes_before_the_rest_and_closing_begins_no_more(monkeypatch):
-    monkeypatch.setattr(threads, "helpers", lambda: 1)
-    gate = threading.Event()
-    begun = []
-
-    def item(k):
-        begun.append(k)
-        if threads.on_helper() and k > 0:
-            assert gate.wait(10)  # (the helper's items after the first wait for the caller)
-            time.sleep(0.01)
-        return k * k
-
-    with threads.Shared(item, 200) as shared:
-        assert shared.result(1) == 1 and shared.result(0) == 0  # (whichever thread made them)
-        gate.set()
-    assert len(begun) < 20  # closed: the helper finished its item in hand and took few more
-    assert [shared.result(k) for k in range(len(begun))] == [k * k for k in range(len(begun))]
-    with pytest.raises(RuntimeError, match="not begun"):
-        shared.result(len(begun))
 
 
 def test_an_item_on_the_helper_runs_its_own_items_itself(monkeypatch):

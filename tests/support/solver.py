@@ -56,16 +56,3 @@ def counted_each(monkeypatch, module) -> list:
 
     monkeypatch.setattr(module, "each", counted)
     return counts
-
-
-def counted_shared(monkeypatch, module) -> list:
-    """The item counts of each `forward_solver.solvers.threads.Shared` that ``module`` makes from now on
-    (they still run as they would)."""
-    counts, shared = [], module.Shared
-
-    def counted(function, count):
-        counts.append(count)
-        return shared(function, count)
-
-    monkeypatch.setattr(module, "Shared", counted)
-    return counts

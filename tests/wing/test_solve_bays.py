@@ -18,7 +18,7 @@ from forward_solver.derivatives.implicit import ImplicitAdjoint
 from forward_solver import Wing
 from forward_solver.solvers.bays import solve_wing
 from targets import naca
-from support.solver import counted_shared, default_bay
+from support.solver import counted_each, default_bay
 
 GRID = dict(n_span=5, n_contour=32)
 PARAMETERS = Parameters(pressure=2e4, prestrain_span=0.005, prestrain_chord=0.005)
@@ -129,16 +129,16 @@ def test_warm_start_passes_each_bay_its_solution(scenes, cold):
 
 
 def test_a_warm_differentiated_loop_solves_its_bays_first_and_the_same(scenes, cold, monkeypatch):
-    # The host solves of a warm solve under jax.jvp are made two at a time on a second core, each bay
-    # differentiated as soon as its own is made (`bay_starts.presolve`, `threads.Shared`): the same
-    # nodes and tangents, to the bit, as each bay solved where it is differentiated.
+    # The host solves of a warm solve under jax.jvp are made before the bays are differentiated, two
+    # at a time on a second core (`bay_starts.presolve`, `threads.each`): the same nodes and tangents, to
+    # the bit, as each bay solved where it is differentiated.
     from forward_solver.solvers import bay_starts
 
     def nodes(p):
         return solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10, rib_shapes=SHAPES,
                           method="relax+newton", initial=cold, strategy="loop").nodes
 
-    presolved = counted_shared(monkeypatch, bay_starts)
+    presolved = counted_each(monkeypatch, bay_starts)
     with jax.enable_x64(True):
         monkeypatch.setattr(bay_starts, "helpers", lambda: 1)
         shared = jax.jvp(nodes, (2.02e4,), (1.0,))
