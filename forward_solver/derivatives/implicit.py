@@ -43,8 +43,9 @@ import numpy as np
 
 from .. import forces as fk
 from ..compilation import compiling, signature
+from ..precision import float64_scope
 from ..programs import prepare_compiled
-from ..solvers.jacobian import PERMC_SPEC, assemble_jacobian, factorise, free_dofs
+from ..solvers.jacobian import PERMC_SPEC, JacobianFactor, assemble_jacobian, factorise, free_dofs
 from .krylov import BiCGStab
 from .rhs import batched_rhs, jacobian_matvec, kernel_tangent, parameter_rhs
 
@@ -344,13 +345,17 @@ class SparseLU:
 
     def bind(self, x, geometry, params, physics, factor=None) -> HostLU:
         """The LU at the equilibrium ``x`` (a JAX array): ``factor`` (a `jacobian.JacobianFactor`, e.g. a
-        Newton solve's `Solution.factor`) when it is current, else ``J`` assembled
+        Newton solve's `Solution.factor`) when it is current, else `current_factor`'s."""
+        if factor is None or not factor.current:
+            factor = self.current_factor(x, geometry, params, physics)
+        return HostLU(factor.lu, np.asarray(factor.free_dofs), x)
+
+    def current_factor(self, x, geometry, params, physics) -> JacobianFactor:
+        """The `jacobian.JacobianFactor` at the equilibrium ``x`` (a JAX array): ``J`` assembled
         (`jacobian.assemble_jacobian`) and factorised."""
-        if factor is not None and factor.current:
-            return HostLU(factor.lu, np.asarray(factor.free_dofs), x)
         ref = prepare_compiled(geometry, params, fk.static_physics(physics))
-        lu = factorise(assemble_jacobian(x, ref, params, physics), permc_spec=self.permc_spec)
-        return HostLU(lu, free_dofs(ref), x)
+        jac = assemble_jacobian(x, ref, params, physics)
+        return JacobianFactor(factorise(jac, permc_spec=self.permc_spec), jac, free_dofs(ref), 0.0, True)
 
     def check_traceable(self, where: str) -> None:
         """Refuse ``jax.jit`` / ``jax.vmap`` (a host sparse LU needs concrete values)."""
@@ -424,9 +429,25 @@ class ImplicitAdjoint:
                                physics)
 
     def primal(self, scene, parameters, solve, rtol: float, max_steps: int):
-        """The concrete solve whose equilibrium is differentiated: ``solve(parameters)``."""
-        del scene, rtol, max_steps
-        return solve(parameters)
+        """The concrete solve whose equilibrium is differentiated: ``solve(parameters)``, `prepared`."""
+        del rtol, max_steps
+        return self.prepared(scene, parameters, solve(parameters))
+
+    def prepared(self, scene, parameters, solution):
+        """``solution`` (concrete, at ``parameters``) with what its derivative takes made now: with the
+        host LU, the factor of ``J`` at its nodes where it converged without one (chord Newton keeps the
+        nearby solution's; a relaxation has none), as `jvp` would make it (`SparseLU.current_factor`).
+        A wing's bays are so prepared two at a time (`solvers.bay_starts.presolve`), and the factor
+        is the next warm start's too."""
+        solver = self.solver()
+        if not (isinstance(solver, SparseLU) and solution.converged) or (
+                solution.factor is not None and solution.factor.current):
+            return solution
+        with float64_scope():
+            x = jax.device_put(np.asarray(solution.nodes, np.float64))  # (as `jvp` transfers them)
+            factor = solver.current_factor(x, scene.bay.geometry(), scene.params(parameters),
+                                           fk.static_physics(scene.physics(dynamic=False)))
+        return solution.replace(factor=factor)
 
     def jvp(self, scene, parameters, dparameters, concrete, solution, max_steps: int):
         """``(nodes, tangent)`` of the equilibrium ``solution`` at ``concrete`` (the primal values of

@@ -45,6 +45,11 @@ class UnrolledAdjoint:
     chunk: int = 100
     name: ClassVar[str] = "unrolled"
 
+    def prepared(self, scene: Scene, parameters: Parameters, solution: Solution) -> Solution:
+        """``solution`` as it is (the unrolled derivative takes nothing from a host solve)."""
+        del scene, parameters
+        return solution
+
     def primal(self, scene: Scene, parameters: Parameters, solve, rtol: float, max_steps: int) -> Solution:
         """The unrolled relaxation's `Solution` (``solve``, the host solve, is not used)."""
         del solve

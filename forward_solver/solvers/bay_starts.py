@@ -30,20 +30,21 @@ from .threads import each, helpers
 __all__ = ["chains", "from_the_bay_before", "mounted_shape", "presolve"]
 
 
-def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial) -> dict:
+def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial, adjoint) -> dict:
     """The host solves of a wing solve, two at a time where the machine has a second core
     (`threads.each`): ``id(scene) -> (scene, parameters, Solution, mounted)`` for `custom_jvp.presolved`
     (``parameters`` concrete, those the bay's solve poses; ``mounted`` the bay's `mounted_shape` at
     them). Warm (``initial`` a loop's `BaysSolution`), every bay from its own warm start; cold, each of
     the `chains` from its first bay, every later bay from the bay before (`from_the_bay_before`). Each
     is the solve `solve_equilibrium` makes where the bay is differentiated, made before the bays are
-    differentiated one after the other. Empty where there is nothing to share (one chain of a cold
-    solve, one core, ``jax.jit`` or ``jax.vmap``, a method that is not host-only)."""
+    differentiated one after the other, and a bay to be differentiated is `prepared` by ``adjoint``
+    (its value) on the thread that solved it. Empty where there is nothing to share (one chain of a
+    cold solve, one core, ``jax.jit`` or ``jax.vmap``, a method that is not host-only)."""
     warm = initial is not None and initial.solutions is not None
     cold = initial is None and isinstance(method, RelaxNewton) and len(chains(len(scenes))) > 1
     if not (warm or cold) or len(scenes) < 2 or helpers() == 0 or not isinstance(method, HostOnly):
         return {}
-    posed = []
+    posed, differentiated = [], []
     for k, scene in enumerate(scenes):
         p = as_parameters(bay_parameters(parameters, shapes, k, fields)).resolved(scene.fabric)
         if has_abstract_values(p):
@@ -51,10 +52,12 @@ def presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initia
         scene.check_parameters(p)
         # (an eager transformation's primal values: `stop_gradient` is the identity on them, and no tracer)
         posed.append(concrete_parameters(jax.lax.stop_gradient(p)) if p.is_traced() else p)
+        differentiated.append(p.is_traced())
 
     def solve(k, start):
         with top_level():  # (the caller's share runs inside its transformation, as `custom_jvp` solves)
-            return method.solve(scenes[k], posed[k], rtol=rtol, max_steps=max_steps, initial=start)
+            sol = method.solve(scenes[k], posed[k], rtol=rtol, max_steps=max_steps, initial=start)
+            return adjoint.prepared(scenes[k], posed[k], sol) if differentiated[k] else sol
 
     def rest(k):
         with top_level(), float64_scope():  # (float64 is a thread's own setting: the helper's too)

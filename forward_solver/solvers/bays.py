@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
-from ..derivatives.custom_jvp import nodes_only, presolved
+from ..derivatives.custom_jvp import as_adjoint, nodes_only, presolved
 from ..model.bay import N_CONTOUR, N_SPAN
 from ..model.fabric import Fabric
 from ..model.parameters import as_parameters, bay_parameters
@@ -332,7 +332,8 @@ class Loop:
         """The bays' `BaysSolution` (``shapes``, ``fields``: float64 per-rib shapes and per-bay cut fields, or None)."""
         solutions, nodes, mounted = [], [], []
         moved = None if initial is None or initial.solutions is not None else initial.displacements()
-        done = presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial)
+        done = presolve(scenes, parameters, shapes, fields, rtol, max_steps, method, initial,
+                        as_adjoint(self.adjoint))
         for k, scene in enumerate(scenes):
             p = bay_parameters(parameters, shapes, k, fields)
             rest = done[id(scene)][3] if id(scene) in done else mounted_shape(scene, p)

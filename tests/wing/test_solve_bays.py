@@ -150,6 +150,34 @@ def test_a_warm_differentiated_loop_solves_its_bays_first_and_the_same(scenes, c
         assert np.array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_a_differentiated_warm_bay_keeps_the_factor_of_its_own_nodes(scenes, cold, monkeypatch):
+    # Chord Newton converges with the cold solution's factor (not the Jacobian at the new nodes). A bay
+    # that is differentiated is `prepared` where it was solved (two at a time: `bay_starts.presolve`):
+    # its solution then holds the LU at its own nodes, which its tangent and the next warm start take.
+    from forward_solver.solvers import bay_starts
+
+    def solve(p):
+        return solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10, rib_shapes=SHAPES,
+                          method="relax+newton", initial=cold, strategy="loop")
+
+    held = {}
+
+    def nodes(p):
+        held["sol"] = solve(p)
+        return held["sol"].nodes
+
+    monkeypatch.setattr(bay_starts, "helpers", lambda: 1)
+    with jax.enable_x64(True):
+        plain = solve(2.02e4)
+        jax.jvp(nodes, (2.02e4,), (1.0,))
+    assert all("chord Newton" in s.extra.get("warm_start", "") for s in plain.solutions)
+    assert not any(s.factor.current for s in plain.solutions)  # (a plain solve makes no LU it does not need)
+    differentiated = held["sol"].solutions
+    assert all(s.factor.current for s in differentiated)
+    for s, p in zip(differentiated, plain.solutions):
+        np.testing.assert_array_equal(np.asarray(s.nodes), np.asarray(p.nodes))
+
+
 def test_the_same_call_under_jit(scenes, solved):
     with jax.enable_x64(True):
         nodes = jax.jit(lambda p: solve_bays(scenes, PARAMETERS.replace(pressure=p), rtol=1e-10,
