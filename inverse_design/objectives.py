@@ -81,6 +81,8 @@ __all__ = [
     "local_chords",
     "bay_weights",
     "bay_distances",
+    "bay_projections",
+    "row_points",
     "distance_residuals",
     "mean_square",
     "weighted_mean_square",
@@ -181,7 +183,9 @@ def _along(normal, dp):
 
 
 @partial(jax.jit, static_argnames=("etas",))
-def _stations(nodes, etas, chords):
+def row_points(nodes, etas, chords):
+    """``(n_rows, n_contour, 2)`` chord-normalised x-z points of the sections at ``etas`` (a tuple of
+    floats), row ``i`` in units of ``chords[i]`` (`section_points`), one program: linear in ``nodes``."""
     # The chords are an operand, not static: a wing's bays differ in chord, and one program serves
     # them all (static chords compiled it once per bay, and again for its tangents: 80 compilations
     # and 28 s of the 40-cell design).
@@ -249,10 +253,24 @@ def bay_weights(bays) -> np.ndarray:
 def bay_distances(nodes, rows: list, etas, chords) -> jnp.ndarray:
     """``(n_rows, n_contour)`` signed distances of a bay's rows from their targets, fractions of the
     local chords (``rows``: `row_targets`; ``chords``: `local_chords`); JAX nodes allowed."""
-    points = _stations(nodes, tuple(float(e) for e in etas), np.asarray(chords, np.float64))
+    points = row_points(nodes, tuple(float(e) for e in etas), np.asarray(chords, np.float64))
     if all(r is rows[0] for r in rows):
         return target_distance(rows[0], points)
     return jnp.stack([target_distance(r, points[i]) for i, r in enumerate(rows)])
+
+
+def bay_projections(nodes, rows: list, etas, chords) -> tuple:
+    """`bay_distances` of concrete ``nodes`` with what their derivative takes: ``(distances, normals)``,
+    ``(n_rows, n_contour)`` signed distances (chord fractions) and ``(n_rows, n_contour, 2)`` the
+    targets' unit normals at the feet. A row point's motion ``dp`` (`row_points` of the nodes' motion)
+    moves its distance by ``normal . dp`` (`target_distance`'s derivative)."""
+    points = np.asarray(row_points(nodes, tuple(float(e) for e in etas), np.asarray(chords, np.float64)))
+    if all(r is rows[0] for r in rows):
+        found = rows[0].project(points)
+        return np.asarray(found.distance, np.float64), np.asarray(found.normal, np.float64)
+    found = [r.project(points[i]) for i, r in enumerate(rows)]
+    return (np.stack([np.asarray(f.distance, np.float64) for f in found]),
+            np.stack([np.asarray(f.normal, np.float64) for f in found]))
 
 
 def section_distances(nodes, target, chord: float, etas) -> jnp.ndarray:
@@ -384,6 +402,10 @@ class WingTargets:
         """``(n_rows, n_contour)`` signed distances of bay ``k``'s rows from their targets, fractions of
         the local chord (`bay_distances`; JAX nodes allowed)."""
         return bay_distances(nodes, self.rows[k], self.etas, self.chords[k])
+
+    def projections(self, k: int, nodes) -> tuple:
+        """Bay ``k``'s concrete distances and the targets' normals at their feet (`bay_projections`)."""
+        return bay_projections(nodes, self.rows[k], self.etas, self.chords[k])
 
     def residuals(self, distances):
         """The stacked residuals whose sum of squares is the wing's objective ("mid_bay", "average"):

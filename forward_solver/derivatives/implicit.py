@@ -315,17 +315,23 @@ class HostLU:
             if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dparams)):
                 axes = jax.tree_util.tree_map(lambda b: 0 if b else None, in_batched[0])
                 return jax.vmap(traced, in_axes=(axes,))(dparams), True
-            # Every leaf batched and on the host: one program per batch size (`batched_rhs_task`).
             dparams = jax.tree_util.tree_map(
                 lambda a, b: np.asarray(a) if b else np.broadcast_to(np.asarray(a), (axis_size,) + np.shape(a)),
                 dparams, in_batched[0])
-            b, dheld = batched_rhs(x, geometry, params, dparams, physics)
-            flat = np.asarray(b, np.float64).reshape(axis_size, -1)
-            out = np.zeros_like(flat)
-            out[:, self.free_host] = self.host_solve(flat[:, self.free_host], "N")
-            return jax.device_put(out.reshape(b.shape) + np.asarray(dheld, np.float64)), True
+            return self.batch_tangents(x, geometry, params, dparams, physics), True
 
         return solve(dparams)
+
+    def batch_tangents(self, x, geometry, params, dparams, physics):
+        """The tangents ``(n, n_span, n_contour, 3)`` (a JAX array) of a batch of ``n`` concrete kernel-parameter
+        tangents (a leading axis on every leaf of ``dparams``, on the host): their right-hand sides
+        from one `rhs.batched_rhs` program (one per batch size, `batched_rhs_task`), back-solved in one
+        host call."""
+        b, dheld = batched_rhs(x, geometry, params, dparams, fk.static_physics(physics))
+        flat = np.asarray(b, np.float64).reshape(b.shape[0], -1)
+        out = np.zeros_like(flat)
+        out[:, self.free_host] = self.host_solve(flat[:, self.free_host], "N")
+        return jax.device_put(out.reshape(b.shape) + np.asarray(dheld, np.float64))
 
 
 @dataclass(frozen=True)
@@ -402,6 +408,14 @@ class ImplicitTangent:
     def tangent(self, dparams: fk.KernelInputs):
         """``dx*`` for a kernel-parameter tangent: ``-J^-1 dR/dtheta . dtheta`` plus the held nodes' motion."""
         return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
+
+    def tangents(self, dparams: fk.KernelInputs):
+        """`tangent` of a batch of concrete kernel-parameter tangents (a leading axis on every leaf):
+        with the host LU one right-hand-side program and one back-solve of them all
+        (`HostLU.batch_tangents`), otherwise the linear solver's tangent under ``jax.vmap``."""
+        if isinstance(self.solver, HostLU):
+            return self.solver.batch_tangents(self.x, self.geometry, self.params, dparams, self.physics)
+        return jax.vmap(self.tangent)(dparams)
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,9 @@
 """The first-order tolerance analysis of a design (`tolerance_analysis`) and its budget.
 
-First order: per bay (`model.ToleranceModel.bay_jacobian`), one forward-mode JVP of the
-equilibrium (`forward_solver.solve_equilibrium`'s implicit derivative,
-within `forward_solver.derivatives.implicit.forward_only`: the design's own equilibrium and
-LU factor where the design kept them (its last solve), else one Newton solve
-warm from the design, then one back-solve per parameter touching that bay with
-that factor) gives ``J``, the Jacobian of every normal distance of the objective's
+First order: per bay (`model.ToleranceModel.bay_jacobian`), the implicit derivative of the
+equilibrium in forward mode (the design's own equilibrium and LU factor where the design kept
+them (its last solve), else one Newton solve warm from the design, then one back-solve per
+parameter touching that bay with that factor) gives ``J``, the Jacobian of every normal distance of the objective's
 rows (mm) and of every cell's fibre tension (N/m) in the tolerance
 parameters. The distances are linearised, not the rms (at a design the rms
 sits at a minimum in the designed directions, so its own derivative is near

@@ -42,12 +42,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from forward_solver import Parameters, Solution, solve_equilibrium
-from forward_solver.derivatives.custom_jvp import nodes_only
-from forward_solver.derivatives.forward import value_and_jacobian
+from forward_solver.compilation import stored_jit
+from forward_solver.derivatives.implicit import ImplicitAdjoint
+from forward_solver.derivatives.rhs import kernel_tangent
+from forward_solver.model.parameters import PARAMETER_NAMES
 from forward_solver.programs import mounted_compiled
 
 from ..constraints import fibre_tensions, tension_inputs
-from ..objectives import WingTargets
+from ..objectives import WingTargets, row_points
 from .inputs import SOURCE_SCOPE, SOURCES
 
 __all__ = ["CLASS_RMS", "MOUNTING_SOURCES", "Column", "ToleranceModel", "bay_changes", "bay_values", "summary_of"]
@@ -123,13 +125,36 @@ def bay_changes(e, k, values: dict, offsets: tuple) -> dict:
 _traced_bay_changes = partial(jax.jit, static_argnames=("offsets",))(bay_changes)
 
 
-@partial(jax.jit, static_argnames=("physics", "with_nodes"))
-def _bay_outputs(distances, chords, x, geometry, params, physics, with_nodes: bool):
+@partial(stored_jit, static_argnames=("offsets",))
+def _change_tangents(basis, k, values: dict, offsets: tuple) -> dict:
+    """The derivatives of `bay_changes` at no deviation along each row of ``basis`` (``(n, size)``):
+    ``{name: (n, ...)}``, one program (``k`` among its operands)."""
+    e0 = jnp.zeros(basis.shape[1], basis.dtype)
+    return jax.vmap(lambda t: jax.jvp(lambda e: bay_changes(e, k, values, offsets), (e0,), (t,))[1])(basis)
+
+
+@partial(stored_jit, static_argnames=("physics",))
+def _bay_outputs(distances, chords, x, geometry, params, physics):
     """A bay's rows' distances (fractions of their local chords) in mm, flat, then its cells' fibre
-    tensions (N/m; `constraints.fibre_tensions`), then its nodes (m, flat) ``with_nodes``: one program
-    (and one under `bay_jacobian`'s push) for what were four."""
-    parts = [(distances * chords[:, None] * 1e3).reshape(-1), fibre_tensions(x, geometry, params, physics)]
-    return jnp.concatenate(parts + [x.reshape(-1)] if with_nodes else parts)
+    tensions (N/m; `constraints.fibre_tensions`): one program."""
+    return jnp.concatenate([(distances * chords[:, None] * 1e3).reshape(-1), fibre_tensions(x, geometry, params, physics)])
+
+
+@partial(stored_jit, static_argnames=("etas", "physics"))
+def _outputs_and_tangents(distances, normals, chords, x, dx, geometry, params, dparams, etas, physics):
+    """`_bay_outputs` at the nodes ``x`` and its derivatives along each of a batch of the nodes' and
+    kernel parameters' tangents (``dx``: ``(n, n_span, n_contour, 3)``; every leaf of ``dparams``
+    with a leading axis ``n``): a row point's distance moves by the target's ``normals`` there
+    times the point's motion (`objectives.bay_projections`). ``((n_outputs,), (n, n_outputs))``,
+    one program."""
+
+    def one(dx, dparams):
+        dpoints = jax.jvp(lambda n: row_points(n, etas, chords), (x,), (dx,))[1]
+        dd = jnp.sum(normals * dpoints, axis=-1) * chords[:, None] * 1e3
+        dt = jax.jvp(lambda n, p: fibre_tensions(n, geometry, p, physics), (x, params), (dx, dparams))[1]
+        return jnp.concatenate([dd.reshape(-1), dt])
+
+    return _bay_outputs(distances, chords, x, geometry, params, physics), jax.vmap(one)(dx, dparams)
 
 
 @dataclass(frozen=True)
@@ -260,11 +285,10 @@ class ToleranceModel:
             changes = bay_changes(np.asarray(e, np.float64), k, self._bay_values, self._offsets)
         return self.nominal[k].replace(**changes)
 
-    def outputs(self, k: int, nodes, parameters, with_nodes: bool = False):
-        """Bay ``k``'s normal distances (mm, the objective's rows) and cell tensions (N/m), one vector,
-        then its nodes (m, flat) ``with_nodes``."""
+    def outputs(self, k: int, nodes, parameters):
+        """Bay ``k``'s normal distances (mm, the objective's rows) and cell tensions (N/m), one vector."""
         return _bay_outputs(self.targets.distances(k, nodes), np.asarray(self.targets.chords[k], np.float64),
-                            nodes, *tension_inputs(self.scenes[k], parameters), with_nodes)
+                            nodes, *tension_inputs(self.scenes[k], parameters))
 
     @property
     def n_distances(self) -> int:
@@ -272,31 +296,44 @@ class ToleranceModel:
 
     def bay_jacobian(self, k: int, start, rtol: float):
         """Bay ``k``'s `outputs` and their ``(n_outputs, size)`` Jacobian in the columns (zero outside
-        ``touching[k]``): forward mode, one solve warm from ``start`` (a `Solution` with its factor, or
-        nodes), then one back-solve per touching column with the kept factor
-        (`forward_solver.derivatives.forward.value_and_jacobian`). The same push keeps the nodes'
-        tangents (``start_tangents[k]``) and the nominal's mounted shape (``start_mounted[k]``)."""
+        ``touching[k]``), forward mode by the implicit rule at the nominal equilibrium: ``start`` (a
+        `Solution` converged within ``rtol``, its LU factor reused where current) or, otherwise, the
+        solve warm from it (a `Solution` or nodes). The columns' parameter tangents (one program,
+        `_change_tangents`), their nodes' tangents (one right-hand-side program and one back-solve
+        of them all, `forward_solver.derivatives.implicit.ImplicitTangent.tangents`) and the outputs'
+        (with their values, one program, `_outputs_and_tangents`) are each one call with concrete values: no transformation
+        of the solve is traced (under ``jax.vmap`` of ``jax.jvp`` of the whole chain it was, in every
+        process, most of the default case's analysis). The nodes' tangents are kept
+        (``start_tangents[k]``) with the nominal's mounted shape (``start_mounted[k]``)."""
         cols = self.touching[k]
-        e0 = jax.device_put(np.zeros(self.size))  # (a transfer: jnp.zeros is two eager operations)
         scene = self.scenes[k]
-
-        def outputs(e):
-            p = self.bay_parameters(k, e)
-            with nodes_only():  # (the tensions are the outputs' own, from the nodes: no traced force program)
-                sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
-            return self.outputs(k, sol.nodes, p, with_nodes=True), ()
-
+        p = self.bay_parameters(k, np.zeros(self.size))  # (the design's own to the bit: `bay_changes`)
+        sol = start
+        if not (isinstance(sol, Solution) and sol.converged and float(sol.residual) <= rtol):
+            sol = solve_equilibrium(scene, p, rtol=rtol, method="auto", initial=start, throw=True)
+        geometry, params, physics = tension_inputs(scene, p)
+        x = jax.device_put(np.asarray(sol.nodes, np.float64))  # (a transfer, not an eager operation)
+        distances, normals = self.targets.projections(k, x)
+        chords = np.asarray(self.targets.chords[k], np.float64)
         if cols.size == 0:
-            return np.asarray(outputs(e0)[0])[:-3 * math.prod(scene.bay.shape)], np.zeros((0, 0))
+            y = np.asarray(_bay_outputs(distances, chords, x, geometry, params, physics))
+            return y, np.zeros((y.size, self.size))
         basis = np.zeros((cols.size, self.size))
         basis[np.arange(cols.size), cols] = 1.0
-        y, dy, _ = value_and_jacobian(outputs, e0, basis)
-        n_out = np.size(y) - 3 * math.prod(scene.bay.shape)
-        self.start_tangents[k] = np.asarray(dy[n_out:]).T.reshape((cols.size,) + scene.bay.shape + (3,))
-        self.start_mounted[k] = np.asarray(mounted_compiled(scene.bay.geometry(), scene.params(self.nominal[k])))
-        jac = np.zeros((n_out, self.size))
-        jac[:, cols] = dy[:n_out]
-        return np.asarray(y)[:n_out], jac
+        changes = _change_tangents(basis, np.int32(k), self._bay_values, self._offsets)
+        dparams = kernel_tangent(Parameters(**dict.fromkeys(PARAMETER_NAMES)).replace(**changes), params)
+        dparams = jax.tree_util.tree_map(  # (a parameter no column moves: its zero for every column)
+            lambda d, like: d if np.ndim(d) > np.ndim(like) else np.broadcast_to(d, (cols.size,) + np.shape(like)),
+            dparams, params)
+        dx = ImplicitAdjoint().at(x, geometry, params, physics, sol.factor).tangents(dparams)
+        etas = tuple(float(e) for e in self.targets.etas)
+        y, dy = _outputs_and_tangents(distances, normals, chords, x, dx, geometry, params, dparams, etas, physics)
+        y = np.asarray(y)
+        jac = np.zeros((y.size, self.size))
+        jac[:, cols] = np.asarray(dy).T
+        self.start_tangents[k] = np.asarray(dx)
+        self.start_mounted[k] = np.asarray(mounted_compiled(geometry, scene.params(self.nominal[k])))
+        return y, jac
 
     def predicted_start(self, k: int, e, nominal):
         """Bay ``k``'s warm start at the deviations ``e``: its ``nominal`` `Solution` (with its LU factor),
