@@ -21,9 +21,8 @@ dofs. `ImplicitAdjoint` is that rule, the value ``adjoint=`` of
   so it runs under ``jax.jit`` / ``jax.vmap`` and on any backend); None
   picks by the backend (`default_linear_solver`).
 
-`solve_equilibrium`'s custom JVP (`custom_jvp`) and the pure-JAX relaxation
-(`implicit_nodes`: `relax.traced_solution`, the batched wing) both
-differentiate through this one rule.
+`solve_equilibrium`'s custom JVP (`custom_jvp`) and the pure-JAX relaxation (`implicit_nodes`:
+`relax.traced_solution`, the batched wing) both differentiate through this one rule.
 """
 
 from __future__ import annotations
@@ -122,16 +121,10 @@ def forward_only(n_tangents: int | None = None):
 
 
 def _float64_on_this_thread() -> None:
-    """Let a host callback return float64 when XLA runs it on one of its own threads.
-
-    `precision.float64_scope` turns float64 on for the calling thread only.
-    XLA may run a ``jax.pure_callback`` on a worker thread of its own, where
-    JAX then canonicalises the callback's float64 result to float32 and
-    rejects it ("Incorrect output dtype"). On such a thread (float64 off)
-    this turns float64 on for that thread, for good: it runs nothing but
-    callbacks. The caller's thread is inside its float64 scope already and
-    is left alone.
-    """
+    """Let a host callback return float64 when XLA runs it on one of its own threads, where float64
+    is off (`precision.float64_scope` turns it on for the calling thread only) and JAX would reject
+    the result ("Incorrect output dtype"): on for that thread, for good (it runs nothing but
+    callbacks). The caller's thread, inside its float64 scope already, is left alone."""
     if not jax.config.jax_enable_x64:
         jax.enable_x64(True).__enter__()
 
@@ -323,10 +316,8 @@ class HostLU:
         return solve(dparams)
 
     def batch_tangents(self, x, geometry, params, dparams, physics):
-        """The tangents ``(n, n_span, n_contour, 3)`` (a JAX array) of a batch of ``n`` concrete kernel-parameter
-        tangents (a leading axis on every leaf of ``dparams``, on the host): their right-hand sides
-        from one `rhs.batched_rhs` program (one per batch size, `batched_rhs_task`), back-solved in one
-        host call."""
+        """The ``(n, n_span, n_contour, 3)`` tangents of ``n`` concrete kernel-parameter tangents (a leading
+        axis on every leaf of ``dparams``): one `rhs.batched_rhs` program, one host back-solve."""
         b, dheld = batched_rhs(x, geometry, params, dparams, fk.static_physics(physics))
         flat = np.asarray(b, np.float64).reshape(b.shape[0], -1)
         out = np.zeros_like(flat)
@@ -410,9 +401,8 @@ class ImplicitTangent:
         return self.solver.tangent(self.x, self.geometry, self.params, dparams, self.physics)
 
     def tangents(self, dparams: fk.KernelInputs):
-        """`tangent` of a batch of concrete kernel-parameter tangents (a leading axis on every leaf):
-        with the host LU one right-hand-side program and one back-solve of them all
-        (`HostLU.batch_tangents`), otherwise the linear solver's tangent under ``jax.vmap``."""
+        """`tangent` of a batch of concrete kernel-parameter tangents (a leading axis on every leaf): the
+        host LU's `HostLU.batch_tangents`, otherwise the linear solver's tangent under ``jax.vmap``."""
         if isinstance(self.solver, HostLU):
             return self.solver.batch_tangents(self.x, self.geometry, self.params, dparams, self.physics)
         return jax.vmap(self.tangent)(dparams)
