@@ -352,7 +352,7 @@ class SparseLU:
         (`jacobian.assemble_jacobian`) and factorised."""
         ref = prepare_compiled(geometry, params, fk.static_physics(physics))
         jac = assemble_jacobian(x, ref, params, physics)
-        return JacobianFactor(factorise(jac, permc_spec=self.permc_spec), jac, free_dofs(ref), 0.0, True)
+        return JacobianFactor(factorise(jac, permc_spec=self.permc_spec), jac, free_dofs(geometry), 0.0, True)
 
     def check_traceable(self, where: str) -> None:
         """Refuse ``jax.jit`` / ``jax.vmap`` (a host sparse LU needs concrete values)."""

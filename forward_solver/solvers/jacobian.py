@@ -196,15 +196,25 @@ def _free_pattern(shape: tuple[int, int], periodic: bool, free_key: bytes) -> Fr
     return pattern
 
 
-def sparsity_pattern(ref: fk.Reference, periodic: bool) -> FreePattern:
-    free_node = np.asarray(ref.free)[..., 0] > 0.5  # on the host: no eager slice to compile
+def _free_nodes(owner) -> np.ndarray:
+    """``(n_span, n_contour)`` the free nodes of a `forces.Reference` or of the `forces.Geometry` it is
+    prepared from (the same nodes: the geometry's are made once per bay, and NumPy's copy of them is
+    kept with them; a fresh reference's waited for its program and came over from the device each
+    time, 0.5 s of the 40-cell wing's design). On the host: no eager slice to compile."""
+    free = np.asarray(owner.free)
+    return (free[..., 0] if free.ndim == 3 else free) > 0.5
+
+
+def sparsity_pattern(owner, periodic: bool) -> FreePattern:
+    """The Jacobian's `FreePattern` on the free nodes of ``owner`` (`_free_nodes`)."""
+    free_node = _free_nodes(owner)
     return _free_pattern(free_node.shape, bool(periodic), free_node.tobytes())
 
 
-def free_dofs(ref: fk.Reference) -> np.ndarray:
-    """Index of each free degree of freedom into ``x.reshape(-1)`` (the Jacobian's numbering)."""
-    free_node = np.asarray(ref.free)[..., 0] > 0.5  # on the host: no eager slice to compile
-    return np.flatnonzero(np.repeat(free_node.reshape(-1), 3))
+def free_dofs(owner) -> np.ndarray:
+    """Index of each free degree of freedom into ``x.reshape(-1)`` (the Jacobian's numbering), of the
+    free nodes of ``owner``: a `forces.Reference` or its `forces.Geometry` (`_free_nodes`)."""
+    return np.flatnonzero(np.repeat(_free_nodes(owner).reshape(-1), 3))
 
 
 # ------------------------------------------------------------------ jacobian

@@ -304,7 +304,7 @@ def warm_up(x, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.Physi
         ref = prepare_compiled(geometry, params, physics)
         x = jnp.asarray(x, geometry.contour_root.dtype)
         static_state(x, geometry, params, physics)
-        linearise(x, ref, params, physics, sparsity_pattern(ref, physics.periodic))
+        linearise(x, ref, params, physics, sparsity_pattern(geometry, physics.periodic))
 
 
 @dataclass(frozen=True)
@@ -397,7 +397,7 @@ def newton(x_init, geometry: fk.Geometry, params: fk.KernelInputs, physics: fk.P
             raise ValueError(f"x_init has shape {np.shape(x_init)} but this bay's grid needs {shape}")
         dtype = geometry.contour_root.dtype
         ref = prepare_compiled(geometry, params, physics)
-        problem = _Problem(geometry, ref, physics, sparsity_pattern(ref, physics.periodic), shape, dtype,
+        problem = _Problem(geometry, ref, physics, sparsity_pattern(geometry, physics.periodic), shape, dtype,
                            np.asarray(ref.nodes, dtype=np.float64).reshape(-1), float(divergence_bound))
         log = _Log()
         x0 = np.array(x_init, dtype=np.float64).reshape(-1)
@@ -462,7 +462,7 @@ def chord_newton(x_init, geometry, params, physics, previous: JacobianFactor, rt
         return None
     with float64_scope():
         physics = fk.static_physics(physics)
-        free = free_dofs(prepare_compiled(geometry, params, physics))
+        free = free_dofs(geometry)
         if not np.array_equal(free, previous.free_dofs):
             return None
         dtype = geometry.contour_root.dtype
