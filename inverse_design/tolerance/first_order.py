@@ -3,8 +3,8 @@
 First order: per bay (`model.ToleranceModel.bay_jacobian`), the implicit derivative of the
 equilibrium in forward mode (the design's own equilibrium and LU factor where the design kept
 them (its last solve), else one Newton solve warm from the design, then one back-solve per
-parameter touching that bay with that factor) gives ``J``, the Jacobian of every normal distance of the objective's
-rows (mm) and of every cell's fibre tension (N/m) in the tolerance
+parameter touching that bay with that factor) gives ``J``, the Jacobian of every normal
+distance of the objective's rows (mm) and of every cell's fibre tension (N/m) in the tolerance
 parameters. The distances are linearised, not the rms (at a design the rms
 sits at a minimum in the designed directions, so its own derivative is near
 zero there and a linearised rms would understate its spread and miss its

@@ -137,7 +137,8 @@ def _change_tangents(basis, k, values: dict, offsets: tuple) -> dict:
 def _bay_outputs(distances, chords, x, geometry, params, physics):
     """A bay's rows' distances (fractions of their local chords) in mm, flat, then its cells' fibre
     tensions (N/m; `constraints.fibre_tensions`): one program."""
-    return jnp.concatenate([(distances * chords[:, None] * 1e3).reshape(-1), fibre_tensions(x, geometry, params, physics)])
+    return jnp.concatenate([(distances * chords[:, None] * 1e3).reshape(-1),
+                            fibre_tensions(x, geometry, params, physics)])
 
 
 @partial(stored_jit, static_argnames=("etas", "physics"))
@@ -301,10 +302,10 @@ class ToleranceModel:
         solve warm from it (a `Solution` or nodes). The columns' parameter tangents (one program,
         `_change_tangents`), their nodes' tangents (one right-hand-side program and one back-solve
         of them all, `forward_solver.derivatives.implicit.ImplicitTangent.tangents`) and the outputs'
-        (with their values, one program, `_outputs_and_tangents`) are each one call with concrete values: no transformation
-        of the solve is traced (under ``jax.vmap`` of ``jax.jvp`` of the whole chain it was, in every
-        process, most of the default case's analysis). The nodes' tangents are kept
-        (``start_tangents[k]``) with the nominal's mounted shape (``start_mounted[k]``)."""
+        (with their values, one program, `_outputs_and_tangents`) are each one call with concrete
+        values: no transformation of the solve is traced (under ``jax.vmap`` of ``jax.jvp`` of the
+        whole chain it was, in every process, most of the default case's analysis). The nodes'
+        tangents are kept (``start_tangents[k]``) with the nominal's mounted shape (``start_mounted[k]``)."""
         cols = self.touching[k]
         scene = self.scenes[k]
         p = self.bay_parameters(k, np.zeros(self.size))  # (the design's own to the bit: `bay_changes`)
