@@ -108,8 +108,11 @@ def precision_extra(precision: str, rtol: float, geometry, params, physics) -> d
 
 #: Concrete values last sent by `device_arrays`, by their bytes: the solvers ask for the same
 #: parameters over and over (a bay's Newton iterations, its tangents), about 0.45 ms a transfer.
+#: Lists of at most `_SENT_BYTES` only (a bay's parameters are some hundred bytes; its geometry, which
+#: grows with the grid, is kept by the bay itself), so the entries hold at most 16 MiB.
 _SENT: dict = {}
 _SENT_ENTRIES = 256
+_SENT_BYTES = 65536
 _SENT_LOCK = threading.Lock()
 
 
@@ -128,7 +131,7 @@ def device_arrays(values, dtype=None) -> list:
     """
     traced = [isinstance(v, jax.core.Tracer) for v in values]
     hosted = [np.asarray(v, dtype=dtype) for v, t in zip(values, traced) if not t]
-    if any(traced):
+    if any(traced) or sum(a.nbytes for a in hosted) > _SENT_BYTES:
         concrete = iter(jax.device_put(hosted))
         return [_traced_as(v, dtype) if t else next(concrete) for v, t in zip(values, traced)]
     key = (jax.config.jax_enable_x64,) + tuple((a.dtype.str, a.shape, a.tobytes()) for a in hosted)

@@ -246,3 +246,28 @@ def test_compiling_ahead_cancels_what_has_not_begun_and_drops_a_failing_task():
     finally:
         gate.set()
         ahead.set_compile_ahead(previous)
+
+
+def test_device_arrays_sends_the_same_concrete_values_once_and_keeps_nothing_from_a_trace():
+    """`precision.device_arrays` gives the arrays it sent for the same concrete values again (the same
+    objects), new ones for other values or another float64 setting, and within ``jax.jit`` the trace's
+    own values: a kept array is never a tracer, and one made in a trace is never kept."""
+    import jax.numpy as jnp
+
+    from forward_solver.precision import device_arrays
+
+    values = [np.float64(2.5e4), np.float64(0.013), np.arange(6.0)]
+    with jax.enable_x64(True):
+        first = device_arrays(values, np.float64)
+        again = device_arrays([np.float64(2.5e4), np.float64(0.013), np.arange(6.0)], np.float64)
+        assert all(a is b for a, b in zip(first, again))
+        other = device_arrays([np.float64(2.5e4), np.float64(0.014), np.arange(6.0)], np.float64)
+        assert other[1] is not first[1] and float(other[1]) == 0.014
+        traced = jax.jit(lambda x: x * device_arrays([np.float64(7.25)], np.float64)[0])(jnp.ones(()))
+        made = device_arrays([np.float64(7.25)], np.float64)
+        assert not isinstance(made[0], jax.core.Tracer) and float(traced) == 7.25
+        inside = jax.jit(lambda x: x + sum(isinstance(a, jax.core.Tracer) for a in device_arrays(values, np.float64)))
+        assert float(inside(jnp.zeros(()))) == 3.0  # (kept arrays are not handed into a trace)
+    with jax.enable_x64(False):
+        narrow = device_arrays(values, np.float64)
+        assert narrow[0] is not first[0] and narrow[0].dtype == np.float32
