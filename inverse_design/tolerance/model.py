@@ -277,9 +277,10 @@ class ToleranceModel:
     def bay_parameters(self, k: int, e) -> Parameters:
         """Bay ``k``'s `Parameters` at the deviations ``e`` (``(size,)``, the sources' units; JAX
         values allowed): the module docstring's map (`bay_changes`). Concrete deviations (a Monte
-        Carlo sample) take NumPy's arithmetic; traced ones (`bay_jacobian`'s push) one jitted program
-        for every bay, ``k`` among its operands (the map's dozen operations, each an eager program
-        of its own under ``vmap`` and ``jvp``, were most of the default case's first-order analysis)."""
+        Carlo sample) take NumPy's arithmetic; JAX ones (a caller's own ``jax.jvp`` or ``jax.jit``) one
+        jitted program for every bay, ``k`` among its operands (the map's dozen operations were each an
+        eager program of their own under ``vmap`` and ``jvp``). `bay_jacobian` takes the map's tangents
+        from one stored program of its own (`_change_tangents`)."""
         if isinstance(e, jax.Array):
             changes = _traced_bay_changes(e, np.int32(k), self._bay_values, self._offsets)
         else:

@@ -139,7 +139,7 @@ def test_a_sample_resolved_alone_reproduces_its_row(two_bays):
 
 
 def test_a_bays_parameters_are_one_program_for_every_bay_and_numpys_for_a_sample(two_bays):
-    """`ToleranceModel.bay_parameters` at traced deviations (the Jacobian's push) is one jitted call whose
+    """`ToleranceModel.bay_parameters` at traced deviations is one jitted call whose
     program is the same for both bays (``k`` an operand), and gives the concrete (NumPy) values of a
     sample; at no deviation the nominal parameters to the bit (their kept factor then serves)."""
     model = ToleranceModel.of(two_bays, parse_tolerances(["defaults"]))
