@@ -16,11 +16,13 @@ from .ahead import compiling as compiling
 from .ahead import set_compile_ahead as set_compile_ahead
 from .ahead import signature as signature
 from .stored import LIGHT_OPTIONS as LIGHT_OPTIONS
+from .stored import LOOP_OPTIONS as LOOP_OPTIONS
 from .stored import program_store as program_store
 from .stored import stored_jit as stored_jit
 from .stored import use_program_store as use_program_store
 from .xla import FAST_COMPILATION_FLAGS as FAST_COMPILATION_FLAGS
 from .xla import enable_fast_compilation as enable_fast_compilation
 
-__all__ = ["Ahead", "FAST_COMPILATION_FLAGS", "LIGHT_OPTIONS", "compiling", "enable_fast_compilation",
-           "program_store", "set_compile_ahead", "signature", "stored_jit", "use_program_store"]
+__all__ = ["Ahead", "FAST_COMPILATION_FLAGS", "LIGHT_OPTIONS", "LOOP_OPTIONS", "compiling",
+           "enable_fast_compilation", "program_store", "set_compile_ahead", "signature", "stored_jit",
+           "use_program_store"]

@@ -44,13 +44,18 @@ from pathlib import Path
 import jax
 import jaxlib
 
-__all__ = ["LIGHT_OPTIONS", "stored_jit", "use_program_store", "program_store"]
+__all__ = ["LIGHT_OPTIONS", "LOOP_OPTIONS", "stored_jit", "use_program_store", "program_store"]
 
 #: XLA's options of a ``light`` program's top-level compilation (`stored_jit`): LLVM's optimisation
 #: level 0 (XLA's own graph passes still run). Measured on the 2-core development machine: the
 #: relaxation program of a 17x64 bay compiles in 0.35 s against 1.0 s and relaxes in 0.12 s against
 #: 0.016 s (0.64 s against 0.12 s at 33x128: docs/compilation.md, `benchmarks/light_programs.py`).
 LIGHT_OPTIONS = {"xla_backend_optimization_level": 0}
+#: XLA's options of a program whose run is a long loop of small steps (the paper's explicit scheme,
+#: `forward_solver.simulate`): LLVM's full optimisation, XLA's own default level stated, so that a
+#: global ``XLA_FLAGS`` setting (the test suite's level 0) does not slow every step. Measured on the
+#: 2-core development machine: the scheme run to rest on a 9x32 bay took 41 s at level 0 against 11 s.
+LOOP_OPTIONS = {"xla_backend_optimization_level": 3}
 
 #: The packages whose source shapes the programs.
 _PACKAGES = ("forward_solver", "inverse_design", "targets")

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import forces as fk
+from ..compilation import LOOP_OPTIONS
 from ..stencils import safe_norm
 from ..model.parameters import Parameters, as_parameters
 from ..model.scene import Scene
@@ -113,7 +114,7 @@ def stable_time_step(courant, h_min, wave_speed, params, physics):
     return dt
 
 
-@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks", "precision"))
+@partial(jax.jit, static_argnames=("physics", "chunk", "max_chunks", "precision"), compiler_options=LOOP_OPTIONS)
 def _simulate_jit(x_init, geometry, params, ramp_time, courant, rtol, divergence_bound,
                   physics, chunk, max_chunks, precision="float64"):
     """The run: loop output, float64 forces and nodes at its end, the time step, and
