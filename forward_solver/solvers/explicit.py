@@ -261,6 +261,8 @@ def simulate(scene: Scene, pressure_history, prestrain=None, *, courant: float =
 
     Raises:
         ValueError: for non-physical input or a float32 ``rtol`` below its floor.
+        TypeError: for traced values (inside ``jax.jit``, ``jax.vmap`` or ``jax.grad``): the run is a
+            host loop of compiled chunks, its program compiled at top level (`compilation.LOOP_OPTIONS`).
         ConvergenceError: if ``throw`` and the run did not converge.
     """
     if isinstance(pressure_history, PressureRamp):
@@ -268,6 +270,10 @@ def simulate(scene: Scene, pressure_history, prestrain=None, *, courant: float =
     else:
         parameters = as_parameters(pressure_history, prestrain)
         ramp = PressureRamp(parameters.pressure)
+    if parameters.is_traced() or isinstance(ramp.ramp_time, jax.core.Tracer):
+        raise TypeError("simulate runs the explicit scheme on the host, chunk by chunk, with concrete values: "
+                        "call it outside jax.jit, jax.vmap and jax.grad (derivatives of the equilibrium: "
+                        "solve_equilibrium, whose implicit derivative is eq. 10-15 at rest)")
     parameters = scene.check_parameters(parameters.resolved(scene.fabric))
     if not (math.isfinite(courant) and courant > 0):
         raise ValueError(f"courant must be a positive number (eq. 16), got {courant!r}")

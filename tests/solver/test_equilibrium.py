@@ -93,6 +93,14 @@ def test_courant_over_the_limit_fails_loudly(small_panel, courant):
         simulate(scene, PRESSURE, PRESTRAIN, courant=courant, max_steps=20_000)
 
 
+@pytest.mark.parametrize("transform", [jax.jit, jax.grad])
+def test_simulate_refuses_traced_values_before_it_compiles(small_panel, transform):
+    # The explicit run is a host loop of top-level compiled chunks: inside a trace it says where to call it.
+    scene = Scene(small_panel, Fabric())
+    with pytest.raises(TypeError, match="outside jax.jit, jax.vmap and jax.grad"):
+        transform(lambda p: simulate(scene, p, PRESTRAIN, max_steps=200).nodes.sum())(PRESSURE)
+
+
 def test_over_the_limit_with_viscosity_rings_and_says_lower_the_courant(small_panel):
     # benchmarks/stability_map.py: at Courant 1.2 with viscosity the scheme neither blows up
     # nor comes to rest; it rings in its period-two mode at constant kinetic energy. The
