@@ -18,8 +18,11 @@ may be declared ``light``: its top-level calls compile with `LIGHT_OPTIONS`
 (LLVM's optimisation off), in a third of the time, and run slower, which a
 few calls do not notice (docs/compilation.md gives both). The results differ
 from a full compilation's by rounding only (the order LLVM gives a reduction).
-A call under a transformation is part of its caller's program and compiles
-as the caller does.
+A program whose run is a long loop (the relaxation) may be declared ``loop``:
+its other top-level calls compile with `LOOP_OPTIONS`, XLA's default level
+stated, which a global ``XLA_FLAGS`` setting cannot lower. A call under a
+transformation is part of its caller's program and compiles as the caller
+does.
 
 An entry's file name is a digest of the function, its static arguments, the
 avals of its array arguments, the float64 setting, this package's source and
@@ -52,7 +55,7 @@ __all__ = ["LIGHT_OPTIONS", "LOOP_OPTIONS", "stored_jit", "use_program_store", "
 #: 0.016 s (0.64 s against 0.12 s at 33x128: docs/compilation.md, `benchmarks/light_programs.py`).
 LIGHT_OPTIONS = {"xla_backend_optimization_level": 0}
 #: XLA's options of a program whose run is a long loop of small steps (the paper's explicit scheme,
-#: `forward_solver.simulate`): LLVM's full optimisation, XLA's own default level stated, so that a
+#: `forward_solver.simulate`; a ``loop`` program's calls that are not light): LLVM's full optimisation, XLA's own default level stated, so that a
 #: global ``XLA_FLAGS`` setting (the test suite's level 0) does not slow every step. Measured on the
 #: 2-core development machine: the scheme run to rest on a 9x32 bay took 41 s at level 0 against 11 s.
 LOOP_OPTIONS = {"xla_backend_optimization_level": 3}
@@ -101,11 +104,15 @@ def _version() -> str:
 class _Stored:
     """A jitted function whose concrete calls run stored exported programs (module docstring)."""
 
-    def __init__(self, function, static_argnames: tuple, light):
+    def __init__(self, function, static_argnames: tuple, light, loop: bool):
         self._jitted = jax.jit(function, static_argnames=static_argnames)
         self._light = light  # False, True, or a function of the dynamic arguments (by name)
         self._light_jitted = jax.jit(function, static_argnames=static_argnames,
                                      compiler_options=LIGHT_OPTIONS) if light else None
+        # (a loop program's other top-level calls: `LOOP_OPTIONS`, never inside a trace, which refuses them)
+        self._loop_options = LOOP_OPTIONS if loop else None
+        self._loop_jitted = jax.jit(function, static_argnames=static_argnames,
+                                    compiler_options=LOOP_OPTIONS) if loop else None
         self._signature = inspect.signature(function)
         self._static = frozenset(static_argnames)
         self._name = f"{function.__module__}.{function.__qualname__}"
@@ -126,14 +133,17 @@ class _Stored:
         return self._light if isinstance(self._light, bool) else bool(self._light(**dynamic))
 
     def _top_level(self, args, kwargs):
-        """The jitted function a call without a store takes: the light one for a light program's
-        call with concrete arguments (module docstring), else the plain one."""
-        if self._light_jitted is None:
+        """The jitted function a call without a store takes: for a call with concrete arguments, the
+        light one of a light program's light call, the loop one of a loop program's other calls
+        (module docstring); else the plain one."""
+        if self._light_jitted is None and self._loop_jitted is None:
             return self._jitted
         _, dynamic = self._split(args, kwargs)
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(dynamic)):
             return self._jitted
-        return self._light_jitted if self._is_light(dynamic) else self._jitted
+        if self._light_jitted is not None and self._is_light(dynamic):
+            return self._light_jitted
+        return self._loop_jitted or self._jitted
 
     def _entry(self, args, kwargs):
         """``(entry, leaves)`` of a call: ``entry`` is ``(jitted exported call, output structure)``,
@@ -180,7 +190,7 @@ class _Stored:
     def _load(self, key, static, tree, leaves, light: bool):
         """``(jitted exported call, output structure)`` for ``key``, loaded or exported (compiled with
         `LIGHT_OPTIONS` if ``light``); False if the program cannot be exported."""
-        options = LIGHT_OPTIONS if light else None
+        options = LIGHT_OPTIONS if light else self._loop_options
         named = key[:3] + (tuple((tuple(a[0]), str(a[1]), bool(a[2])) if isinstance(a, tuple) else a.__name__
                                  for a in key[3]),)  # (the key as the digest of its file names it)
         digest = hashlib.sha256(f"{_version()}\0{self._name}\0{named!r}".encode()).hexdigest()[:32]
@@ -218,13 +228,14 @@ def _write(path: Path, data: bytes) -> None:
             pass
 
 
-def stored_jit(function=None, *, static_argnames=(), light=False):
+def stored_jit(function=None, *, static_argnames=(), light=False, loop=False):
     """``jax.jit(function, static_argnames=...)``, kept between processes while a store is in use
     (module docstring). Use as ``@stored_jit`` or ``@stored_jit(static_argnames=(...))``.
 
     ``light``: compile the top-level calls with `LIGHT_OPTIONS` (module docstring): True, or a
     function of the call's dynamic arguments (by name; of their shapes only, as a program is one
-    per shape) saying whether this call's program is light."""
+    per shape) saying whether this call's program is light. ``loop``: the program's run is a long loop;
+    its other top-level calls compile with `LOOP_OPTIONS`."""
     if function is None:
-        return functools.partial(stored_jit, static_argnames=static_argnames, light=light)
-    return _Stored(function, tuple(static_argnames), light)
+        return functools.partial(stored_jit, static_argnames=static_argnames, light=light, loop=loop)
+    return _Stored(function, tuple(static_argnames), light, loop)

@@ -214,7 +214,7 @@ class RelaxOptions(NamedTuple):
     chunk: int = RELAX_CHUNK
 
 
-@stored_jit(static_argnames=("physics", "options"), light=_light_relaxation)
+@stored_jit(static_argnames=("physics", "options"), light=_light_relaxation, loop=True)
 def relax_jit(x_init, geometry, params, rtol, divergence_bound, mass_safety, physics, options: RelaxOptions):
     """Dynamic relaxation from the full-grid shape ``x_init``.
 

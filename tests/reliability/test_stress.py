@@ -18,7 +18,12 @@ With ``STRESS_REPORT=path.json`` the counts of each outcome are written there.
 Grid shapes come from a fixed set, so the compiled solvers are shared between
 examples (a new shape costs seconds to compile); everything else (airfoil,
 rib spacing, pressure, stiffnesses, prestrains, damping, Courant coefficient)
-is traced and drawn freely.
+is traced and drawn freely. Each grid is relaxed a dozen times, up to 20,000
+steps each, so the relaxation compiles fully on every grid here
+(`forward_solver.solvers.relax.LIGHT_RELAX_NODES` 0 within this module: a
+light program, which a run relaxing a grid once or twice gains from, runs
+its steps several times slower; the same equilibria to rounding): the
+relaxation examples took 20 s alone, 11 s so.
 """
 
 import collections
@@ -39,6 +44,7 @@ from forward_solver import (
     simulate,
     solve_equilibrium,
 )
+from forward_solver.solvers import relax
 from forward_solver.solvers.explicit import MEASURED_COURANT_LIMIT, RINGING_RATIO
 from targets import naca
 
@@ -54,6 +60,14 @@ _SECTIONS = {}
 OUTCOMES = collections.Counter()
 EXPLICIT_OUTCOMES = collections.Counter()
 FAILURES = (Result.max_steps_reached, Result.diverged, Result.nonfinite, Result.stalled)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fully_compiled_relaxation():
+    """Every grid's relaxation compiled fully within this module (module docstring)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(relax, "LIGHT_RELAX_NODES", 0)
+        yield
 
 
 @pytest.fixture(scope="module", autouse=True)

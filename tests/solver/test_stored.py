@@ -96,18 +96,20 @@ def test_tracers_and_no_store_run_jitted(tmp_path):
         store.use_program_store(previous)
 
 
-def test_a_light_program_compiles_light_only_at_the_top_level(tmp_path):
+@pytest.mark.parametrize("loop", [False, True])
+def test_a_light_program_compiles_light_only_at_the_top_level(tmp_path, loop):
     """A ``light`` program's top-level calls ask its rule (by the arguments' shapes) and run the
-    light compilation, with and without a store; under ``jit``, ``vmap`` and ``grad`` it is part of
-    the caller's program (JAX refuses compiler options there) and the rule is not asked. Every
-    result is the plain program's to rounding."""
+    light compilation, with and without a store, and a ``loop`` program's other top-level calls
+    `LOOP_OPTIONS`; under ``jit``, ``vmap`` and ``grad`` it is part of the caller's program (JAX
+    refuses compiler options there: a ValueError) and the rule is not asked. Every result is the
+    plain program's to rounding."""
     asked = []
 
     def light(x, **_):
         asked.append(x.shape)
         return x.shape[0] <= 7
 
-    function = store.stored_jit(_program(), static_argnames=("power",), light=light)
+    function = store.stored_jit(_program(), static_argnames=("power",), light=light, loop=loop)
     plain = jax.jit(_program(), static_argnames=("power",))
     previous = store.use_program_store(None)
     try:
