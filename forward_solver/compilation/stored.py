@@ -55,9 +55,10 @@ __all__ = ["LIGHT_OPTIONS", "LOOP_OPTIONS", "stored_jit", "use_program_store", "
 #: 0.016 s (0.64 s against 0.12 s at 33x128: docs/compilation.md, `benchmarks/light_programs.py`).
 LIGHT_OPTIONS = {"xla_backend_optimization_level": 0}
 #: XLA's options of a program whose run is a long loop of small steps (the paper's explicit scheme,
-#: `forward_solver.simulate`; a ``loop`` program's calls that are not light): LLVM's full optimisation, XLA's own default level stated, so that a
-#: global ``XLA_FLAGS`` setting (the test suite's level 0) does not slow every step. Measured on the
-#: 2-core development machine: the scheme run to rest on a 9x32 bay took 41 s at level 0 against 11 s.
+#: `forward_solver.simulate`; a ``loop`` program's calls that are not light, the relaxation's): LLVM's
+#: full optimisation, XLA's own default level stated, so that a global ``XLA_FLAGS`` setting (the test
+#: suite's level 0) does not slow every step. Measured on the 2-core development machine: the scheme
+#: run to rest on a 9x32 bay took 41 s at level 0 against 11 s.
 LOOP_OPTIONS = {"xla_backend_optimization_level": 3}
 
 #: The packages whose source shapes the programs.
