@@ -190,7 +190,8 @@ class _Stored:
 
     def _load(self, key, static, tree, leaves, light: bool):
         """``(jitted exported call, output structure)`` for ``key``, loaded or exported (compiled with
-        `LIGHT_OPTIONS` if ``light``); False if the program cannot be exported."""
+        `LIGHT_OPTIONS` if ``light``, else a loop program's `LOOP_OPTIONS`); False if the program
+        cannot be exported."""
         options = LIGHT_OPTIONS if light else self._loop_options
         named = key[:3] + (tuple((tuple(a[0]), str(a[1]), bool(a[2])) if isinstance(a, tuple) else a.__name__
                                  for a in key[3]),)  # (the key as the digest of its file names it)
