@@ -111,7 +111,6 @@ class _Stored:
         self._light_jitted = jax.jit(function, static_argnames=static_argnames,
                                      compiler_options=LIGHT_OPTIONS) if light else None
         # (a loop program's other top-level calls: `LOOP_OPTIONS`, never inside a trace, which refuses them)
-        self._loop_options = LOOP_OPTIONS if loop else None
         self._loop_jitted = jax.jit(function, static_argnames=static_argnames,
                                     compiler_options=LOOP_OPTIONS) if loop else None
         self._signature = inspect.signature(function)
@@ -192,7 +191,7 @@ class _Stored:
         """``(jitted exported call, output structure)`` for ``key``, loaded or exported (compiled with
         `LIGHT_OPTIONS` if ``light``, else a loop program's `LOOP_OPTIONS`); False if the program
         cannot be exported."""
-        options = LIGHT_OPTIONS if light else self._loop_options
+        options = LIGHT_OPTIONS if light else (LOOP_OPTIONS if self._loop_jitted is not None else None)
         named = key[:3] + (tuple((tuple(a[0]), str(a[1]), bool(a[2])) if isinstance(a, tuple) else a.__name__
                                  for a in key[3]),)  # (the key as the digest of its file names it)
         digest = hashlib.sha256(f"{_version()}\0{self._name}\0{named!r}".encode()).hexdigest()[:32]
