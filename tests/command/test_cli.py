@@ -790,10 +790,15 @@ def test_main_raises_the_collectors_threshold_only_while_it_runs(tmp_path, monke
     seen = []
     real = cli._main
     monkeypatch.setattr(cli, "_main", lambda *args: seen.append(gc.get_threshold()) or real(*args))
-    before = gc.get_threshold()
-    assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
+    suite = gc.get_threshold()  # (the suite's processes collect at the command's threshold: tests/conftest.py)
+    before = (700, 9, 11)  # a caller's own (Python's default first threshold is 700)
+    gc.set_threshold(*before)
+    try:
+        assert cli.main(["--target", "naca24x12", "--out", str(tmp_path / "out")]) == 2
+        assert gc.get_threshold() == before
+    finally:
+        gc.set_threshold(*suite)
     assert seen == [(cli.GC_THRESHOLD, *before[1:])] and cli.GC_THRESHOLD > before[0]
-    assert gc.get_threshold() == before
     assert "NACA" in capsys.readouterr().err
 
 
