@@ -86,23 +86,37 @@ def pytest_configure(config):
         "(a few minutes); deselect with -m 'not notebooks'")
 
 
-#: The longest files (CPU seconds on one core, most first: docs/architecture.md "Tests"). They run
+#: The longest files (seconds in a worker of the whole run, most first: docs/architecture.md "Tests"). They run
 #: first: pytest-xdist's ``--dist loadfile`` hands whole files to its workers in collection order
 #: (``--no-loadscope-reorder``: else in order of their number of tests, which put the notebooks, four
 #: tests, near the end), so the short files at the end fill the gaps and neither worker waits alone
-#: for one long file.
+#: for one long file (with the list of 2026-11-26, two long files of solver/ and wing/ came last and
+#: one worker ran 18 s alone).
 LONGEST_FIRST = (
-    "docs/test_readme.py",  # 136 s (measured serially, 2026-11-26, on a loaded 2-core machine)
-    "docs/test_notebooks.py",  # 120 s
-    "command/test_cli.py",  # 113 s
-    "derivatives/test_transforms.py",  # 75 s
-    "wing/test_solve_bays.py",  # 74 s
-    "design/test_design_matrix.py",  # 71 s
-    "design/test_cut_field.py",  # 65 s
-    "reliability/test_stress.py",  # 64 s
-    "derivatives/test_gradients.py",  # 57 s
-    "solver/test_equilibrium.py",  # 52 s
-    "design/test_rib_design.py",  # 52 s
+    "command/test_cli.py",  # 72 s (measured in a run of the whole suite, 2026-11-29, 2-core machine)
+    "docs/test_readme.py",  # 57 s
+    "docs/test_notebooks.py",  # 54 s
+    "reliability/test_stress.py",  # 40 s
+    "solver/test_solver_fallback.py",  # 30 s
+    "design/test_cut_field.py",  # 25 s
+    "design/test_design_matrix.py",  # 24 s
+    "solver/test_closed_bays.py",  # 24 s
+    "derivatives/test_transforms.py",  # 21 s
+    "wing/test_solve_bays.py",  # 20 s
+    "design/test_block_jacobian.py",  # 20 s
+    "solver/test_fibre_law.py",  # 19 s
+    "solver/test_equilibrium.py",  # 19 s
+    "derivatives/test_gradients.py",  # 18 s
+    "wing/test_wing_design.py",  # 17 s
+    "design/test_fabric_law.py",  # 17 s
+    "command/test_samples.py",  # 16 s
+    "design/test_optimise.py",  # 16 s
+    "command/test_signals.py",  # 15 s
+    "solver/test_shear.py",  # 14 s
+    "solver/test_fast_equilibrium.py",  # 14 s
+    "command/test_report.py",  # 14 s
+    "command/test_tolerance_cli.py",  # 13 s
+    "design/test_rib_design.py",  # 13 s
 )
 
 
