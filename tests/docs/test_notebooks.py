@@ -19,18 +19,21 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import pytest
+
+from support.command import environment
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
 
 pytestmark = pytest.mark.notebooks
 
-NOTEBOOKS = Path(__file__).resolve().parents[2] / "notebooks"
+ROOT = Path(__file__).resolve().parents[2]
+NOTEBOOKS = ROOT / "notebooks"
 MARK = "NOTEBOOK_SUMMARY="
+PACKAGE = "NOTEBOOK_PACKAGE="
 REPORT = f"""
 import json as _json
 import numpy as _np
@@ -43,6 +46,7 @@ def _plain(value):
     return str(value)
 
 print({MARK!r} + _json.dumps(summary, default=_plain))
+print({PACKAGE!r} + __import__("forward_solver").__file__)
 """
 
 
@@ -59,11 +63,13 @@ del _matplotlib, _plt
 
 @pytest.fixture(scope="module")
 def kernel():
-    """One small-mode kernel (``WING_FULL_STUDY=0``, started in notebooks/) for the module's notebooks."""
+    """One small-mode kernel (``WING_FULL_STUDY=0``, started in notebooks/) for the module's notebooks, with
+    the repository first on its path: the notebooks import the code under test, however the package is
+    installed (`support.command.environment`, as the README's blocks do)."""
     from jupyter_client.manager import KernelManager
 
     manager = KernelManager(kernel_name="python3")
-    manager.start_kernel(cwd=str(NOTEBOOKS), env={**os.environ, "WING_FULL_STUDY": "0"})
+    manager.start_kernel(cwd=str(NOTEBOOKS), env=environment(WING_FULL_STUDY="0"))
     try:
         yield manager
     finally:
@@ -86,6 +92,8 @@ def run_small(name: str, kernel) -> dict:
     text = "".join(out.get("text", "") for out in nb.cells[-1].outputs if out.output_type == "stream")
     line = next(line for line in text.splitlines() if line.startswith(MARK))
     summary = json.loads(line[len(MARK):])
+    package = next(line for line in text.splitlines() if line.startswith(PACKAGE))[len(PACKAGE):]
+    assert Path(package).resolve().is_relative_to(ROOT), f"the notebook imported {package}, not the code under test"
     assert summary["full_study"] is False, "the test must run the small mode"
     return summary
 
