@@ -29,6 +29,7 @@ import numpy as np
 from .cut_files import write_dxf, write_svg
 from .mark_layout import Text, text_width
 from .shop_marks import TEXT_HEIGHT, TITLE_HEIGHT
+from .workers import save_figure
 
 __all__ = ["MARKER_FILES", "marker_drawing", "write_marker_files", "write_marker_png"]
 
@@ -117,7 +118,7 @@ def write_marker_png(path, marker, dpi: int = 100) -> Path:
     axes.set_title(f"marker: {len(marker.pieces)} panels, {length / 1000.0:.3f} m of a {width:g} mm roll, "
                    f"utilisation {marker.utilisation:.1%}", fontsize=9)
     path = Path(path)
-    figure.savefig(path, dpi=dpi)
+    save_figure(path, figure, dpi=dpi)
     return path
 
 

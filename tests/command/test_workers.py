@@ -161,3 +161,27 @@ def test_a_worker_imports_neither_jax_nor_the_solver():
                          capture_output=True, text=True, timeout=120)
     assert ran.returncode == 0, ran.stderr
     assert ran.stdout.strip() == "[]"
+
+
+def test_a_figure_saved_by_a_task_is_the_file_savefig_writes(tmp_path):
+    # `save_figure` lays a constrained figure out once, at the saving dpi, where savefig lays it out twice:
+    # the same bytes, or the layout (margins, the colorbar's room, ticks) came out otherwise.
+    import pickle
+
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(6, 4), layout="constrained")
+    FigureCanvasAgg(figure)
+    left, right = figure.subplots(1, 2)
+    left.semilogy(np.arange(1, 9), 10.0 ** np.arange(8), label="merit")
+    left.set(title="a long title that takes room", xlabel="iteration", ylabel="merit")
+    left.legend()
+    image = right.pcolormesh(np.arange(30).reshape(5, 6))
+    figure.colorbar(image, ax=right, label="tension, N/m")
+    figure.suptitle("a figure")
+    blob, options = pickle.dumps(figure), {"dpi": 150, "pil_kwargs": {"compress_level": 3}}
+    pickle.loads(blob).savefig(tmp_path / "savefig.png", **options)
+    report_workers.save_figure(tmp_path / "task.png", pickle.loads(blob), **options)
+    assert (tmp_path / "task.png").read_bytes() == (tmp_path / "savefig.png").read_bytes()
