@@ -43,6 +43,7 @@ _NEVER = {
     "unshaped": r"rib(_[0-9]+)?\.dat|rib_design\.png",
     "no_aero": r"(bay_[0-9]+_)?aero\.png",
     "no_patterns": r"pattern_.*|rib_[0-9]+\.dxf",
+    "no_figures": r".*\.png",
     "no_tolerances": r"tolerance\.png|tolerance_samples\.csv",
     "no_samples": r"tolerance_samples\.csv",
     "no_marker": r"marker\.(dxf|svg|png)",
@@ -157,7 +158,7 @@ class Case:
         Every report file name (`output_folder.REPORT_FILES`) but those this
         kind of run never writes (a single bay's extras in a run of several
         bays, ``history.png`` with ``--evaluate``, ``rib.dat`` without a rib
-        shape, the patterns with ``--no-patterns``, ...). Used to refuse,
+        shape, the patterns with ``--no-patterns``, the figures with ``--no-figures``, ...). Used to refuse,
         before the long work, a file an earlier report wrote and someone
         edited since, which this run would replace
         (`output_folder.check_output_folder`); the run keeps such a file that
@@ -170,6 +171,7 @@ class Case:
         o = self.options
         kinds = {"any": True, "several_bays": self.n_bays > 1, "evaluate": o.evaluate,
                  "unshaped": "rib_shape" not in self.variables, "no_aero": not o.aero, "no_patterns": o.no_patterns,
+                 "no_figures": o.no_figures,
                  "no_tolerances": not o.tolerances, "no_samples": bool(o.tolerances) and not o.samples,
                  "no_marker": self.marker is None}
         return re.compile("|".join(f"(?:{_NEVER[kind]})" for kind, never in kinds.items() if never))

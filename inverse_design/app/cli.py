@@ -69,7 +69,7 @@ from .case import Case
 from .console import describe
 from .interrupts import Terminated
 from .options import PROG, InputError
-from .workers import WORKER_MODULES, ReportWorkers
+from .workers import ReportWorkers, worker_modules
 
 __all__ = ["CONSOLE_WIDTH", "REFUSAL_WIDTH", "EXIT_INTERRUPTED", "EXIT_TERMINATED", "InputError", "Terminated", "main", "command"]
 
@@ -390,8 +390,9 @@ def _main(argv: list[str] | None, started: float, ended: dict) -> int:
         # semaphores behind, one inside JAX's import broke the import), then raised here.
         with interrupts.deferred():
             # The report's figures and DXF patterns: workers started now import matplotlib and ezdxf
-            # while the design runs (`workers.ReportWorkers`).
-            workers = ReportWorkers.start(WORKER_MODULES)
+            # while the design runs (`workers.ReportWorkers`); none for a report of neither.
+            modules = worker_modules(figures=not options.no_figures, patterns=not options.no_patterns)
+            workers = ReportWorkers.start(modules) if modules else None
             # (worker: a spawned report worker imports this module again and must not import JAX; these do)
             from forward_solver import ConvergenceError  # (worker: as above)
             from forward_solver.compilation import enable_fast_compilation  # (worker: as above)

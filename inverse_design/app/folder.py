@@ -84,6 +84,8 @@ class ReportOptions:
         patterns: write the flat panels and the rib templates (DXF, SVG) of a
             successful design (module docstring).
         seam_allowance_mm: the patterns' seam allowance, mm (>= 0).
+        figures: draw the figures (every ``.png``, the marker's too); without
+            them each is in ``skipped``, with why.
         inputs, warnings, aero: the run's inputs, its warning lines and each
             bay's aerodynamic polar, recorded as `summary.summarise` does (``aero``
             also draws ``bay_K_aero.png``).
@@ -103,6 +105,7 @@ class ReportOptions:
     rib_limits: object = None
     patterns: bool = True
     seam_allowance_mm: float = 10.0
+    figures: bool = True
     inputs: dict | None = None
     timings: dict | None = None
     aero: object = None
@@ -161,6 +164,9 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
         # there are any, save them, else they are saved after the other files are written
         # (`workers.saved_after`).
         specs = _figures(bays, options, skipped)
+        if not options.figures:
+            skipped.update((name, "not asked for (--no-figures)") for name, *_ in specs)
+            specs = []
         to_save = sorted(specs, key=lambda spec: _SAVE_ORDER.index(spec[0]) if spec[0] in _SAVE_ORDER
                          else len(_SAVE_ORDER))
         sent, built = [], []  # the tasks handed to the workers, in order; the figures saved here
@@ -182,7 +188,9 @@ def write_report(out, result: DesignResult, *, options: ReportOptions | None = N
             with saved_after(built, _save):
                 _write_data(staging, bays, files, skipped)
                 if marker is not None:
-                    files += write_marker_files(staging, marker)
+                    files += write_marker_files(staging, marker, picture=options.figures)
+                    if not options.figures:
+                        skipped["marker.png"] = "not asked for (--no-figures)"
                     summary["marker"] = marker.summary()
                 if _patterns_wanted(options.patterns, summary, skipped):
                     laid = {} if marker is None else {(p.bay, p.name): p.panel for p in marker.pieces}

@@ -122,11 +122,14 @@ def write_marker_png(path, marker, dpi: int = 100) -> Path:
     return path
 
 
-def write_marker_files(folder, marker) -> list[str]:
-    """Write ``marker.dxf``, ``marker.svg`` and ``marker.png`` into ``folder``; return their names."""
+def write_marker_files(folder, marker, picture: bool = True) -> list[str]:
+    """Write ``marker.dxf``, ``marker.svg`` and (with ``picture``) ``marker.png`` into ``folder``; return
+    their names."""
     folder = Path(folder)
     drawing = marker_drawing(marker)
     write_dxf(folder / MARKER_FILES[0], drawing)
     write_svg(folder / MARKER_FILES[1], drawing)
+    if not picture:
+        return list(MARKER_FILES[:2])
     write_marker_png(folder / MARKER_FILES[2], marker)
     return list(MARKER_FILES)

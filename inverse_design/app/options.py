@@ -328,6 +328,10 @@ OPTIONS = (
     ("output", "--no-patterns", dict(action="store_true",
                                      help="do not write the flat panels and rib templates (pattern_bay_*.dxf, "
                                      ".svg, rib_*.dxf)")),
+    ("output", "--no-figures", dict(action="store_true",
+                                    help="do not draw the report's figures (every .png, the marker's too): the "
+                                    "data files, patterns and summary.json alone, a second or more sooner (a sweep "
+                                    "of runs)")),
     ("output", "--json", dict(action="store_true", help="print the summary as JSON on stdout, nothing else")),
     ("output", "--quiet", dict(action="store_true", help="print nothing but errors")),
     ("output", "--no-compilation-cache", dict(action="store_true",
@@ -381,6 +385,7 @@ left by a killed run are removed by the next run to DIR:
                         --no-patterns)
   marker.dxf, .svg, .png  with --roll-width: every panel nested on the roll, grain-true
                         (docs/patterns.md; summary.json's marker: length, utilisation)
+  (with --no-figures no .png is drawn; summary.json's skipped names each)
 
 case file (--config case.toml; keys are the long option names, with - or _; .dat paths in
 it are relative to the case file's folder; options on the command line override it):

@@ -28,7 +28,7 @@ from .folder import ReportOptions, write_report
 from .options import PROG
 from .output_folder import changed_files, check_output_folder, output_lock
 from .resources import check_grid
-from .workers import REPORT_MODULES
+from .workers import DRAWING_MODULES, FIGURE_MODULES
 
 __all__ = ["run_case", "safe_point", "warn", "warnings_into"]
 
@@ -37,20 +37,24 @@ def safe_point(entry=None) -> None:
     interrupts.check()
 
 
-def _import_report_modules() -> None:
-    for name in REPORT_MODULES:
+def _import_report_modules(names: tuple) -> None:
+    for name in names:
         try:
             importlib.import_module(name)
         except Exception:  # noqa: BLE001 - the report imports it again and says what failed
             pass
 
 
-def _import_report_modules_meanwhile() -> None:
-    """Import the report's libraries (matplotlib, ezdxf: 0.4 s) on a second thread while the design
-    runs: the design's compiling and computing release Python's lock, the import takes it then
-    (measured: the design slows by about what the report saves)."""
-    if (os.cpu_count() or 1) > 1:
-        threading.Thread(target=_import_report_modules, name="import-report", daemon=True).start()
+def _import_report_modules_meanwhile(case: Case) -> None:
+    """Import the report's libraries (matplotlib, ezdxf: 0.4 s; those its files need: none of matplotlib
+    with ``--no-figures``) on a second thread while the design runs: the design's compiling and computing
+    release Python's lock, the import takes it then (measured: the design slows by about what the report
+    saves)."""
+    o = case.options
+    names = (FIGURE_MODULES if not o.no_figures else ()) + (
+        DRAWING_MODULES if not o.no_patterns or case.marker is not None else ())
+    if names and (os.cpu_count() or 1) > 1:
+        threading.Thread(target=_import_report_modules, args=(names,), name="import-report", daemon=True).start()
 
 
 def run_case(case: Case, progress: bool = False, started: float | None = None, workers=None) -> dict:
@@ -77,7 +81,7 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
     alphas = design.aero_angles(case) if o.aero else None  # (before any solve: a missing package fails fast)
     out = check_output_folder(o.out, replaces=case.may_write)  # before the long work, not after it
     design.check_equilibrium_method(case)
-    _import_report_modules_meanwhile()  # (the figures are built here, also when workers save them)
+    _import_report_modules_meanwhile(case)  # (the figures are built here, also when workers save them)
     tolerances = design.tolerances(case)  # (before any solve)
     design.check_wing(case)  # ribs too close for the grid are refused before any warning is shown
     notes = warn(case)
@@ -116,7 +120,7 @@ def _run(case: Case, progress: bool, start: float, workers) -> dict:
         timings["samples"] = analysis.timings.get("samples", 0.0)
     interrupts.check()
     report = ReportOptions(bounds=None if o.evaluate else case.bounds, magnification=o.magnification,
-                           rib_limits=case.limits.ribs, patterns=not o.no_patterns,
+                           rib_limits=case.limits.ribs, patterns=not o.no_patterns, figures=not o.no_figures,
                            seam_allowance_mm=o.seam_allowance, inputs=case.inputs, timings=timings, aero=aero,
                            warnings=notes, tolerance=analysis)
     samples_file = analysis.samples_file if analysis is not None else None

@@ -52,14 +52,26 @@ import threading
 import time
 from contextlib import contextmanager
 
-__all__ = ["ANSWER_WAIT_S", "MAX_TASKS", "MAX_WORKERS", "PARENT_POLL_S", "REPORT_MODULES", "WORKER_MODULES",
-           "WORKER_TIMEOUT_S", "ReportWorkers", "run_task", "save_figure", "saved_after"]
+__all__ = ["ANSWER_WAIT_S", "DRAWING_MODULES", "FIGURE_MODULES", "MAX_TASKS", "MAX_WORKERS", "PARENT_POLL_S",
+           "REPORT_MODULES", "WORKER_MODULES", "WORKER_TIMEOUT_S", "ReportWorkers", "run_task", "save_figure",
+           "saved_after", "worker_modules"]
 
+#: The libraries of the report's figures (PNG) and of its DXF and SVG files (patterns, marker).
+FIGURE_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg")
+DRAWING_MODULES = ("ezdxf",)
 #: The report's libraries, imported ahead by the command's run (`run`) and by the workers.
-REPORT_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg", "ezdxf")
+REPORT_MODULES = (*FIGURE_MODULES, *DRAWING_MODULES)
 #: What the report's workers (`workers.ReportWorkers`) import while the design runs: the libraries of
-#: the figures and of the DXF and SVG patterns they write, and the modules their tasks name.
+#: the figures and of the DXF and SVG patterns they write, and the modules their tasks name
+#: (`worker_modules`: a report without figures or without patterns imports less).
 WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
+
+
+def worker_modules(figures: bool, patterns: bool) -> tuple:
+    """The part of `WORKER_MODULES` that a report's workers need to save its ``figures`` and write its
+    ``patterns``: none (no worker to start) for a report of neither."""
+    return ((FIGURE_MODULES if figures else ()) + ((*DRAWING_MODULES, "inverse_design.app.cut_files")
+                                                    if patterns else ()))
 
 
 #: Seconds `ReportWorkers.finish` waits for the workers' tasks; then the caller writes what is left. A

@@ -298,7 +298,7 @@ def test_a_case_file_is_read_and_the_command_line_overrides_it(run_cli, tmp_path
 
 
 def test_inputs_outside_the_validated_ranges_warn_on_stderr_and_in_the_summary(run_cli, tmp_path):
-    done = run_cli(*SMALL, "--evaluate", "--prestrain-chord", "0.08", "--rib-spacing", "0.6", "--out", "out",
+    done = run_cli(*SMALL, "--evaluate", "--no-figures", "--prestrain-chord", "0.08", "--rib-spacing", "0.6", "--out", "out",
                    cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     lines = done.stderr.strip().splitlines()
@@ -471,7 +471,7 @@ def test_a_failed_solve_exits_1_with_the_reason_and_writes_nothing(run_cli, tmp_
 
 
 def test_an_optimisation_that_does_not_converge_exits_1_and_keeps_its_results(run_cli, tmp_path):
-    done = run_cli(*SMALL, "--max-iterations", "2", "--quiet", "--out", "out", cwd=tmp_path)
+    done = run_cli(*SMALL, "--max-iterations", "2", "--no-figures", "--quiet", "--out", "out", cwd=tmp_path)
     assert done.returncode == 1 and done.stdout == ""
     assert "did not converge" in done.stderr and "Traceback" not in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1 and "no panel or rib template (DXF, SVG) was written" in done.stderr

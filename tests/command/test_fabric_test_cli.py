@@ -122,7 +122,7 @@ def test_the_summary_records_the_law_and_warns_beyond_the_tested_range(tmp_path,
     # warning, once, in the summary too); the summary records the law, its fit and the strains reached.
     out = tmp_path / "out"
     code = cli.main(["--fabric-test", str(EXAMPLE_FABRIC_TEST), "--evaluate", "--pressure", "6e4", *SMALL,
-                     "--no-compilation-cache", "--out", str(out)])
+                     "--no-figures", "--no-compilation-cache", "--out", str(out)])
     printed = capsys.readouterr()
     err = printed.err
     assert code == 0, err
@@ -143,7 +143,7 @@ def test_the_summary_records_the_law_and_warns_beyond_the_tested_range(tmp_path,
 
 def test_a_design_with_the_default_law_records_eq_10(tmp_path):
     out = tmp_path / "out"
-    assert cli.main(["--evaluate", *SMALL, *IN_PROCESS, "--out", str(out)]) == 0
+    assert cli.main(["--evaluate", *SMALL, "--no-figures", *IN_PROCESS, "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["case"]["fabric"]["law"] == {"kind": "linear, eq. 10", "stiffness_span_n_per_m": 2e5,
                                                 "stiffness_chord_n_per_m": 2e5, "poisson": 0.25}

@@ -7,6 +7,7 @@ their compilations. The figure checks build figures from plain values (no solve)
 """
 
 import json
+import shutil
 from types import SimpleNamespace
 
 import numpy as np
@@ -132,7 +133,7 @@ def test_a_value_zero_to_rounding_prints_as_zero():
 
 
 def test_a_failed_design_says_that_no_panel_was_written_not_that_no_cut_pattern_was(tmp_path, capsys):
-    code = cli.main([*SMALL, "--max-iterations", "1", "--out", str(tmp_path / "out"), *IN_PROCESS])
+    code = cli.main([*SMALL, "--max-iterations", "1", "--no-figures", "--out", str(tmp_path / "out"), *IN_PROCESS])
     err = capsys.readouterr().err
     assert code == 1 and "no panel or rib template (DXF, SVG) was written" in err
     assert "no cut pattern" not in err
@@ -140,6 +141,22 @@ def test_a_failed_design_says_that_no_panel_was_written_not_that_no_cut_pattern_
     assert "bay_0_cut_pattern.csv" in summary["files"]  # (the cut lengths are written: they are data)
     assert not list((tmp_path / "out").glob("*.dxf"))
 
+
+
+def test_without_figures_the_report_is_the_same_less_every_png_each_named_skipped(two_reports, tmp_path):
+    # --no-figures into the folder of the same run with figures: every other file written again, each
+    # figure named in skipped and the earlier report's figures removed (files this report does not write).
+    with_figures = two_reports["options"]
+    out = tmp_path / "out"
+    shutil.copytree(with_figures["folder"], out)
+    assert cli.main([*SMALL, "--no-figures", "--out", str(out), *IN_PROCESS]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    figures = {name for name in with_figures["files"] if name.endswith(".png")}
+    assert len(figures) >= 5 and set(summary["files"]) == set(with_figures["files"]) - figures
+    assert {name for name, why in summary["skipped"].items() if "--no-figures" in why} == figures
+    assert sorted(path.name for path in out.iterdir()) == sorted(summary["files"])
+    assert summary["results"]["values"] == pytest.approx(with_figures["results"]["values"], rel=1e-9)
+    assert summary["inputs"]["no_figures"] is True
 
 # ------------------------------------------------------------------ figures
 def _points_in_display(ax):
@@ -321,7 +338,7 @@ def test_root_finding_runs_on_a_one_bay_case_file(tmp_path):
     # such a bay (a wing of several bays is refused, tests/command/test_wing_cli.py).
     (tmp_path / "bay.toml").write_text(TWO_RIBS)
     code = cli.main(["--config", str(tmp_path / "bay.toml"), "--method", "root", "--variables", "pressure",
-                     "--out", str(tmp_path / "out"), *IN_PROCESS])
+                     "--no-figures", "--out", str(tmp_path / "out"), *IN_PROCESS])
     assert code == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["results"]["method"] == "root" and summary["results"]["success"]

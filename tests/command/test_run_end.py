@@ -23,7 +23,7 @@ class _FullDevice:
 def test_a_failing_standard_output_is_one_line_and_the_report_stays(tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     monkeypatch.setattr("sys.stdout", _FullDevice())
-    code = cli.main([*SMALL, "--variables", "pressure", "--no-compilation-cache", "--out", str(out)])
+    code = cli.main([*SMALL, "--variables", "pressure", "--no-figures", "--no-compilation-cache", "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 1
     assert "Traceback" not in err
@@ -47,7 +47,7 @@ def test_a_stop_that_something_swallows_after_the_report_still_ends_the_run(tmp_
 
     monkeypatch.setattr(cli, "describe", swallowing)
     out = tmp_path / "out"
-    code = cli.main([*SMALL, "--variables", "pressure", "--no-compilation-cache", "--out", str(out)])
+    code = cli.main([*SMALL, "--variables", "pressure", "--no-figures", "--no-compilation-cache", "--out", str(out)])
     captured = capsys.readouterr()
     assert code == cli.EXIT_TERMINATED
     assert captured.err.strip().splitlines()[-1] == (

@@ -136,7 +136,7 @@ def test_a_robust_design_of_a_wing_reports_its_percentiles(tmp_path, capsys):
     case = tmp_path / "wing.toml"
     case.write_text(ROBUST_CASE)
     out = tmp_path / "out"
-    code = cli.main(["--config", str(case), "--out", str(out), "--no-patterns", *IN_PROCESS])
+    code = cli.main(["--config", str(case), "--out", str(out), "--no-patterns", "--no-figures", *IN_PROCESS])
     assert code == 0, capsys.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["errors"]["objective"] == "robust"

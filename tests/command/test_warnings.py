@@ -15,7 +15,8 @@ def test_a_section_renormalised_to_unit_chord_is_warned_whole_and_kept_in_the_su
     dat = tmp_path / "off.dat"  # a chord of 1.004: renormalised (up to 0.005 off), with a warning
     np.savetxt(dat, np.column_stack([section.x * 1.004, section.z * 1.004]), header="OFF CHORD", comments="")
     out = tmp_path / "out"
-    code = cli.main(["--target", str(dat), "--evaluate", *SMALL, "--no-compilation-cache", "--out", str(out)])
+    code = cli.main(["--target", str(dat), "--evaluate", *SMALL, "--no-figures", "--no-compilation-cache",
+                     "--out", str(out)])
     err = capsys.readouterr().err.splitlines()
     assert code == 0
     kept = json.loads((out / "summary.json").read_text())["warnings"]

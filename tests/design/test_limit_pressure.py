@@ -39,7 +39,7 @@ def test_the_reported_cut_pattern_design_is_wrinkle_free_or_a_failure_naming_the
 
     out = tmp_path / "design"
     code = cli.main(["--n-span", "9", "--n-contour", "32", "--variables", "pressure,rib_thickness_scale,cut_pattern",
-                     "--no-patterns", "--out", str(out)])
+                     "--no-patterns", "--no-figures", "--out", str(out)])
     printed = "".join(capsys.readouterr())
     summary = json.loads((out / "summary.json").read_text())
     wrinkled = np.load(out / "equilibrium.npz")["wrinkled"]

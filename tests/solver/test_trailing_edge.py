@@ -109,7 +109,7 @@ def test_the_command_closes_a_mixed_wing_and_says_so(tmp_path, monkeypatch, caps
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
     out = tmp_path / "out"
-    code = cli.main(["--config", str(folder / "wing.toml"), "--out", str(out), "--no-compilation-cache"])
+    code = cli.main(["--config", str(folder / "wing.toml"), "--out", str(out), "--no-figures", "--no-compilation-cache"])
     printed = capsys.readouterr()
     assert code in (0, 1), printed.err  # (two iterations need not converge)
     summary = json.loads((out / "summary.json").read_text())
