@@ -330,7 +330,7 @@ OPTIONS = (
                                      ".svg, rib_*.dxf)")),
     ("output", "--no-figures", dict(action="store_true",
                                     help="do not draw the report's figures (every .png, the marker's too): the "
-                                    "data files, patterns and summary.json alone, a second or more sooner (a sweep "
+                                    "data files, patterns and summary.json alone, about a second sooner (a sweep "
                                     "of runs)")),
     ("output", "--json", dict(action="store_true", help="print the summary as JSON on stdout, nothing else")),
     ("output", "--quiet", dict(action="store_true", help="print nothing but errors")),
