@@ -311,11 +311,12 @@ def _write_data(staging: Path, bays: _Bays, files: list, skipped: dict) -> None:
 def _write_patterns(staging: Path, bays: _Bays, seam_allowance_mm: float, workers, sent: list, laid: dict) -> tuple:
     """Every bay's flat panels and rib templates (`patterns.write_bay_patterns`): ``(names, panels)``; the
     panels already laid out for the marker (``laid``: ``{(bay, name): Panel}``) are not laid out again.
-    With workers that took the figures (``sent``, their tasks so far, extended here), each bay's DXF
-    and SVG files are handed to them at once: they draw and write them while this process lays out the
-    next bays' panels."""
-    tasks = []  # (the files go to the workers, which have ezdxf imported, if they took the figures)
-    writer = (lambda path, function, *args: tasks.append((path, function, args, {}))) if sent else None
+    With workers that took every task so far (``sent``, the figures', extended here; none with
+    ``--no-figures``), each bay's DXF and SVG files are handed to them at once: they draw and write them
+    while this process lays out the next bays' panels."""
+    tasks = []  # (the files go to the workers, which have ezdxf imported)
+    handed = workers is not None and workers.submitted == len(sent)
+    writer = (lambda path, function, *args: tasks.append((path, function, args, {}))) if handed else None
     names, panels = [], []
     for k in range(bays.n):
         known = [panel for (bay, _), panel in laid.items() if bay == k] or None

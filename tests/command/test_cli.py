@@ -253,6 +253,23 @@ def test_the_report_workers_write_the_files_a_serial_report_writes(default_run, 
         assert _dxf_entities(base / "counted" / name) == _dxf_entities(out / name), name
 
 
+
+def test_without_figures_the_report_workers_write_the_patterns(default_run, cli_env):
+    """With ``--no-figures`` the workers, started for the patterns alone, take them as they take the figures:
+    the same DXF and SVG drawings as the serial report's, and no figure."""
+    base, out, _, _ = default_run
+    counted = subprocess.run([sys.executable, "-c", _COUNTED, *SMALL, "--no-figures", "--quiet", "--out", "drawings"],
+                             cwd=base, env=cli_env, capture_output=True, text=True, timeout=600)
+    assert counted.returncode == 0, counted.stderr
+    ran = json.loads(counted.stdout.strip().splitlines()[-1])
+    if report_workers_possible():  # two panels' DXF and SVG (a task each), two ribs' DXF: all done
+        assert ran["saved"] == [list(range(4))]
+    assert not list((base / "drawings").glob("*.png"))
+    for name in sorted(n for n in FOLDER if n.endswith(".svg")):
+        assert (base / "drawings" / name).read_bytes() == (out / name).read_bytes(), name
+    for name in sorted(n for n in FOLDER if n.endswith(".dxf")):
+        assert _dxf_entities(base / "drawings" / name) == _dxf_entities(out / name), name
+
 def test_the_command_keeps_the_solvers_top_level_programs_beside_its_cache(default_run, cli_env):
     """A run leaves its relaxation, Newton and static-state programs exported in the cache's
     ``programs`` folder (docs/compilation.md); a later run (the one above) loads them, and draws the same
