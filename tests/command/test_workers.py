@@ -165,7 +165,8 @@ def test_a_worker_imports_neither_jax_nor_the_solver():
 
 def test_a_figure_saved_by_a_task_is_the_file_savefig_writes(tmp_path):
     # `save_figure` lays a constrained figure out once, at the saving dpi, where savefig lays it out twice:
-    # the same bytes, or the layout (margins, the colorbar's room, ticks) came out otherwise.
+    # the same bytes, or the layout (margins, the colorbar's room, ticks) came out otherwise. (Imported
+    # here: the workers of this file's other tests import the module to run its tasks.)
     import pickle
 
     import numpy as np
