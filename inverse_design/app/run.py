@@ -28,7 +28,7 @@ from .folder import ReportOptions, write_report
 from .options import PROG
 from .output_folder import changed_files, check_output_folder, output_lock
 from .resources import check_grid
-from .workers import DRAWING_MODULES, FIGURE_MODULES
+from .workers import report_modules
 
 __all__ = ["run_case", "safe_point", "warn", "warnings_into"]
 
@@ -51,8 +51,7 @@ def _import_report_modules_meanwhile(case: Case) -> None:
     release Python's lock, the import takes it then (measured: the design slows by about what the report
     saves)."""
     o = case.options
-    names = (FIGURE_MODULES if not o.no_figures else ()) + (
-        DRAWING_MODULES if not o.no_patterns or case.marker is not None else ())
+    names = report_modules(figures=not o.no_figures, drawings=not o.no_patterns or case.marker is not None)
     if names and (os.cpu_count() or 1) > 1:
         threading.Thread(target=_import_report_modules, args=(names,), name="import-report", daemon=True).start()
 

@@ -53,8 +53,8 @@ import time
 from contextlib import contextmanager
 
 __all__ = ["ANSWER_WAIT_S", "DRAWING_MODULES", "FIGURE_MODULES", "MAX_TASKS", "MAX_WORKERS", "PARENT_POLL_S",
-           "REPORT_MODULES", "WORKER_MODULES", "WORKER_TIMEOUT_S", "ReportWorkers", "run_task", "save_figure",
-           "saved_after", "worker_modules"]
+           "REPORT_MODULES", "WORKER_MODULES", "WORKER_TIMEOUT_S", "ReportWorkers", "report_modules", "run_task",
+           "save_figure", "saved_after", "worker_modules"]
 
 #: The libraries of the report's figures (PNG) and of its DXF and SVG files (patterns, marker).
 FIGURE_MODULES = ("matplotlib.figure", "matplotlib.backends.backend_agg")
@@ -67,11 +67,16 @@ REPORT_MODULES = (*FIGURE_MODULES, *DRAWING_MODULES)
 WORKER_MODULES = (*REPORT_MODULES, "inverse_design.app.cut_files")
 
 
+def report_modules(figures: bool, drawings: bool) -> tuple:
+    """The part of `REPORT_MODULES` that a report of ``figures`` and of ``drawings`` (DXF, SVG) uses."""
+    return (FIGURE_MODULES if figures else ()) + (DRAWING_MODULES if drawings else ())
+
+
 def worker_modules(figures: bool, patterns: bool) -> tuple:
     """The part of `WORKER_MODULES` that a report's workers need to save its ``figures`` and write its
     ``patterns``: none (no worker to start) for a report of neither."""
-    return ((FIGURE_MODULES if figures else ()) + ((*DRAWING_MODULES, "inverse_design.app.cut_files")
-                                                    if patterns else ()))
+    modules = report_modules(figures, patterns)
+    return (*modules, "inverse_design.app.cut_files") if patterns else modules
 
 
 #: Seconds `ReportWorkers.finish` waits for the workers' tasks; then the caller writes what is left. A
