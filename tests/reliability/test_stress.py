@@ -6,9 +6,13 @@ tolerance) or return a documented failure code with a message; never NaN
 state with its code), never an exception, never an unbounded loop (every
 solve has a step cap). Fixed seed (``derandomize``).
 
-* Equilibrium (relaxation): 50 examples by default (every grid of `GRIDS` about
-  a dozen times); ``STRESS_EXAMPLES=1000 python -m pytest tests/reliability/test_stress.py``
-  runs the long version (the two regressions below were found by it).
+* Equilibrium (relaxation): 48 examples by default, the same 16 drawn scenes
+  on each grid of `GRIDS` (a test per grid: drawn with the scene, the 33x128
+  grid came up in none of 50 examples in one process and in 7, 11 s of them,
+  in another that had imported other modules first);
+  ``STRESS_EXAMPLES=1000 python -m pytest tests/reliability/test_stress.py``
+  runs the long version, which adds the 33x128 grid (`LONG_GRIDS`; the two
+  regressions below were found by it).
 * The paper's explicit scheme with Courant coefficients up to the measured
   limit (1.0), random viscosity, aerodynamic damping and areal density: 10
   examples by default (``STRESS_EXPLICIT_EXAMPLES``).
@@ -18,7 +22,7 @@ With ``STRESS_REPORT=path.json`` the counts of each outcome are written there.
 Grid shapes come from a fixed set, so the compiled solvers are shared between
 examples (a new shape costs seconds to compile); everything else (airfoil,
 rib spacing, pressure, stiffnesses, prestrains, damping, Courant coefficient)
-is traced and drawn freely. Each grid is relaxed a dozen times, up to 20,000
+is traced and drawn freely. Each grid is relaxed 16 times, up to 20,000
 steps each, so the relaxation compiles fully on every grid here
 (`forward_solver.solvers.relax.LIGHT_RELAX_NODES` 0 within this module: a
 light program, which a run relaxing a grid once or twice gains from, runs
@@ -48,14 +52,17 @@ from forward_solver.solvers import relax
 from forward_solver.solvers.explicit import MEASURED_COURANT_LIMIT, RINGING_RATIO
 from targets import naca
 
-EXAMPLES = int(os.environ.get("STRESS_EXAMPLES", "50"))
+EXAMPLES = int(os.environ.get("STRESS_EXAMPLES", "48"))
 EXPLICIT_EXAMPLES = int(os.environ.get("STRESS_EXPLICIT_EXAMPLES", "10"))
 RTOL = 1e-8
 MAX_STEPS = 20_000
 EXPLICIT_RTOL = 1e-6
 EXPLICIT_MAX_STEPS = 20_000
 AIRFOILS = ("0006", "0012", "0018", "0024", "4415", "23012")
-GRIDS = ((5, 17), (9, 32), (17, 64), (33, 128))
+#: The suite's grids, and the long version's (module docstring).
+GRIDS = ((5, 17), (9, 32), (17, 64))
+LONG_GRIDS = (*GRIDS, (33, 128))
+_EQUILIBRIUM_GRIDS = LONG_GRIDS if EXAMPLES > 48 else GRIDS
 _SECTIONS = {}
 OUTCOMES = collections.Counter()
 EXPLICIT_OUTCOMES = collections.Counter()
@@ -103,7 +110,6 @@ def _check(sol, rtol):
 scenes = st.fixed_dictionaries(
     {
         "airfoil": st.sampled_from(AIRFOILS),
-        "grid": st.sampled_from(GRIDS),
         "log_pressure": st.floats(2.0, np.log10(2e5)),  # 1e2 to 2e5 Pa
         "log_stiffness": st.floats(4.0, 6.0),  # 1e4 to 1e6 N/m
         "log_ratio": st.floats(-1.0, 1.0),  # span/chord stiffness ratio up to 10
@@ -114,11 +120,12 @@ scenes = st.fixed_dictionaries(
 )
 
 
-@settings(max_examples=EXAMPLES, derandomize=True, deadline=None,
+@pytest.mark.parametrize("grid", _EQUILIBRIUM_GRIDS, ids=lambda grid: f"{grid[0]}x{grid[1]}")
+@settings(max_examples=max(1, EXAMPLES // len(_EQUILIBRIUM_GRIDS)), derandomize=True, deadline=None,
           suppress_health_check=[HealthCheck.too_slow])
-@given(scenes)
-def test_every_scene_converges_or_says_why(case):
-    n_span, n_contour = case["grid"]
+@given(case=scenes)
+def test_every_scene_converges_or_says_why(grid, case):
+    n_span, n_contour = grid
     bay = Bay.from_airfoil(_section(case["airfoil"]), chord=1.0, rib_spacing=case["rib_spacing"],
                            n_span=n_span, n_contour=n_contour)
     stiffness_span = 10 ** case["log_stiffness"]
