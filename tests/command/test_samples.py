@@ -122,7 +122,8 @@ def _alive(pid: int) -> bool:
     (signal.SIGTERM, 143, "terminated", False), (signal.SIGINT, 130, "interrupted", False),
     (signal.SIGTERM, 143, "terminated", True)], ids=["SIGTERM", "SIGINT", "SIGTERM to the group"])
 def test_a_stop_while_the_samples_are_solved_ends_the_command(tmp_path, signum, code, word, group):
-    # 100,000 samples of 5x32 (minutes), stopped once their temporary file holds a sample's row: the
+    # 100,000 samples of 5x32 (minutes) about the given design (--evaluate: no optimisation before them, 3 to
+    # 4 s of CPU less a run), stopped once their temporary file holds a sample's row: the
     # command ends with the stop's code and line, its temporary file removed, its report workers ended.
     # Before, nothing in the samples' loop took the stop: the work was abandoned after the grace period
     # and its temporary file of rows left behind. And a SIGTERM sent to the command's process group (as
@@ -130,8 +131,8 @@ def test_a_stop_while_the_samples_are_solved_ends_the_command(tmp_path, signum, 
     # for the task queue's lock that an idle worker held: the command printed its line and hung.
     temporary = tmp_path / "tmp"
     temporary.mkdir()
-    process = subprocess.Popen(launch("--report-workers", "--tolerance", "pressure=2%", "--samples", "100000", *SMALL,
-                                      "--no-compilation-cache", "--out", "out"),
+    process = subprocess.Popen(launch("--report-workers", "--evaluate", "--tolerance", "pressure=2%", "--samples", "100000",
+                                      *SMALL, "--no-compilation-cache", "--out", "out"),
                                cwd=tmp_path, env=environment(TMPDIR=str(temporary)), stdin=subprocess.DEVNULL,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     workers = set()
