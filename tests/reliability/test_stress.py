@@ -6,10 +6,11 @@ tolerance) or return a documented failure code with a message; never NaN
 state with its code), never an exception, never an unbounded loop (every
 solve has a step cap). Fixed seed (``derandomize``).
 
-* Equilibrium (relaxation): 48 examples by default, the same 16 drawn scenes
-  on each grid of `GRIDS` (a test per grid: drawn with the scene, the 33x128
-  grid came up in none of 50 examples in one process and in 7, 11 s of them,
-  in another that had imported other modules first);
+* Equilibrium (relaxation): 48 examples by default, 16 drawn scenes on each
+  grid of `GRIDS` (a test per grid: drawn with the scene, the 33x128 grid
+  came up in none of 50 examples in one process and in 7, 11 s of them, in
+  another that had imported other modules first; the scenes drawn still
+  differ so between processes, the grids and their programs no longer);
   ``STRESS_EXAMPLES=1000 python -m pytest tests/reliability/test_stress.py``
   runs the long version, which adds the 33x128 grid (`LONG_GRIDS`; the two
   regressions below were found by it).
